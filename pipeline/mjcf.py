@@ -1,0 +1,165 @@
+"""Scene language -> MJCF with ``dm_control.mjcf`` (DESIGN.md §3).
+
+One body per object, each with a free joint and one geom, named ``<shape>_<index>``; a floor
+plane ``floor``; one camera ``main``; a keyframe ``init`` carrying the initial qpos/qvel, so
+the MJCF text alone reproduces the scene.
+
+Friction semantics (MuJoCo docs, "Contact parameters"): when two geoms touch, MuJoCo uses the
+parameters of the geom with the higher ``priority``; at equal priority it takes the
+element-wise maximum of the two friction vectors. Object geoms get ``priority=1`` and the
+floor ``priority=0``, so an object-floor contact uses the object's friction exactly: the
+scene's ``sliding_friction`` *is* the effective Coulomb coefficient against the floor. Two
+objects in contact use the larger of their coefficients. ``condim=6`` enables rolling
+friction (MuJoCo's rolling coefficient, m); torsional friction is 0 in the base model.
+``damping`` is the free joint's ``damping`` (applies to all 6 DoF).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+import pipeline  # noqa: F401  (sets MUJOCO_GL before dm_control is imported)
+from dm_control import mjcf
+import mujoco
+
+from pipeline.camera import camera_pose
+from pipeline.scene import Scene
+
+OBJECT_COLOURS = [
+    (0.85, 0.25, 0.2), (0.2, 0.45, 0.85), (0.95, 0.75, 0.15), (0.3, 0.7, 0.3),
+    (0.7, 0.3, 0.75), (0.2, 0.75, 0.75), (0.9, 0.5, 0.2), (0.6, 0.6, 0.6),
+]
+
+
+class SimOptions(BaseModel):
+    """Simulation options (params section ``sim``)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    timestep: float = Field(0.002, gt=0, description="s")
+    integrator: str = "implicitfast"
+    floor_friction: float = Field(0.5, ge=0)
+    floor_solref: tuple[float, float] = (0.02, 1.0)
+    object_solref: tuple[float, float] = (0.02, 1.0)
+    offscreen_size: int = Field(640, gt=0, description="px, max render width/height")
+    textured: bool = True
+
+
+def geom_size(obj) -> list[float]:
+    """MuJoCo geom ``size`` (half extents) for a scene object, m."""
+    s = obj.size
+    if obj.shape == "sphere":
+        return [s.radius]
+    if obj.shape == "cylinder":
+        return [s.radius, s.height / 2.0]
+    return [s.width / 2.0, s.depth / 2.0, s.height / 2.0]
+
+
+def initial_state(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """Initial ``qpos (7n,)`` and ``qvel (6n,)`` float64 of the scene's free joints.
+
+    MuJoCo's free joint stores the linear velocity in the world frame and the angular
+    velocity in the body frame (MuJoCo docs, "Floating objects"); the scene language gives
+    both in the world frame, so ``w_body = R(q)^T w_world``.
+    """
+    qpos, qvel = [], []
+    for o in scene.objects:
+        q = np.asarray(o.orientation, dtype=np.float64)
+        q = q / np.linalg.norm(q)
+        R = np.zeros(9)
+        mujoco.mju_quat2Mat(R, q)
+        w_body = R.reshape(3, 3).T @ np.asarray(o.angular_velocity, dtype=np.float64)
+        qpos += [*o.position, *q]
+        qvel += [*o.linear_velocity, *w_body]
+    return np.asarray(qpos, dtype=np.float64), np.asarray(qvel, dtype=np.float64)
+
+
+def build_mjcf(scene: Scene, options: SimOptions | None = None) -> mjcf.RootElement:
+    """Build the MJCF element tree of a validated scene.
+
+    Raises:
+        SceneError: an effect in ``scene.effects`` is unknown or has bad parameters.
+    """
+    opt = options or SimOptions()
+    root = mjcf.RootElement(model="scene")
+    root.compiler.angle = "radian"
+    root.option.timestep = opt.timestep
+    root.option.integrator = opt.integrator
+    root.option.gravity = [0.0, 0.0, -scene.gravity]
+    glob = getattr(root.visual, "global")
+    glob.offwidth = opt.offscreen_size
+    glob.offheight = opt.offscreen_size
+    root.visual.headlight.ambient = [0.45, 0.45, 0.45]
+    root.visual.headlight.diffuse = [0.5, 0.5, 0.5]
+
+    floor_mat = None
+    if opt.textured:
+        tex = root.asset.add("texture", name="floor_tex", type="2d", builtin="checker",
+                             rgb1=[0.42, 0.42, 0.45], rgb2=[0.5, 0.5, 0.53], width=64, height=64)
+        floor_mat = root.asset.add("material", name="floor_mat", texture=tex, texrepeat=[8, 8])
+    root.worldbody.add("light", name="sun", pos=[0, 0, 4], dir=[0, 0.3, -1], directional=True,
+                       castshadow=False, diffuse=[0.6, 0.6, 0.6])
+    root.worldbody.add("geom", name="floor", type="plane", size=[10, 10, 0.1], material=floor_mat,
+                       rgba=None if floor_mat else [0.45, 0.45, 0.48, 1],
+                       friction=[opt.floor_friction, 0.0, 0.0], solref=list(opt.floor_solref),
+                       priority=0, condim=3)
+
+    pose = camera_pose(scene.camera)
+    root.worldbody.add("camera", name="main", pos=pose.eye.tolist(),
+                       xyaxes=[*pose.right.tolist(), *pose.up.tolist()], fovy=scene.camera.fov)
+
+    for i, (obj, name) in enumerate(zip(scene.objects, scene.object_names)):
+        colour = OBJECT_COLOURS[i % len(OBJECT_COLOURS)]
+        mat = None
+        if opt.textured:
+            dark = [c * 0.55 for c in colour]
+            tex = root.asset.add("texture", name=f"{name}_tex", type="2d", builtin="checker",
+                                 rgb1=list(colour), rgb2=dark, width=32, height=32)
+            mat = root.asset.add("material", name=f"{name}_mat", texture=tex, texrepeat=[2, 2],
+                                 texuniform=False)
+        q = np.asarray(obj.orientation, dtype=np.float64)
+        body = root.worldbody.add("body", name=name, pos=list(obj.position), quat=(q / np.linalg.norm(q)).tolist())
+        body.add("joint", name=f"{name}_joint", type="free", damping=obj.material.damping)
+        body.add("geom", name=f"{name}_geom", type=obj.shape, size=geom_size(obj), mass=obj.mass,
+                 material=mat, rgba=None if mat else [*colour, 1.0],
+                 friction=[obj.material.sliding_friction, 0.0, obj.material.rolling_friction],
+                 condim=6, priority=1, solref=list(opt.object_solref))
+
+    qpos, qvel = initial_state(scene)
+    root.keyframe.add("key", name="init", qpos=qpos.tolist(), qvel=qvel.tolist())
+
+    if scene.effects:
+        from pipeline.effects import apply_effects
+
+        apply_effects(root, scene)
+    return root
+
+
+def to_xml(scene: Scene, options: SimOptions | None = None) -> str:
+    """MJCF XML text of a scene (what the ``compile_mjcf`` stage stores)."""
+    return build_mjcf(scene, options).to_xml_string()
+
+
+def compile_model(scene_or_xml: Scene | str, options: SimOptions | None = None) -> mujoco.MjModel:
+    """Compile a scene (or MJCF text) to an ``MjModel``.
+
+    Raises:
+        ValueError: MuJoCo rejects the XML (message from the compiler, one line).
+    """
+    xml = scene_or_xml if isinstance(scene_or_xml, str) else to_xml(scene_or_xml, options)
+    try:
+        return mujoco.MjModel.from_xml_string(xml)
+    except ValueError as exc:
+        raise ValueError(f"MJCF compile error: {str(exc).splitlines()[0]}") from None
+
+
+def object_ids(model: mujoco.MjModel, n_objects: int) -> tuple[np.ndarray, np.ndarray]:
+    """Body ids (n,) and geom ids (n,) int of objects ``0..n-1`` (bodies in scene order)."""
+    bodies, geoms = [], []
+    for b in range(1, model.nbody):
+        bodies.append(b)
+        geoms.append(int(model.body_geomadr[b]))
+    if len(bodies) != n_objects:
+        raise ValueError(f"model has {len(bodies)} bodies, scene has {n_objects} objects")
+    return np.asarray(bodies), np.asarray(geoms)

@@ -1,0 +1,366 @@
+"""Scene language v1: schema, validation and canonical YAML (DESIGN.md §2).
+
+A scene is plain data. Everything downstream (MJCF, simulation, rendering, the model's
+target text, the search) takes a validated :class:`Scene`.
+
+Conventions: SI units (m, kg, s, rad/s) except the camera block, whose angles are degrees.
+World frame: z up, the floor is the plane z = 0, gravity points along -z.
+
+Example::
+
+    scene = load_scene("ball.yaml")          # raises SceneError with "<file>: <field>: ..."
+    text = scene.to_yaml()                   # canonical text (the model's target)
+    assert Scene.from_yaml(text) == scene.rounded()
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Annotated, Any, Literal, Union
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+
+SHAPES = ("sphere", "cylinder", "box")
+"""Primitive shapes of scene language v1, in canonical order."""
+
+
+class SceneError(ValueError):
+    """A scene failed to parse or validate. ``str(err)`` is one line: ``<file>: <field>: <rule>``."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+
+
+PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+Vec3 = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
+
+
+class Camera(_Strict):
+    """Camera block.
+
+    Paper form (DESIGN §2): ``{height, pitch, fov}``: camera at (0, -2, height) m looking along
+    +y, pitched ``pitch`` degrees below the horizon, no yaw or roll. 6-DoF form (beyond the
+    paper): ``{position, yaw, pitch, roll, fov}``. ``fov`` is the vertical field of view in
+    degrees. Angles in degrees; ``yaw`` is measured from +y towards -x (counter-clockwise seen
+    from above), ``roll`` about the optical axis.
+    """
+
+    height: PositiveFloat | None = None
+    position: Vec3 | None = None
+    yaw: FiniteFloat | None = None
+    pitch: Annotated[float, Field(ge=-89.0, le=89.0)] = 35.0
+    roll: FiniteFloat | None = None
+    fov: Annotated[float, Field(gt=1.0, lt=179.0)] = 45.0
+
+    @model_validator(mode="after")
+    def _one_form(self) -> "Camera":
+        if self.position is None:
+            if self.height is None:
+                raise ValueError("needs either height (paper form) or position (6-DoF form)")
+            if self.yaw is not None or self.roll is not None:
+                raise ValueError("yaw/roll need the 6-DoF form (position instead of height)")
+        elif self.height is not None:
+            raise ValueError("give height or position, not both")
+        return self
+
+    @property
+    def is_six_dof(self) -> bool:
+        return self.position is not None
+
+    @property
+    def eye(self) -> tuple[float, float, float]:
+        """Camera centre in the world frame, m."""
+        if self.position is not None:
+            return tuple(self.position)  # type: ignore[return-value]
+        return (0.0, -2.0, float(self.height))
+
+
+class SphereSize(_Strict):
+    radius: PositiveFloat
+
+
+class CylinderSize(_Strict):
+    radius: PositiveFloat
+    height: PositiveFloat
+
+
+class BoxSize(_Strict):
+    width: PositiveFloat
+    depth: PositiveFloat
+    height: PositiveFloat
+
+
+class Material(_Strict):
+    """Contact and damping parameters of one object.
+
+    ``sliding_friction`` is the effective Coulomb coefficient of an object-floor contact
+    (the object's geom has contact priority over the floor, so MuJoCo uses it as is; see
+    ``pipeline.mjcf``). ``rolling_friction`` is MuJoCo's rolling coefficient (m).
+    ``damping`` is the freejoint velocity damping (N·s/m and N·m·s/rad).
+    """
+
+    sliding_friction: NonNegFloat = 0.5
+    rolling_friction: NonNegFloat = 0.0
+    damping: NonNegFloat = 0.0
+
+
+class _ObjectBase(_Strict):
+    mass: PositiveFloat
+    position: Vec3
+    orientation: tuple[FiniteFloat, FiniteFloat, FiniteFloat, FiniteFloat] = (1.0, 0.0, 0.0, 0.0)
+    linear_velocity: Vec3 = (0.0, 0.0, 0.0)
+    angular_velocity: Vec3 = (0.0, 0.0, 0.0)
+    material: Material = Material()
+
+    @field_validator("orientation")
+    @classmethod
+    def _unit_quaternion(cls, q: tuple[float, ...]) -> tuple[float, ...]:
+        n = math.sqrt(sum(c * c for c in q))
+        if abs(n - 1.0) > 1e-2:
+            raise ValueError(f"must be a unit quaternion (w, x, y, z), got norm {n:.4g}")
+        return q  # kept as written (canonical text stays stable); MuJoCo normalises on load
+
+
+class Sphere(_ObjectBase):
+    shape: Literal["sphere"]
+    size: SphereSize
+
+
+class Cylinder(_ObjectBase):
+    shape: Literal["cylinder"]
+    size: CylinderSize
+
+
+class Box(_ObjectBase):
+    shape: Literal["box"]
+    size: BoxSize
+
+
+SceneObject = Annotated[Union[Sphere, Cylinder, Box], Field(discriminator="shape")]
+
+
+class Effect(_Strict):
+    """A physical effect beyond the base model (DESIGN §8), e.g.
+    ``{effect: quadratic_drag, parameters: {density: 1.2}}``. Names and parameters are checked
+    against the effect library (``pipeline.effects``) when the MJCF is built."""
+
+    effect: Annotated[str, Field(min_length=1)]
+    parameters: dict[str, FiniteFloat] = {}
+
+
+class Scene(_Strict):
+    """One scene of scene language v1 (DESIGN §2)."""
+
+    version: Literal[1] = 1
+    duration: Annotated[float, Field(gt=0, le=60)] = 1.0
+    fps: Annotated[int, Field(gt=0, le=10000)] = 30
+    gravity: NonNegFloat = 9.81
+    camera: Camera
+    objects: Annotated[list[SceneObject], Field(min_length=1)]
+    effects: list[Effect] = []
+
+    # ------------------------------------------------------------------ helpers
+    @property
+    def n_frames(self) -> int:
+        """Number of video frames: ``round(duration * fps)``."""
+        return max(1, int(round(self.duration * self.fps)))
+
+    @property
+    def object_names(self) -> list[str]:
+        """``<shape>_<index>`` names, index = position in ``objects`` (DESIGN §2)."""
+        return [f"{o.shape}_{i}" for i, o in enumerate(self.objects)]
+
+    @property
+    def composition(self) -> tuple[str, ...]:
+        """Sorted multiset of shapes, e.g. ``('box', 'sphere', 'sphere')``."""
+        return tuple(sorted(o.shape for o in self.objects))
+
+    # ------------------------------------------------------------------ IO
+    @classmethod
+    def from_dict(cls, data: Any, source: str = "<scene>") -> "Scene":
+        """Validate a parsed YAML mapping.
+
+        Raises:
+            SceneError: one line ``<source>: <field path>: <message>``.
+        """
+        if not isinstance(data, dict):
+            raise SceneError(f"{source}: <root>: must be a mapping, got {type(data).__name__}")
+        try:
+            return cls.model_validate(data)
+        except ValidationError as exc:
+            raise SceneError(f"{source}: {_format_error(exc)}") from None
+
+    @classmethod
+    def from_yaml(cls, text: str, source: str = "<scene>") -> "Scene":
+        """Parse and validate scene YAML text.
+
+        Raises:
+            SceneError: malformed YAML or a field that fails validation (one line).
+        """
+        try:
+            data = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            mark = getattr(exc, "problem_mark", None)
+            where = f"line {mark.line + 1}" if mark is not None else "<yaml>"
+            problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+            raise SceneError(f"{source}: {where}: malformed YAML: {problem}") from None
+        return cls.from_dict(data, source)
+
+    def to_yaml(self, decimals: "Decimals | None" = None) -> str:
+        """Canonical YAML text: keys in schema order, floats rounded per field.
+
+        The same scene always prints the same text; ``Scene.from_yaml(s.to_yaml())`` equals
+        ``s.rounded()``.
+        """
+        return _dump(self, decimals or Decimals())
+
+    def rounded(self, decimals: "Decimals | None" = None) -> "Scene":
+        """The scene as its canonical text represents it (rounded floats)."""
+        return Scene.from_yaml(self.to_yaml(decimals))
+
+    def replace(self, **changes: Any) -> "Scene":
+        """A validated copy with top-level fields replaced."""
+        data = self.model_dump()
+        data.update({k: (v.model_dump() if isinstance(v, BaseModel) else v) for k, v in changes.items()})
+        return Scene.from_dict(data)
+
+
+class Decimals(_Strict):
+    """Decimal places per field in the canonical YAML (params ``scene.decimals``)."""
+
+    duration: int = 3
+    gravity: int = 2
+    camera: int = 1
+    size: int = 3
+    mass: int = 3
+    position: int = 3
+    orientation: int = 3
+    velocity: int = 2
+    friction: int = 3
+    rolling_friction: int = 4
+    damping: int = 3
+    effect: int = 4
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Read and validate a scene YAML file.
+
+    Raises:
+        SceneError: unreadable file, malformed YAML or invalid field (one line naming the file).
+    """
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise SceneError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    return Scene.from_yaml(text, source=str(path))
+
+
+# ---------------------------------------------------------------------- internals
+def _format_error(exc: ValidationError) -> str:
+    """First pydantic error as ``objects[2].size.radius: must be > 0, got -1``."""
+    err = exc.errors()[0]
+    parts: list[str] = []
+    prev_int = False
+    for item in err["loc"]:
+        if isinstance(item, int):
+            parts.append(f"[{item}]")
+            prev_int = True
+            continue
+        if prev_int and item in SHAPES:  # discriminated-union tag, not a field
+            prev_int = False
+            continue
+        prev_int = False
+        parts.append(("." if parts else "") + str(item))
+    path = "".join(parts) or "<root>"
+    msg = err["msg"]
+    kind = err["type"]
+    ctx = err.get("ctx") or {}
+    if kind == "greater_than":
+        msg = f"must be > {ctx.get('gt')}"
+    elif kind == "greater_than_equal":
+        msg = f"must be >= {ctx.get('ge')}"
+    elif kind == "less_than":
+        msg = f"must be < {ctx.get('lt')}"
+    elif kind == "less_than_equal":
+        msg = f"must be <= {ctx.get('le')}"
+    elif kind == "extra_forbidden":
+        msg = "unknown key"
+    elif kind == "missing":
+        msg = "required field missing"
+    elif kind == "union_tag_invalid":
+        msg = f"unknown shape, must be one of {', '.join(SHAPES)}"
+    elif kind == "union_tag_not_found":
+        msg = "required field missing (shape)"
+        path = path + ".shape" if not path.endswith("shape") else path
+    elif kind == "value_error":
+        msg = msg.removeprefix("Value error, ")
+    msg = msg[0].lower() + msg[1:] if msg else msg
+    if "input" in err and kind not in ("missing", "union_tag_not_found") and not isinstance(err["input"], dict):
+        inp = err["input"]
+        if kind == "union_tag_invalid":
+            inp = ctx.get("tag", inp)
+        msg += f", got {inp!r}"
+    return f"{path}: {msg}"
+
+
+def _num(x: float, nd: int) -> str:
+    v = round(float(x), nd)
+    if v == 0:
+        v = 0.0  # no "-0.0"
+    s = repr(v)
+    return s
+
+
+def _vec(xs: Any, nd: int) -> str:
+    return "[" + ", ".join(_num(x, nd) for x in xs) + "]"
+
+
+def _dump(scene: Scene, d: Decimals) -> str:
+    lines = [
+        f"version: {scene.version}",
+        f"duration: {_num(scene.duration, d.duration)}",
+        f"fps: {scene.fps}",
+        f"gravity: {_num(scene.gravity, d.gravity)}",
+        "camera:",
+    ]
+    cam = scene.camera
+    if cam.is_six_dof:
+        lines += [
+            f"  position: {_vec(cam.position, d.position)}",
+            f"  yaw: {_num(cam.yaw or 0.0, d.camera)}",
+            f"  pitch: {_num(cam.pitch, d.camera)}",
+            f"  roll: {_num(cam.roll or 0.0, d.camera)}",
+        ]
+    else:
+        lines += [f"  height: {_num(cam.height, d.position)}", f"  pitch: {_num(cam.pitch, d.camera)}"]
+    lines.append(f"  fov: {_num(cam.fov, d.camera)}")
+    lines.append("objects:")
+    for o in scene.objects:
+        size = ", ".join(f"{k}: {_num(v, d.size)}" for k, v in o.size.model_dump().items())
+        m = o.material
+        lines += [
+            f"  - shape: {o.shape}",
+            f"    size: {{{size}}}",
+            f"    mass: {_num(o.mass, d.mass)}",
+            f"    position: {_vec(o.position, d.position)}",
+            f"    orientation: {_vec(o.orientation, d.orientation)}",
+            f"    linear_velocity: {_vec(o.linear_velocity, d.velocity)}",
+            f"    angular_velocity: {_vec(o.angular_velocity, d.velocity)}",
+            f"    material: {{sliding_friction: {_num(m.sliding_friction, d.friction)}, "
+            f"rolling_friction: {_num(m.rolling_friction, d.rolling_friction)}, "
+            f"damping: {_num(m.damping, d.damping)}}}",
+        ]
+    if scene.effects:
+        lines.append("effects:")
+        for e in scene.effects:
+            params = ", ".join(f"{k}: {_num(v, d.effect)}" for k, v in e.parameters.items())
+            lines.append(f"  - {{effect: {e.effect}, parameters: {{{params}}}}}")
+    else:
+        lines.append("effects: []")
+    return "\n".join(lines) + "\n"

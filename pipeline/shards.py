@@ -1,0 +1,308 @@
+"""On-disk layout and atomic Parquet/Zarr/JSON IO (DESIGN.md §4).
+
+Every stage writes ``<out_dir>/shard-00000.parquet`` (tables) or ``<out_dir>/shard-00000.zarr``
+(arrays) plus a ``meta.json`` describing what it holds. Output directories come from
+``params.yaml`` (section ``paths``), never from code. Every write goes to a temporary path
+next to the target and is renamed into place when complete, so a crash never leaves a
+half-written shard behind.
+
+Example::
+
+    write_table(shard_path(out, 0, "parquet"), rows, metadata={"params": p})
+    table = read_table(out)                       # all shards, in order
+    for path, group in iter_array_shards(video):  # zarr groups, read-only
+        rgb = group["rgb"][0]                     # (T, H, W, 3) uint8
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from typing import Any, Iterable, Iterator, Mapping, Sequence
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+SHARD_TEMPLATE = "shard-{index:05d}.{ext}"
+"""File name of shard ``index``; ``ext`` is ``parquet`` or ``zarr``."""
+META_FILE = "meta.json"
+SCENE_ID_TEMPLATE = "scene-{index:06d}"
+
+
+class ShardError(RuntimeError):
+    """A shard is missing, unreadable or inconsistent. ``str(err)`` is one line naming the path."""
+
+
+def scene_id(index: int) -> str:
+    """Scene key used in every table and array shard, e.g. ``scene-000042``."""
+    return SCENE_ID_TEMPLATE.format(index=index)
+
+
+def shard_path(out_dir: str | Path, index: int, ext: str, prefix: str = "shard") -> Path:
+    """Path of shard ``index`` in ``out_dir`` (``<prefix>-00000.<ext>``)."""
+    name = SHARD_TEMPLATE.format(index=index, ext=ext)
+    if prefix != "shard":
+        name = prefix + name[len("shard"):]
+    return Path(out_dir) / name
+
+
+def list_shards(path: str | Path, ext: str, prefix: str = "shard") -> list[Path]:
+    """Sorted shards of a stage directory, or ``[path]`` if ``path`` is itself a shard.
+
+    Raises:
+        ShardError: the path does not exist or holds no shard of that kind.
+    """
+    path = Path(path)
+    if path.suffix == f".{ext}":
+        if not path.exists():
+            raise ShardError(f"{path}: missing shard")
+        return [path]
+    if not path.is_dir():
+        raise ShardError(f"{path}: missing stage output (run `dvc repro` first)")
+    shards = sorted(path.glob(f"{prefix}-*.{ext}"))
+    if not shards:
+        raise ShardError(f"{path}: no {prefix}-*.{ext} shards")
+    meta = read_meta(path, required=False)
+    expected = meta.get("shards", {}).get(prefix) if meta else None
+    if expected is not None and len(shards) != int(expected):
+        raise ShardError(f"{path}: meta.json lists {expected} {prefix} shards, found {len(shards)}")
+    return shards
+
+
+def chunked(n: int, size: int) -> list[range]:
+    """Split ``range(n)`` into consecutive ranges of at most ``size`` (shard boundaries)."""
+    if size <= 0:
+        raise ValueError(f"shard_size must be > 0, got {size}")
+    return [range(i, min(n, i + size)) for i in range(0, n, size)]
+
+
+# --------------------------------------------------------------------------- atomic writes
+def _tmp_sibling(path: Path) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    return Path(tmp)
+
+
+def _replace(tmp: Path, path: Path) -> None:
+    """Move ``tmp`` onto ``path`` (file or directory); the old target is removed only after."""
+    if path.is_dir() and not path.is_symlink():
+        old = path.with_name(f".{path.name}.old")
+        if old.exists():
+            shutil.rmtree(old)
+        os.replace(path, old)
+        os.replace(tmp, path)
+        shutil.rmtree(old)
+    else:
+        os.replace(tmp, path)
+
+
+def write_bytes(path: str | Path, data: bytes) -> Path:
+    """Atomically write ``data`` to ``path``."""
+    path = Path(path)
+    tmp = _tmp_sibling(path)
+    try:
+        tmp.write_bytes(data)
+        _replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+def write_text(path: str | Path, text: str) -> Path:
+    """Atomically write ``text`` (UTF-8) to ``path``."""
+    return write_bytes(path, text.encode())
+
+
+def write_json(path: str | Path, obj: Any) -> Path:
+    """Atomically write ``obj`` as indented JSON (numpy scalars/arrays converted)."""
+    return write_text(path, json.dumps(obj, indent=2, default=_json_default) + "\n")
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def write_table(
+    path: str | Path,
+    rows: pa.Table | Sequence[Mapping[str, Any]],
+    metadata: Mapping[str, Any] | None = None,
+    schema: pa.Schema | None = None,
+) -> Path:
+    """Atomically write one Parquet shard.
+
+    Args:
+        path: target ``.parquet`` file.
+        rows: a ``pyarrow.Table`` or a list of row dicts (same keys in every row).
+        metadata: JSON-serialisable dict stored in the Parquet key-value metadata under
+            ``dynamics`` (params, seed, units).
+        schema: optional explicit schema for row dicts (needed when a column is all-null).
+    """
+    path = Path(path)
+    table = rows if isinstance(rows, pa.Table) else pa.Table.from_pylist(list(rows), schema=schema)
+    if metadata is not None:
+        meta = dict(table.schema.metadata or {})
+        meta[b"dynamics"] = json.dumps(metadata, default=_json_default).encode()
+        table = table.replace_schema_metadata(meta)
+    tmp = _tmp_sibling(path)
+    try:
+        pq.write_table(table, tmp)
+        _replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+def read_table(path: str | Path, prefix: str = "shard", columns: list[str] | None = None) -> pa.Table:
+    """Read one Parquet shard or all shards of a stage directory (concatenated in order).
+
+    Raises:
+        ShardError: missing or unreadable shard (one line naming the file).
+    """
+    tables = []
+    for shard in list_shards(path, "parquet", prefix):
+        try:
+            tables.append(pq.read_table(shard, columns=columns))
+        except Exception as exc:  # pyarrow raises several types for corrupt files
+            raise ShardError(f"{shard}: unreadable Parquet shard: {str(exc).splitlines()[0]}") from None
+    return pa.concat_tables(tables) if len(tables) > 1 else tables[0]
+
+
+def table_metadata(path: str | Path) -> dict:
+    """The ``dynamics`` metadata dict of a Parquet shard (``{}`` if none)."""
+    meta = pq.read_schema(path).metadata or {}
+    raw = meta.get(b"dynamics")
+    return json.loads(raw) if raw else {}
+
+
+def write_arrays(
+    path: str | Path,
+    arrays: Mapping[str, np.ndarray],
+    attrs: Mapping[str, Any] | None = None,
+    scene_ids: Sequence[str] | None = None,
+) -> Path:
+    """Atomically write a Zarr shard (a directory store).
+
+    Args:
+        path: target ``.zarr`` directory.
+        arrays: name -> array with the scene axis first, e.g. ``rgb (N, T, H, W, 3) uint8``;
+            chunked one scene per chunk.
+        attrs: JSON-serialisable group attributes (units, params, seed).
+        scene_ids: ``N`` scene keys, stored as the array ``scene_id``.
+    """
+    import zarr
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    try:
+        group = zarr.open_group(str(tmp), mode="w")
+        for name, arr in arrays.items():
+            arr = np.asarray(arr)
+            chunks = (1,) + arr.shape[1:] if arr.ndim >= 1 and arr.shape[0] > 0 else arr.shape
+            z = group.create_array(name, shape=arr.shape, dtype=arr.dtype, chunks=chunks)
+            z[...] = arr
+        if scene_ids is not None:
+            ids = np.asarray(list(scene_ids), dtype=str)
+            z = group.create_array("scene_id", shape=ids.shape, dtype=ids.dtype)
+            z[...] = ids
+        group.attrs.update(json.loads(json.dumps(dict(attrs or {}), default=_json_default)))
+        _replace(tmp, path)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp)
+    return path
+
+
+def open_arrays(path: str | Path):
+    """Open a Zarr shard read-only (``zarr.Group``).
+
+    Raises:
+        ShardError: missing or unreadable shard.
+    """
+    import zarr
+
+    path = Path(path)
+    if not path.exists():
+        raise ShardError(f"{path}: missing shard")
+    try:
+        return zarr.open_group(str(path), mode="r")
+    except Exception as exc:
+        raise ShardError(f"{path}: unreadable Zarr shard: {str(exc).splitlines()[0]}") from None
+
+
+def iter_array_shards(path: str | Path, prefix: str = "shard") -> Iterator[tuple[Path, Any]]:
+    """Yield ``(shard_path, zarr.Group)`` for every Zarr shard of a stage directory."""
+    for shard in list_shards(path, "zarr", prefix):
+        yield shard, open_arrays(shard)
+
+
+def scene_ids_of(group: Any) -> list[str]:
+    """The ``scene_id`` array of a Zarr shard as a list of str."""
+    return [str(s) for s in np.asarray(group["scene_id"][...])]
+
+
+def find_scene(path: str | Path, sid: str, prefix: str = "shard") -> tuple[Any, int]:
+    """Locate scene ``sid`` in a Zarr stage directory: ``(group, index within the shard)``.
+
+    Raises:
+        ShardError: no shard holds that scene.
+    """
+    for _, group in iter_array_shards(path, prefix):
+        ids = scene_ids_of(group)
+        if sid in ids:
+            return group, ids.index(sid)
+    raise ShardError(f"{path}: no scene {sid!r}")
+
+
+def write_meta(out_dir: str | Path, meta: Mapping[str, Any]) -> Path:
+    """Write ``<out_dir>/meta.json`` (features, shapes, units, params, shard counts)."""
+    return write_json(Path(out_dir) / META_FILE, dict(meta))
+
+
+def read_meta(out_dir: str | Path, required: bool = True) -> dict:
+    """Read ``<out_dir>/meta.json``.
+
+    Raises:
+        ShardError: ``required`` and the file is missing or not valid JSON.
+    """
+    path = Path(out_dir) / META_FILE
+    if not path.exists():
+        if required:
+            raise ShardError(f"{path}: missing")
+        return {}
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ShardError(f"{path}: invalid JSON: {exc.msg}") from None
+
+
+def reset_dir(out_dir: str | Path) -> Path:
+    """Create ``out_dir`` empty (stages own their whole output directory)."""
+    out_dir = Path(out_dir)
+    if out_dir.exists():
+        shutil.rmtree(out_dir)
+    out_dir.mkdir(parents=True)
+    return out_dir
+
+
+def rows_by_scene(table: pa.Table) -> dict[str, dict]:
+    """Index a one-row-per-scene table by ``scene_id``."""
+    return {r["scene_id"]: r for r in table.to_pylist()}
+
+
+def concat_rows(tables: Iterable[pa.Table]) -> pa.Table:
+    """Concatenate tables with the same schema."""
+    return pa.concat_tables(list(tables))

@@ -1,0 +1,145 @@
+"""Rollouts and per-frame traces (DESIGN.md §3).
+
+A rollout starts from the MJCF keyframe ``init`` and records, at every video frame
+``t_k = k / fps`` (k = 0 .. n_frames-1), each object's pose and world-frame velocity, plus
+every contact that occurred since the previous frame (collisions are often shorter than a
+frame, so contacts are gathered at every physics step, not only at frame times).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import mujoco
+import numpy as np
+
+from pipeline.mjcf import SimOptions, compile_model, object_ids
+from pipeline.scene import Scene
+
+
+@dataclass
+class Contact:
+    """A contact between two named geoms' bodies (``floor`` or ``<shape>_<i>``) seen during the
+    interval (t_{k-1}, t_k]: first position (m, world) and peak normal force (N)."""
+
+    a: str
+    b: str
+    position: tuple[float, float, float]
+    force: float
+
+
+@dataclass
+class Trace:
+    """Per-frame states of a rollout.
+
+    Attributes:
+        t: (T,) float64 frame times, s.
+        qpos: (T, n, 7) float64: position x, y, z (m, world) and quaternion w, x, y, z.
+        qvel: (T, n, 6) float64: linear velocity (m/s) and angular velocity (rad/s), both in
+            the world frame.
+        contacts: T lists of :class:`Contact` (contacts during (t_{k-1}, t_k]).
+        names: n object names.
+    """
+
+    t: np.ndarray
+    qpos: np.ndarray
+    qvel: np.ndarray
+    contacts: list[list[Contact]] = field(default_factory=list)
+    names: list[str] = field(default_factory=list)
+
+    @property
+    def position(self) -> np.ndarray:
+        """(T, n, 3) float64 centre of mass positions, m."""
+        return self.qpos[..., :3]
+
+
+def frame_times(n_frames: int, fps: float) -> np.ndarray:
+    """(n_frames,) float64 times of the video frames, s."""
+    return np.arange(n_frames, dtype=np.float64) / float(fps)
+
+
+def reset_to_scene(model: mujoco.MjModel, data: mujoco.MjData) -> None:
+    """Reset ``data`` to the ``init`` keyframe (the scene's initial state) and run forward."""
+    mujoco.mj_resetDataKeyframe(model, data, 0)
+    mujoco.mj_forward(model, data)
+
+
+def read_state(model: mujoco.MjModel, data: mujoco.MjData, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Current ``qpos (n, 7)`` and world-frame ``qvel (n, 6)`` of the n free bodies."""
+    qpos = data.qpos[: 7 * n].reshape(n, 7).copy()
+    qvel = data.qvel[: 6 * n].reshape(n, 6).copy()
+    for i in range(n):
+        R = data.xmat[i + 1].reshape(3, 3)
+        qvel[i, 3:] = R @ qvel[i, 3:]  # body-frame angular velocity -> world frame
+    return qpos, qvel
+
+
+def _body_name(model: mujoco.MjModel, geom: int) -> str:
+    body = model.geom_bodyid[geom]
+    return "floor" if body == 0 else mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, body)
+
+
+def rollout(
+    model: mujoco.MjModel,
+    n_objects: int,
+    n_frames: int,
+    fps: float,
+    data: mujoco.MjData | None = None,
+    record_contacts: bool = True,
+) -> Trace:
+    """Simulate from the ``init`` keyframe and sample states at the video frame times.
+
+    The physics step count to frame k is ``round(t_k / timestep)``, so frame times are exact
+    to half a timestep even when ``1 / (fps * timestep)`` is not an integer.
+
+    Args:
+        model: compiled scene model (``pipeline.mjcf.compile_model``).
+        n_objects: number of free bodies (scene objects).
+        n_frames: number of frames T.
+        fps: frames per second.
+        data: optional ``MjData`` to reuse.
+    Returns:
+        :class:`Trace` with T frames.
+    """
+    data = data or mujoco.MjData(model)
+    reset_to_scene(model, data)
+    names = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_BODY, b) for b in range(1, n_objects + 1)]
+    times = frame_times(n_frames, fps)
+    qpos = np.zeros((n_frames, n_objects, 7))
+    qvel = np.zeros((n_frames, n_objects, 6))
+    contacts: list[list[Contact]] = []
+    force = np.zeros(6)
+    step = 0
+    for k, t in enumerate(times):
+        seen: dict[tuple[str, str], Contact] = {}
+        target = int(round(t / model.opt.timestep))
+        while step < target:
+            mujoco.mj_step(model, data)
+            step += 1
+            if record_contacts:
+                for c in range(data.ncon):
+                    con = data.contact[c]
+                    a, b = sorted((_body_name(model, con.geom1), _body_name(model, con.geom2)))
+                    mujoco.mj_contactForce(model, data, c, force)
+                    fn = float(force[0])
+                    prev = seen.get((a, b))
+                    if prev is None:
+                        seen[(a, b)] = Contact(a, b, tuple(float(x) for x in con.pos), fn)
+                    elif fn > prev.force:
+                        prev.force = fn
+        if k == 0 and record_contacts:  # contacts present in the initial state
+            mujoco.mj_forward(model, data)
+            for c in range(data.ncon):
+                con = data.contact[c]
+                a, b = sorted((_body_name(model, con.geom1), _body_name(model, con.geom2)))
+                mujoco.mj_contactForce(model, data, c, force)
+                seen.setdefault((a, b), Contact(a, b, tuple(float(x) for x in con.pos), float(force[0])))
+        qpos[k], qvel[k] = read_state(model, data, n_objects)
+        contacts.append(list(seen.values()))
+    return Trace(times, qpos, qvel, contacts, names)
+
+
+def simulate(scene: Scene, options: SimOptions | None = None) -> tuple[mujoco.MjModel, Trace]:
+    """Compile and roll out a scene over its ``duration`` at its ``fps``."""
+    model = compile_model(scene, options)
+    return model, rollout(model, len(scene.objects), scene.n_frames, scene.fps)
