@@ -1,0 +1,43 @@
+# Two commands do everything on a fresh machine (see README):
+#   make demo   set up, `dvc repro` the default small profile, then the main job on real videos
+#   make test   set up, then the test suite (what CI runs)
+SHELL := /bin/bash
+VENV ?= .venv
+PY := $(VENV)/bin/python
+REAL ?= ../shared/data/real/video
+export PATH := $(abspath $(VENV))/bin:$(PATH)
+export MUJOCO_GL ?= egl
+export HF_HUB_OFFLINE := 1
+export TRANSFORMERS_OFFLINE := 1
+export TOKENIZERS_PARALLELISM := false
+
+.PHONY: setup demo repro realvideo test clean
+
+setup: $(VENV)/.installed
+
+# System GL libraries for offscreen rendering (EGL through Mesa llvmpipe), then the venv.
+$(VENV)/.installed: pyproject.toml scripts/setup_system.sh
+	bash scripts/setup_system.sh
+	python3 -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e .
+	$(PY) -c "import pipeline, mujoco, dm_control.mjcf, torch, transformers; print('setup ok: mujoco', mujoco.__version__, 'torch', torch.__version__)"
+	touch $@
+
+repro: setup
+	@test -d .dvc || dvc init -q
+	dvc config core.analytics false
+	dvc repro
+
+realvideo: setup
+	dynamics infer $(REAL)/01_bouncing_green_ball_1080p30.avi --out outputs/01_bouncing_green_ball
+	dynamics infer $(REAL)/05_phystrack_CaromPuck_HeadOn_240fps.mp4 --fps 240 --start 0.5 --out outputs/05_carom_puck
+
+demo: repro realvideo
+	@cat reports/table.md
+
+test: setup
+	$(PY) -m pytest -q
+
+clean:
+	rm -rf data outputs .dvc/tmp

@@ -1,0 +1,87 @@
+"""`dynamics` command line: one entry point, `--help` on every subcommand.
+
+    dynamics simulate SCENE.yaml --out DIR        run your own scene (trace, video, masks, events)
+    dynamics infer VIDEO --out DIR [--fps F] [--start S]   the main job on any video
+    dynamics discrepancy TRAJECTORIES --out DIR   find -> name -> add -> show (DESIGN §8)
+    dynamics view SHARD [--scene ID] [--save FILE.rrd]     rerun recording of a shard
+
+User mistakes (bad scene, unreadable video, missing shard, bad params or trajectories) print
+one line ``<file>: <field>: <problem>`` to stderr and exit with status 2; nothing is written.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def _user_errors() -> tuple[type[BaseException], ...]:
+    from pipeline.params import ParamsError
+    from pipeline.scene import SceneError
+    from pipeline.shards import ShardError
+
+    errors: list[type[BaseException]] = [SceneError, ShardError, ParamsError]
+    try:
+        from pipeline.video import VideoError
+
+        errors.append(VideoError)
+    except ImportError:  # pragma: no cover
+        pass
+    try:
+        from pipeline.discrepancy import DiscrepancyInputError
+
+        errors.append(DiscrepancyInputError)
+    except ImportError:  # pragma: no cover
+        pass
+    return tuple(errors)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="dynamics", description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    from pipeline import traces
+
+    p = sub.add_parser("simulate", help="simulate a scene YAML: trace.parquet, rgb.mp4, masks, events.json",
+                       description="Simulate and render one scene of scene language v1.")
+    traces.add_simulate_arguments(p)
+    p.set_defaults(func=traces.simulate_cli)
+
+    from pipeline import reconstruct
+
+    p = sub.add_parser("infer", help="main job: video -> scene YAML, side-by-side mp4, metrics, .rrd",
+                       description=reconstruct.__doc__.split("\n\n")[0])
+    reconstruct.add_arguments(p)
+    p.set_defaults(func=reconstruct.main_cli)
+
+    from pipeline import discrepancy
+
+    p = sub.add_parser("discrepancy", help="find, name and add missing physical effects (DESIGN §8)",
+                       description="Discrepancy workflow on measured trajectories (CSV/Parquet/Tracker txt).")
+    discrepancy.add_arguments(p)
+    p.set_defaults(func=discrepancy.main_cli)
+
+    from pipeline import view
+
+    p = sub.add_parser("view", help="open or save a rerun recording of a shard",
+                       description=view.__doc__.split("\n\n")[0])
+    view.add_arguments(p)
+    p.set_defaults(func=view.main_cli)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        result = args.func(args)
+    except _user_errors() as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+    return int(result or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,140 @@
+"""Tests for pipeline.video: reading real clips, fps override, resampling, pseudo masks."""
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipeline.video import (BACKGROUND, VideoError, label_objects, pseudo_masks, read_video,
+                            resample)
+
+_ROOT = Path(__file__).resolve().parents[1]
+REAL_VIDEO = next((p for p in [Path(os.environ.get("DYNAMICS_REAL_DATA", "/nonexistent")),
+                               _ROOT / "shared/data/real", _ROOT.parent / "shared/data/real"]
+                   if p.is_dir()), _ROOT / "shared/data/real") / "video"
+BALL = REAL_VIDEO / "01_bouncing_green_ball_1080p30.avi"
+PUCKS = REAL_VIDEO / "05_phystrack_CaromPuck_HeadOn_240fps.mp4"
+needs_real = pytest.mark.skipif(not BALL.exists() or not PUCKS.exists(),
+                                reason=f"real videos not found under {REAL_VIDEO}")
+
+
+def _centroid_rows(seg: np.ndarray, obj: int) -> np.ndarray:
+    """Mean row of object ``obj`` per frame (NaN where absent)."""
+    return np.array([np.argwhere(s == obj)[:, 0].mean() if (s == obj).any() else np.nan
+                     for s in seg])
+
+
+@needs_real
+def test_ball_clip_mask_falls_during_first_bounce():
+    # 1.8 s .. 2.8 s: the ball is held at the top edge, dropped (~2.2 s), hits the floor
+    # (~2.5 s) and bounces up; a hand enters at the top right near the end.
+    clip = read_video(BALL, start=1.8, duration=1.0, size=(240, 160))
+    assert clip.frames.shape == (30, 160, 240, 3) and clip.frames.dtype == np.uint8
+    assert clip.fps == pytest.approx(29.97, abs=0.01) and clip.original_size == (1920, 1080)
+    assert clip.crop == (150, 0, 1620, 1080)              # centre crop to 3:2
+    assert clip.start_frame == 54
+
+    # The median of this window also flags the ball's shadow on the board while it is
+    # held, and fingers at the top late on: keep the largest object (the ball).
+    seg = label_objects(pseudo_masks(clip.frames), max_objects=1)
+    assert seg.dtype == np.int8 and seg.shape == (30, 160, 240)
+    rows = _centroid_rows(seg, 0)
+    assert not np.isnan(rows).any()
+    fall = rows[13:23]                                    # free fall until the floor
+    assert (np.diff(fall) > 0).all(), fall
+    assert fall[-1] - fall[0] > 100                       # px of the 160 px frame
+    assert rows[-1] < rows[22] - 30                       # back up after the bounce
+    # the ball is green: its masked pixels are greener than red or blue
+    mean = clip.frames[seg == 0].mean(0)
+    assert mean[1] > mean[0] and mean[1] > mean[2]
+
+
+@needs_real
+def test_240fps_override_and_resample():
+    container = read_video(PUCKS, max_frames=2)
+    assert container.fps == pytest.approx(29.97, abs=0.01)
+    clip = read_video(PUCKS, fps=240, start=0.6, duration=1.0, size=(96, 64))
+    assert clip.fps == 240 and clip.container_fps == pytest.approx(29.97, abs=0.01)
+    assert clip.frames.shape == (240, 64, 96, 3) and clip.start_frame == 144
+    frames = resample(clip.frames, clip.fps, 30.0, duration=1.0)
+    assert frames.shape == (30, 64, 96, 3)
+    np.testing.assert_array_equal(frames[1], clip.frames[8])       # every 8th frame
+
+    full = read_video(PUCKS, fps=240, size=(48, 32))               # the whole clip
+    assert len(full.frames) == 752 and full.duration == pytest.approx(752 / 240)
+
+    # the struck puck slides right, out of view: centroid x grows (pseudo masks)
+    seg = label_objects(pseudo_masks(frames), max_objects=4)
+    moving = [i for i in range(4) if (seg[15] == i).any()]
+    assert len(moving) == 1
+    cols = [np.argwhere(s == moving[0])[:, 1].mean() for s in seg[6:16]]
+    assert (np.diff(cols) > 0).all() and cols[-1] - cols[0] > 20
+
+
+def test_resample_grid():
+    x = np.arange(100)
+    np.testing.assert_array_equal(resample(x, 240, 30, 0.25), [0, 8, 16, 24, 32, 40, 48, 56])
+    np.testing.assert_array_equal(resample(x[:30], 29.97, 30, 1.0), np.arange(30))
+    assert len(resample(x, 60, 30)) == 50                 # whole input: frames 0, 2, .., 98
+    with pytest.raises(ValueError, match="need 2.000 s"):
+        resample(x, 60, 30, 2.0)
+
+
+def test_read_video_errors(tmp_path):
+    junk = tmp_path / "junk.mp4"
+    junk.write_bytes(np.random.default_rng(0).bytes(4096))
+    cases = [(tmp_path / "missing.mp4", {}, "no such file"),
+             (junk, {}, "cannot open"),
+             (tmp_path, {}, "not a file")]
+    if PUCKS.exists():
+        cases += [(PUCKS, {"fps": 240, "start": 4.0}, "past the end"),
+                  (PUCKS, {"fps": -1}, "fps: must be > 0")]
+    for path, kwargs, message in cases:
+        with pytest.raises(VideoError, match=message) as err:
+            read_video(path, **kwargs)
+        assert "\n" not in str(err.value) and str(path) in str(err.value)
+
+
+def _moving_disc(T=20, H=64, W=96, r=8, seed=0):
+    """Disc moving right across static noise; returns frames and the true masks."""
+    rng = np.random.default_rng(seed)
+    bg = rng.integers(0, 256, (H, W, 3), dtype=np.uint8)
+    yy, xx = np.mgrid[:H, :W]
+    truth = np.stack([(yy - 30) ** 2 + (xx - (12 + 3.5 * t)) ** 2 <= r * r for t in range(T)])
+    frames = np.repeat(bg[None], T, axis=0)
+    frames[truth] = (40, 200, 60)
+    return frames, truth
+
+
+@pytest.mark.parametrize("method", ["median", "mog2"])
+def test_pseudo_masks_synthetic_disc(method):
+    # The clip is the first 20 frames of an 80 frame window (the disc leaves the view at
+    # frame ~25). The median works on the clip alone; MOG2 needs the longer window: in 20
+    # frames the disc covers a pixel often enough to count as a background mode.
+    window, window_truth = _moving_disc(T=80)
+    frames, truth = window[:20], window_truth[:20]
+    background = window if method == "mog2" else None
+    masks = pseudo_masks(frames, method=method, background=background)
+    assert masks.shape == truth.shape and masks.dtype == bool
+    iou = (masks & truth).sum((1, 2)) / (masks | truth).sum((1, 2))
+    assert iou.min() >= 0.8, iou
+
+    seg = label_objects(masks, max_objects=3)
+    assert set(np.unique(seg)) == {BACKGROUND, 0}         # one object, id 0 throughout
+
+
+def test_label_objects_keeps_ids_through_a_crossing():
+    # two squares moving towards each other on rows apart: ids stay attached to each square
+    T, H, W = 12, 40, 80
+    masks = np.zeros((T, H, W), bool)
+    for t in range(T):
+        masks[t, 5:13, 4 + 5 * t:12 + 5 * t] = True      # a: left -> right (first at left)
+        masks[t, 25:33, 68 - 5 * t:76 - 5 * t] = True   # b: right -> left
+    masks[5, 25:33] = False                               # b missing for one frame
+    seg = label_objects(masks, max_objects=2)
+    assert (seg[:, 5:13][masks[:, 5:13]] == 0).all()
+    assert (seg[:, 25:33][masks[:, 25:33]] == 1).all()
+    assert label_objects(masks, max_objects=1).max() == 0
+    with pytest.raises(ValueError, match="max_objects"):
+        label_objects(masks, max_objects=0)
