@@ -11,6 +11,9 @@ floor ``priority=0``, so an object-floor contact uses the object's friction exac
 scene's ``sliding_friction`` *is* the effective Coulomb coefficient against the floor. Two
 objects in contact use the larger of their coefficients. ``condim=6`` enables rolling
 friction (MuJoCo's rolling coefficient, m); torsional friction is 0 in the base model.
+A frictionless object (``sliding_friction: 0``) gets ``condim=1``: MuJoCo's pyramidal cone
+with a zero coefficient and ``condim > 1`` is degenerate and blows up (a box spinning on the
+floor was launched metres into the air); with ``condim=1`` it slides and spins freely.
 ``damping`` is the free joint's ``damping`` (applies to all 6 DoF).
 """
 
@@ -124,7 +127,8 @@ def build_mjcf(scene: Scene, options: SimOptions | None = None) -> mjcf.RootElem
         body.add("geom", name=f"{name}_geom", type=obj.shape, size=geom_size(obj), mass=obj.mass,
                  material=mat, rgba=None if mat else [*colour, 1.0],
                  friction=[obj.material.sliding_friction, 0.0, obj.material.rolling_friction],
-                 condim=6, priority=1, solref=list(opt.object_solref))
+                 condim=6 if obj.material.sliding_friction > 0 else 1, priority=1,
+                 solref=list(opt.object_solref))
 
     qpos, qvel = initial_state(scene)
     root.keyframe.add("key", name="init", qpos=qpos.tolist(), qvel=qvel.tolist())

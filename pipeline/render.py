@@ -39,11 +39,17 @@ class Frames:
     depth: np.ndarray | None = None
     flow: np.ndarray | None = None
 
-    def visible_pixels(self) -> np.ndarray:
-        """(T, n) int64 pixel count per object per frame (from ``seg``)."""
+    def visible_pixels(self, n_objects: int | None = None) -> np.ndarray:
+        """(T, n) int64 pixel count per object per frame (from ``seg``).
+
+        Args:
+            n_objects: number of objects n; without it n is inferred from the labels seen,
+                which drops trailing objects that are never visible.
+        """
         if self.seg is None:
             raise ValueError("segmentation was not rendered")
         n = int(self.seg.max()) + 1 if self.seg.size else 0
+        n = n if n_objects is None else n_objects
         return np.stack([(self.seg == k).sum(axis=(1, 2)) for k in range(max(n, 0))], axis=-1) if n else \
             np.zeros((self.seg.shape[0], 0), dtype=np.int64)
 

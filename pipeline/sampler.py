@@ -1,0 +1,527 @@
+"""Random scenes for the synthetic dataset, with the paper's filters (DESIGN.md §5, stage
+``sample_configs``).
+
+A scene is drawn in two steps, so that the accepted scenes follow the configured
+distributions of object count and shape exactly:
+
+1. its *composition* (:func:`sample_composition`): the number of objects and their shapes.
+   Splits ``train``/``val``/``test`` never hold a held-out 4-object composition
+   (``held_out``, resampled); split ``test_comp`` holds only those.
+2. its *layout* (camera, sizes, poses, velocities, materials), redrawn until the scene
+   passes the filters (:class:`SceneFilter`):
+
+   * every object covers at least ``min_pixel_fraction`` of the first frame, occlusion
+     included (segmentation rendered at ``width`` x ``height``; the paper drops objects under
+     8,000 px of 480x320, ~5 %);
+   * no initial interpenetration: MuJoCo finds no contact deeper than
+     ``overlap_tolerance`` at t = 0 (objects on the floor touch it at distance 0);
+   * with ``keep_in_view``: every object's centre stays inside the image for the whole clip.
+
+Layouts are made for motion that is visible for the whole clip: objects stand on the visible
+part of the floor (or hang above it, ``p_airborne``, and fall), and are launched towards
+another visible floor point. Objects are ordered left to right in the first frame, so names
+(``<shape>_<index>``) follow from the video. Every scene has its own seed
+(:func:`scene_seed`), so any one scene can be regenerated alone.
+
+Example::
+
+    cfg = SampleConfig(**params["sample"])
+    for sid, split, scene in sample_dataset(cfg, seed=0):
+        print(sid, split, scene.composition)
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from typing import Iterator
+
+import mujoco
+import numpy as np
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from pipeline.camera import camera_pose, project, unproject
+from pipeline.mjcf import SimOptions, compile_model, geom_size
+from pipeline.scene import SHAPES, Camera, Decimals, Scene
+from pipeline.shards import scene_id
+
+SPLITS = ("train", "val", "test", "test_comp")
+"""Splits in the order scenes are numbered."""
+
+Range = tuple[float, float]
+
+
+class SamplingError(RuntimeError):
+    """No layout passed the filters within ``max_tries`` (one line: scene and composition)."""
+
+
+class SampleConfig(BaseModel):
+    """Params section ``sample``. Ranges are ``[low, high]``, drawn uniformly."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
+
+    n_train: int = Field(300, ge=0)
+    n_val: int = Field(20, ge=0)
+    n_test: int = Field(20, ge=0)
+    n_test_comp: int = Field(20, ge=0)
+    shard_size: int = Field(100, gt=0)
+    n_objects: dict[int, float] = {1: 0.35, 2: 0.3, 3: 0.2, 4: 0.15}
+    shapes: dict[str, float] = {"sphere": 1 / 3, "cylinder": 1 / 3, "box": 1 / 3}
+    held_out: list[tuple[str, str, str, str]] = [("box", "box", "cylinder", "sphere"),
+                                                 ("cylinder", "cylinder", "sphere", "sphere")]
+    # geometry and physics
+    extent: Range = (0.18, 0.4)            # m: sphere/cylinder diameter, cylinder height, box sides
+    mass: Range = (0.2, 3.0)               # kg
+    sliding_friction: Range = (0.1, 0.6)   # effective Coulomb coefficient against the floor
+    rolling_friction: Range = (0.0, 0.002)  # m
+    damping: Range = (0.0, 0.1)            # freejoint damping
+    # initial state
+    p_at_rest: float = Field(0.2, ge=0, le=1)    # object starts with zero velocity
+    p_airborne: float = Field(0.3, ge=0, le=1)   # object starts above the floor (falls)
+    p_lying: float = Field(0.5, ge=0, le=1)      # a cylinder on the floor lies on its side
+    drop_height: Range = (0.05, 0.4)       # m, gap under an airborne object's bounding sphere
+    speed: Range = (0.4, 2.0)              # m/s, horizontal launch speed
+    vertical_speed: Range = (0.0, 2.0)     # m/s, upwards, airborne objects only
+    spin: Range = (0.0, 4.0)               # rad/s, angular speed
+    # camera (paper form: eye (0, -2, height))
+    camera_height: Range = (0.8, 1.4)      # m
+    camera_pitch: Range = (30.0, 50.0)     # deg below the horizon
+    camera_fov: Range = (35.0, 50.0)       # deg, vertical
+    gravity: float = Field(9.81, ge=0)
+    duration: float = Field(1.0, gt=0)
+    fps: int = Field(30, gt=0)
+    # filters
+    width: int = Field(96, gt=0)           # px, size of the visibility check
+    height: int = Field(64, gt=0)          # px
+    min_pixel_fraction: float = Field(0.025, ge=0, lt=1)
+    overlap_tolerance: float = Field(0.001, ge=0)  # m
+    keep_in_view: bool = True
+    placement_margin: float = Field(0.12, ge=0, lt=0.5)  # image fraction kept clear at the sides
+    max_tries: int = Field(300, gt=0)
+
+    @field_validator("n_objects", "shapes")
+    @classmethod
+    def _distribution(cls, v: dict) -> dict:
+        if not v or any(p < 0 for p in v.values()) or sum(v.values()) <= 0:
+            raise ValueError(f"must be a non-empty mapping of non-negative probabilities, got {v}")
+        total = sum(v.values())
+        return {k: p / total for k, p in v.items()}
+
+    @field_validator("shapes")
+    @classmethod
+    def _known_shapes(cls, v: dict) -> dict:
+        for k in v:
+            if k not in SHAPES:
+                raise ValueError(f"unknown shape {k!r}, must be one of {', '.join(SHAPES)}")
+        return v
+
+    @field_validator("n_objects")
+    @classmethod
+    def _counts(cls, v: dict) -> dict:
+        for k in v:
+            if not 1 <= k <= 4:
+                raise ValueError(f"object counts must be in 1..4, got {k}")
+        return v
+
+    @field_validator("held_out")
+    @classmethod
+    def _compositions(cls, v: list) -> list:
+        for comp in v:
+            for s in comp:
+                if s not in SHAPES:
+                    raise ValueError(f"unknown shape {s!r} in {list(comp)}")
+        return [tuple(sorted(c)) for c in v]
+
+    @model_validator(mode="after")
+    def _ranges(self) -> "SampleConfig":
+        for name, value in self:
+            if isinstance(value, tuple) and len(value) == 2 and all(isinstance(x, (int, float)) for x in value):
+                if value[0] > value[1]:
+                    raise ValueError(f"{name}: low must be <= high, got {list(value)}")
+        if self.n_test_comp and not self.held_out:
+            raise ValueError("n_test_comp > 0 needs at least one held_out composition")
+        if self.n_objects.get(4, 0) > 0 and self.held_out:
+            free = _free_compositions(self)
+            if not free:
+                raise ValueError("every 4-object composition is held out, but n_objects allows 4")
+        return self
+
+    @property
+    def n_scenes(self) -> int:
+        return self.n_train + self.n_val + self.n_test + self.n_test_comp
+
+    @property
+    def min_pixels(self) -> int:
+        """Minimum visible pixels per object in the first frame."""
+        return int(math.ceil(self.min_pixel_fraction * self.width * self.height))
+
+
+def _free_compositions(cfg: SampleConfig) -> list[tuple[str, ...]]:
+    """4-object compositions with positive probability that are not held out."""
+    shapes = sorted(s for s, p in cfg.shapes.items() if p > 0)
+    held = set(cfg.held_out)
+    out = []
+    for a in range(len(shapes)):
+        for b in range(a, len(shapes)):
+            for c in range(b, len(shapes)):
+                for d in range(c, len(shapes)):
+                    comp = (shapes[a], shapes[b], shapes[c], shapes[d])
+                    if comp not in held:
+                        out.append(comp)
+    return out
+
+
+# --------------------------------------------------------------------------- seeds, splits
+def split_names(cfg: SampleConfig) -> list[str]:
+    """Split of every scene index: train first, then val, test, test_comp."""
+    return (["train"] * cfg.n_train + ["val"] * cfg.n_val + ["test"] * cfg.n_test
+            + ["test_comp"] * cfg.n_test_comp)
+
+
+def scene_seed(seed: int, index: int) -> int:
+    """Seed of scene ``index`` of a dataset drawn with ``seed`` (independent streams:
+    ``numpy.random.SeedSequence(seed).spawn``)."""
+    child = np.random.SeedSequence(seed, spawn_key=(index,))
+    return int(child.generate_state(1, np.uint32)[0])
+
+
+# --------------------------------------------------------------------------- composition
+def sample_composition(rng: np.random.Generator, cfg: SampleConfig, split: str) -> list[str]:
+    """Shapes of a scene's objects, in drawing order (not sorted).
+
+    ``test_comp``: one of ``held_out`` (uniformly), shuffled. Other splits: the count from
+    ``n_objects``, each shape i.i.d. from ``shapes``; a held-out 4-object multiset is drawn again.
+    """
+    if split not in SPLITS:
+        raise ValueError(f"split must be one of {', '.join(SPLITS)}, got {split!r}")
+    if split == "test_comp":
+        comp = list(cfg.held_out[int(rng.integers(len(cfg.held_out)))])
+        rng.shuffle(comp)
+        return comp
+    counts, pc = zip(*sorted(cfg.n_objects.items()))
+    n = int(rng.choice(counts, p=pc))
+    names, ps = zip(*sorted(cfg.shapes.items()))
+    held = set(cfg.held_out)
+    while True:
+        comp = [str(s) for s in rng.choice(names, size=n, p=ps)]
+        if n != 4 or tuple(sorted(comp)) not in held:
+            return comp
+
+
+# --------------------------------------------------------------------------- layout
+def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    out = np.zeros(4)
+    mujoco.mju_mulQuat(out, np.asarray(a, float), np.asarray(b, float))
+    return out
+
+
+def _yaw_quat(yaw: float) -> np.ndarray:
+    return np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
+
+
+def _random_quat(rng: np.random.Generator) -> np.ndarray:
+    q = rng.normal(size=4)
+    q /= np.linalg.norm(q)
+    return q if q[0] >= 0 else -q
+
+
+def _grid(x: float, step: float) -> float:
+    """Round a size to a grid so that half of it prints exactly at 3 decimals."""
+    return max(step, round(x / step) * step)
+
+
+def _size(rng: np.random.Generator, shape: str, extent: Range) -> dict[str, float]:
+    e = lambda: float(rng.uniform(*extent))  # noqa: E731
+    if shape == "sphere":
+        return {"radius": round(_grid(e() / 2, 0.001), 3)}
+    if shape == "cylinder":
+        return {"radius": round(_grid(e() / 2, 0.001), 3), "height": round(_grid(e(), 0.002), 3)}
+    return {"width": round(_grid(e(), 0.002), 3), "depth": round(_grid(e(), 0.002), 3),
+            "height": round(_grid(e(), 0.002), 3)}
+
+
+def bounding_radius(shape: str, size: dict[str, float]) -> float:
+    """Radius of the smallest sphere about the centre containing the object, m."""
+    if shape == "sphere":
+        return size["radius"]
+    if shape == "cylinder":
+        return math.hypot(size["radius"], size["height"] / 2)
+    return 0.5 * math.sqrt(size["width"] ** 2 + size["depth"] ** 2 + size["height"] ** 2)
+
+
+def _floor_point(cam, u: float, v: float, z: float, width: int, height: int) -> np.ndarray | None:
+    """World point at height ``z`` seen at pixel (u, v); None above the horizon."""
+    eye = np.asarray(cam.eye, dtype=np.float64)
+    ray = unproject(np.array([u, v]), np.array(1.0), cam, width, height) - eye
+    if ray[2] >= -1e-6:
+        return None
+    return eye + (z - eye[2]) / ray[2] * ray
+
+
+def _sample_layout(rng: np.random.Generator, cfg: SampleConfig, shapes: list[str]) -> dict | None:
+    """One candidate scene dict for ``shapes`` (None if a drawn pixel is above the horizon)."""
+    W, H = cfg.width, cfg.height
+    cam = {"height": round(float(rng.uniform(*cfg.camera_height)), 3),
+           "pitch": round(float(rng.uniform(*cfg.camera_pitch)), 1),
+           "fov": round(float(rng.uniform(*cfg.camera_fov)), 1)}
+    camera = Camera.model_validate(cam)
+    m = cfg.placement_margin
+
+    def pixel() -> tuple[float, float]:
+        return float(rng.uniform(m, 1 - m)) * W, float(rng.uniform(0.3, 1 - m)) * H
+
+    objects, moving = [], []
+    for shape in shapes:
+        size = _size(rng, shape, cfg.extent)
+        yaw = float(rng.uniform(-math.pi, math.pi))
+        airborne = rng.random() < cfg.p_airborne
+        rest = rng.random() < cfg.p_at_rest
+        if airborne:
+            quat = _random_quat(rng)
+            z_floor = bounding_radius(shape, size)
+            z = z_floor + float(rng.uniform(*cfg.drop_height))
+        else:
+            quat = _yaw_quat(yaw)
+            if shape == "sphere":
+                z_floor = size["radius"]
+            elif shape == "cylinder" and rng.random() < cfg.p_lying:  # on its side
+                quat = _quat_mul(quat, [math.sqrt(0.5), math.sqrt(0.5), 0.0, 0.0])
+                z_floor = size["radius"]
+            else:
+                z_floor = size["height"] / 2
+            z = z_floor
+        start = _floor_point(camera, *pixel(), z_floor, W, H)
+        target = _floor_point(camera, *pixel(), z_floor, W, H)
+        if start is None or target is None:
+            return None
+        vel, omega = np.zeros(3), np.zeros(3)
+        moving.append(airborne or not rest)
+        if not rest:
+            d = (target - start)[:2]
+            d = d / max(np.linalg.norm(d), 1e-9)
+            vel[:2] = float(rng.uniform(*cfg.speed)) * d
+            if airborne:
+                vel[2] = float(rng.uniform(*cfg.vertical_speed))
+            w = float(rng.uniform(*cfg.spin))
+            if airborne:
+                axis = rng.normal(size=3)
+                omega = w * axis / np.linalg.norm(axis)
+            else:
+                omega[2] = w * float(rng.choice([-1.0, 1.0]))
+        objects.append({
+            "shape": shape, "size": size,
+            "mass": float(rng.uniform(*cfg.mass)),
+            "position": [float(start[0]), float(start[1]), float(z)],
+            "orientation": [float(c) for c in quat],
+            "linear_velocity": vel.tolist(), "angular_velocity": omega.tolist(),
+            "material": {"sliding_friction": float(rng.uniform(*cfg.sliding_friction)),
+                         "rolling_friction": float(rng.uniform(*cfg.rolling_friction)),
+                         "damping": float(rng.uniform(*cfg.damping))},
+        })
+    if not any(moving):  # a still life: launch one object so that every scene has motion
+        o = objects[int(rng.integers(len(objects)))]
+        ang = float(rng.uniform(0, 2 * math.pi))
+        o["linear_velocity"] = [float(rng.uniform(*cfg.speed)) * f for f in (math.cos(ang), math.sin(ang))] + [0.0]
+    # names follow the video: objects ordered left to right in the first frame
+    uv, _ = project(np.array([o["position"] for o in objects]), camera, W, H)
+    objects = [objects[i] for i in np.argsort(uv[:, 0], kind="stable")]
+    return {"version": 1, "duration": cfg.duration, "fps": cfg.fps, "gravity": cfg.gravity,
+            "camera": cam, "objects": objects, "effects": []}
+
+
+# --------------------------------------------------------------------------- filters
+class SceneFilter:
+    """The paper's filters, with one compiled template model for the first-frame
+    segmentation (a renderer per candidate would cost ~100 ms; this costs ~2 ms).
+
+    The template holds 4 bodies of each shape; a candidate scene is shown by editing the
+    template's geom sizes (and ``geom_rbound`` / ``geom_aabb``), poses and camera in place;
+    unused bodies are parked behind the camera. ``tests/test_sampler.py`` checks that its
+    segmentation equals a full render of the compiled scene.
+
+    Use as a context manager, or call :meth:`close`.
+    """
+
+    MAX_PER_SHAPE = 4
+
+    def __init__(self, cfg: SampleConfig, options: SimOptions | None = None):
+        from pipeline.render import FrameRenderer
+
+        self.cfg = cfg
+        self.options = (options or SimOptions()).model_copy(update={"textured": False})
+        template = Scene.from_dict({
+            "camera": {"height": 1.0},
+            "objects": [{"shape": s, "size": {"sphere": {"radius": 0.1}, "cylinder": {"radius": 0.1, "height": 0.1},
+                                              "box": {"width": 0.1, "depth": 0.1, "height": 0.1}}[s],
+                         "mass": 1.0, "position": [0.0, 0.0, 1.0]}
+                        for s in SHAPES for _ in range(self.MAX_PER_SHAPE)]})
+        self.model = compile_model(template, self.options)
+        self.slots = {s: [i * self.MAX_PER_SHAPE + j for j in range(self.MAX_PER_SHAPE)] for i, s in enumerate(SHAPES)}
+        self.geoms = [int(self.model.body_geomadr[b + 1]) for b in range(len(template.objects))]
+        self.renderer = FrameRenderer(self.model, cfg.width, cfg.height)
+        self.rejected: Counter[str] = Counter()
+
+    def close(self) -> None:
+        self.renderer.close()
+
+    def __enter__(self) -> "SceneFilter":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ first frame
+    def _show(self, scene: Scene) -> np.ndarray:
+        """Put the scene's objects and camera into the template (kinematics and camera
+        updated); returns the lookup table template object -> scene object index (-1 unused)."""
+        m = self.model
+        n_slots = len(self.geoms)
+        qpos = np.zeros((n_slots, 7))
+        qpos[:, 0] = 10.0 * np.arange(n_slots)
+        qpos[:, 1:3] = (-1000.0, 100.0)  # parked far behind the camera, clear of the floor
+        qpos[:, 3] = 1.0
+        lut = np.full(n_slots + 1, -1, dtype=np.int8)  # template object index -> scene index
+        free = {s: list(v) for s, v in self.slots.items()}
+        for i, obj in enumerate(scene.objects):
+            slot = free[obj.shape].pop(0)
+            g = self.geoms[slot]
+            size = np.zeros(3)
+            gs = geom_size(obj)
+            size[: len(gs)] = gs
+            m.geom_size[g] = size
+            half = [gs[0]] * 3 if obj.shape == "sphere" else [gs[0], gs[0], gs[1]] if obj.shape == "cylinder" else gs
+            m.geom_aabb[g] = [0.0, 0.0, 0.0, *half]  # centre, half sizes (geom frame)
+            m.geom_rbound[g] = bounding_radius(obj.shape, obj.size.model_dump())
+            m.bvh_aabb[m.body_bvhadr[slot + 1]] = [0.0, 0.0, 0.0, *half]  # one geom per body
+            q = np.asarray(obj.orientation, dtype=np.float64)
+            qpos[slot] = [*obj.position, *(q / np.linalg.norm(q))]
+            lut[slot] = i
+        pose = camera_pose(scene.camera)
+        quat = np.zeros(4)
+        mujoco.mju_mat2Quat(quat, np.stack([pose.right, pose.up, -pose.forward], axis=1).reshape(-1))
+        m.cam_pos[0], m.cam_quat[0], m.cam_fovy[0] = pose.eye, quat, scene.camera.fov
+        self.renderer.set_pose(qpos)
+        return lut
+
+    def first_frame_segmentation(self, scene: Scene) -> np.ndarray:
+        """(H, W) int8 segmentation of the scene's first frame (object index, -1 background)."""
+        lut = self._show(scene)
+        seg = self.renderer.segmentation()
+        return lut[seg.astype(np.int64)]  # -1 (background) indexes the last entry, also -1
+
+    def initial_overlap(self, scene: Scene) -> float:
+        """Deepest interpenetration at t = 0 (MuJoCo collision detection on the template), m."""
+        self._show(scene)
+        data = self.renderer.data
+        mujoco.mj_collision(self.model, data)
+        return _penetration(data)
+
+    # ------------------------------------------------------------------ checks
+    def check(self, scene: Scene) -> str | None:
+        """Name of the first failed filter (``small``, ``overlap``, ``leaves_view``,
+        ``unstable``), or None if the scene passes all."""
+        cfg = self.cfg
+        seg = self.first_frame_segmentation(scene)
+        counts = np.bincount(seg[seg >= 0].astype(np.int64), minlength=len(scene.objects))
+        if counts.min() < cfg.min_pixels:
+            return "small"
+        if self.initial_overlap(scene) > cfg.overlap_tolerance:
+            return "overlap"
+        if cfg.keep_in_view:
+            from pipeline.simulate import rollout
+
+            model = compile_model(scene, self.options)
+            trace = rollout(model, len(scene.objects), scene.n_frames, scene.fps, record_contacts=False)
+            pos = trace.position
+            if not np.isfinite(pos).all() or np.abs(pos).max() > 100:
+                return "unstable"
+            uv, depth = project(pos, scene.camera, cfg.width, cfg.height)
+            inside = (depth > 0) & (uv[..., 0] >= 0) & (uv[..., 0] <= cfg.width) & (uv[..., 1] >= 0) & (uv[..., 1] <= cfg.height)
+            if not inside.all():
+                return "leaves_view"
+        return None
+
+
+def initial_overlap(scene: Scene, options: SimOptions | None = None) -> float:
+    """Deepest interpenetration at t = 0 according to MuJoCo's collision detection, m
+    (0 when nothing penetrates)."""
+    model = compile_model(scene, options)
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, 0)
+    mujoco.mj_forward(model, data)
+    return _penetration(data)
+
+
+def _penetration(data: mujoco.MjData) -> float:
+    """Deepest penetration among ``data``'s contacts, m (0 if none)."""
+    return float(max(0.0, -data.contact.dist[: data.ncon].min())) if data.ncon else 0.0
+
+
+def _canonical(scene: Scene, decimals: Decimals | None) -> Scene:
+    """The scene as its canonical text stores it (``Scene.rounded``; parsed with libyaml
+    when available: PyYAML's pure-Python parser costs ~15 ms per scene)."""
+    loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+    return Scene.from_dict(yaml.load(scene.to_yaml(decimals), Loader=loader))
+
+
+# --------------------------------------------------------------------------- public API
+def sample_scene(rng: np.random.Generator, cfg: SampleConfig, split: str,
+                 filt: SceneFilter | None = None, decimals: Decimals | None = None) -> Scene:
+    """Draw one scene of ``split`` that passes the filters.
+
+    Args:
+        rng: the scene's generator (``np.random.default_rng(scene_seed(seed, index))``).
+        cfg: sampling params.
+        split: ``train``, ``val``, ``test`` or ``test_comp``.
+        filt: a :class:`SceneFilter` to reuse (one is made and closed if None).
+        decimals: rounding of the canonical text (params ``scene.decimals``); the filters
+            see the scene as that text stores it.
+    Returns:
+        the scene as its canonical YAML represents it (rounded).
+    Raises:
+        SamplingError: no layout passed within ``cfg.max_tries`` tries.
+    """
+    own = filt is None
+    filt = filt or SceneFilter(cfg)
+    try:
+        shapes = sample_composition(rng, cfg, split)
+        for _ in range(cfg.max_tries):
+            data = _sample_layout(rng, cfg, shapes)
+            if data is None:
+                filt.rejected["horizon"] += 1
+                continue
+            scene = _canonical(Scene.from_dict(data), decimals)
+            reason = filt.check(scene)
+            if reason is None:
+                return scene
+            filt.rejected[reason] += 1
+        raise SamplingError(f"no layout of {sorted(shapes)} passed the filters in {cfg.max_tries} tries "
+                            f"(rejected: {dict(filt.rejected)}); lower sample.min_pixel_fraction or "
+                            f"raise sample.extent")
+    finally:
+        if own:
+            filt.close()
+
+
+def iter_dataset(cfg: SampleConfig, seed: int, filt: SceneFilter | None = None,
+                 decimals: Decimals | None = None) -> Iterator[tuple[str, str, Scene]]:
+    """Yield ``(scene_id, split, scene)`` for every scene index in order (see
+    :func:`sample_dataset`)."""
+    own = filt is None
+    filt = filt or SceneFilter(cfg)
+    try:
+        for i, split in enumerate(split_names(cfg)):
+            rng = np.random.default_rng(scene_seed(seed, i))
+            yield scene_id(i), split, sample_scene(rng, cfg, split, filt, decimals)
+    finally:
+        if own:
+            filt.close()
+
+
+def sample_dataset(cfg: SampleConfig, seed: int, decimals: Decimals | None = None) -> list[tuple[str, str, Scene]]:
+    """All scenes of a dataset: ``[(scene_id, split, scene)]``, train, val, test, test_comp.
+
+    Scene ``i`` depends only on ``(seed, i)`` (:func:`scene_seed`).
+    """
+    return list(iter_dataset(cfg, seed, decimals=decimals))

@@ -1,0 +1,192 @@
+"""Trace tables: a rollout as Parquet rows, and `dynamics simulate` (DESIGN.md §4, §6).
+
+Two layouts of the same :class:`pipeline.simulate.Trace`:
+
+* the ``traces`` stage table, one row per scene (:func:`trace_to_row`,
+  :func:`trace_from_row`): ``t`` (T,), ``qpos`` (T*n*7 flattened: x, y, z, qw, qx, qy, qz),
+  ``qvel`` (T*n*6: vx, vy, vz, wx, wy, wz, world frame), ``n_objects``, ``names``,
+  ``contacts`` (JSON text: per frame a list of ``{a, b, position, force}``) and ``visible``
+  (T*n visible pixel counts at the rendered resolution);
+* the user-facing ``trace.parquet`` of ``dynamics simulate``, one row per object per frame
+  (:func:`object_frame_table`): ``t, object, x, y, z, qw, qx, qy, qz, vx, vy, vz, wx, wy, wz``
+  (s, m, unit quaternion, m/s, rad/s; world frame).
+
+``dynamics simulate SCENE.yaml --out DIR`` (:func:`write_simulation`) writes ``trace.parquet``,
+``rgb.mp4``, ``masks.npz`` (``seg (T, H, W) int8``, -1 = background, and ``names``), a
+``masks.mp4`` preview, and ``events.json``. A scene that fails validation prints the scene
+language's one-line error and exits with status 2, writing nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import sys
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import pyarrow as pa
+
+from pipeline import shards
+from pipeline.events import EventConfig, events_to_json, events_to_text, extract_events
+from pipeline.mjcf import SimOptions, compile_model
+from pipeline.scene import Scene, SceneError, load_scene
+from pipeline.simulate import Contact, Trace
+
+TRACES_SCHEMA = pa.schema([
+    ("scene_id", pa.string()),
+    ("split", pa.string()),
+    ("t", pa.list_(pa.float64())),
+    ("qpos", pa.list_(pa.float64())),
+    ("qvel", pa.list_(pa.float64())),
+    ("n_objects", pa.int32()),
+    ("names", pa.list_(pa.string())),
+    ("contacts", pa.string()),
+    ("visible", pa.list_(pa.int64())),
+])
+"""Schema of the ``traces`` stage table (one row per scene)."""
+
+OBJECT_FRAME_COLUMNS = ("t", "object", "x", "y", "z", "qw", "qx", "qy", "qz",
+                        "vx", "vy", "vz", "wx", "wy", "wz")
+"""Columns of ``trace.parquet`` written by ``dynamics simulate`` (one row per object per frame)."""
+
+UNITS = {"t": "s", "x": "m", "y": "m", "z": "m", "qw": "1", "qx": "1", "qy": "1", "qz": "1",
+         "vx": "m/s", "vy": "m/s", "vz": "m/s", "wx": "rad/s", "wy": "rad/s", "wz": "rad/s",
+         "frame": "world, z up, floor z = 0"}
+
+
+# --------------------------------------------------------------------------- traces table
+def trace_to_row(trace: Trace, visible: np.ndarray) -> dict[str, Any]:
+    """One ``traces`` table row (without ``scene_id`` / ``split``) of a rollout.
+
+    Args:
+        trace: rollout with T frames of n objects.
+        visible: (T, n) int visible pixel counts per frame and object.
+    """
+    T, n = trace.qpos.shape[:2]
+    visible = np.asarray(visible)
+    if visible.shape != (T, n):
+        raise ValueError(f"visible must have shape ({T}, {n}), got {visible.shape}")
+    contacts = [[{"a": c.a, "b": c.b, "position": [float(x) for x in c.position], "force": float(c.force)}
+                 for c in frame] for frame in trace.contacts]
+    return {
+        "t": trace.t.astype(np.float64).tolist(),
+        "qpos": trace.qpos.astype(np.float64).reshape(-1).tolist(),
+        "qvel": trace.qvel.astype(np.float64).reshape(-1).tolist(),
+        "n_objects": n,
+        "names": list(trace.names),
+        "contacts": json.dumps(contacts, separators=(",", ":")),
+        "visible": visible.astype(np.int64).reshape(-1).tolist(),
+    }
+
+
+def trace_from_row(row: Mapping[str, Any]) -> tuple[Trace, np.ndarray]:
+    """Inverse of :func:`trace_to_row`: ``(trace, visible (T, n) int64)``."""
+    t = np.asarray(row["t"], dtype=np.float64)
+    T, n = len(t), int(row["n_objects"])
+    contacts = [[Contact(c["a"], c["b"], tuple(c["position"]), float(c["force"])) for c in frame]
+                for frame in json.loads(row["contacts"])]
+    trace = Trace(t, np.asarray(row["qpos"], dtype=np.float64).reshape(T, n, 7),
+                  np.asarray(row["qvel"], dtype=np.float64).reshape(T, n, 6), contacts, list(row["names"]))
+    return trace, np.asarray(row["visible"], dtype=np.int64).reshape(T, n)
+
+
+# --------------------------------------------------------------------------- per-object table
+def object_frame_table(trace: Trace) -> pa.Table:
+    """``trace.parquet`` of ``dynamics simulate``: one row per object per frame (frame-major)."""
+    T, n = trace.qpos.shape[:2]
+    state = np.concatenate([trace.qpos, trace.qvel], axis=-1).reshape(T * n, 13)
+    columns: dict[str, Any] = {
+        "t": np.repeat(trace.t, n),
+        "object": np.tile(np.asarray(trace.names, dtype=object), T),
+    }
+    for j, name in enumerate(OBJECT_FRAME_COLUMNS[2:]):
+        columns[name] = state[:, j]
+    return pa.table(columns)
+
+
+# --------------------------------------------------------------------------- dynamics simulate
+def write_simulation(scene: Scene, out_dir: str | Path, width: int = 480, height: int = 320,
+                     options: SimOptions | None = None, events: EventConfig | None = None) -> dict[str, Path]:
+    """Simulate and render a scene and write what ``dynamics simulate`` promises.
+
+    The scene is compiled before anything is written, so a bad ``effects`` block raises
+    with ``out_dir`` untouched.
+
+    Args:
+        scene: validated scene.
+        out_dir: output folder (created).
+        width, height: render size, px.
+        options: simulation options (params ``sim``).
+        events: event thresholds (params ``events``).
+    Returns:
+        name -> path of ``trace``, ``rgb``, ``masks``, ``masks_preview``, ``events``.
+    Raises:
+        SceneError: the scene's effects are unknown or out of range.
+    """
+    from pipeline.render import FrameRenderer
+    from pipeline.simulate import rollout
+    from pipeline.viz import mask_overlay, side_by_side_mp4
+
+    options = options or SimOptions()
+    model = compile_model(scene, options)
+    trace = rollout(model, len(scene.objects), scene.n_frames, scene.fps)
+    with FrameRenderer(model, width, height) as renderer:
+        frames = renderer.render(trace.qpos, rgb=True, seg=True, depth=False, flow=False)
+    visible = frames.visible_pixels(len(scene.objects))
+    cfg = events or EventConfig()
+    found = extract_events(trace, visible, cfg)
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = {"trace": out / "trace.parquet", "rgb": out / "rgb.mp4", "masks": out / "masks.npz",
+             "masks_preview": out / "masks.mp4", "events": out / "events.json"}
+    shards.write_table(paths["trace"], object_frame_table(trace),
+                       metadata={"units": UNITS, "scene": scene.to_yaml(), "sim": options.model_dump()})
+    side_by_side_mp4(paths["rgb"], [frames.rgb], [""], scene.fps)
+    buf = io.BytesIO()
+    np.savez_compressed(buf, seg=frames.seg, names=np.asarray(scene.object_names))
+    shards.write_bytes(paths["masks"], buf.getvalue())
+    preview = mask_overlay(np.zeros_like(frames.rgb), frames.seg, alpha=1.0)  # object colours on black
+    side_by_side_mp4(paths["masks_preview"], [preview], [""], scene.fps)
+    shards.write_json(paths["events"], {
+        "names": scene.object_names, "fps": scene.fps, "n_frames": scene.n_frames,
+        "width": width, "height": height, "events": events_to_json(found),
+        "text": events_to_text(found, scene.object_names, cfg.decimals), "config": cfg.model_dump(),
+    })
+    return paths
+
+
+def add_simulate_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Arguments of ``dynamics simulate``."""
+    parser.add_argument("scene", type=Path, help="scene language YAML file")
+    parser.add_argument("--out", type=Path, required=True, help="output folder")
+    parser.add_argument("--width", type=int, default=480, help="render width, px (default 480)")
+    parser.add_argument("--height", type=int, default=320, help="render height, px (default 320)")
+    parser.add_argument("--params", type=Path, default=None,
+                        help="params.yaml whose `sim` and `events` sections to use (default: built-in defaults)")
+    return parser
+
+
+def simulate_cli(args: argparse.Namespace) -> int:
+    """Run ``dynamics simulate``. Returns the exit status (2: invalid scene, nothing written)."""
+    try:
+        scene = load_scene(args.scene)
+        options, events = SimOptions(), EventConfig()
+        if args.params is not None:
+            from pipeline.params import load_params
+
+            p = load_params(args.params)
+            options, events = SimOptions(**(p.get("sim") or {})), EventConfig(**(p.get("events") or {}))
+        paths = write_simulation(scene, args.out, args.width, args.height, options, events)
+    except SceneError as exc:
+        msg = str(exc)
+        if msg.startswith("<scene>: "):  # raised while building the MJCF (effects)
+            msg = f"{args.scene}: {msg.removeprefix('<scene>: ')}"
+        print(msg, file=sys.stderr)
+        return 2
+    for name, path in paths.items():
+        print(f"{name}: {path}")
+    return 0
