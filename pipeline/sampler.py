@@ -38,7 +38,6 @@ from typing import Iterator
 
 import mujoco
 import numpy as np
-import yaml
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from pipeline.camera import camera_pose, project, unproject
@@ -459,10 +458,8 @@ def _penetration(data: mujoco.MjData) -> float:
 
 
 def _canonical(scene: Scene, decimals: Decimals | None) -> Scene:
-    """The scene as its canonical text stores it (``Scene.rounded``; parsed with libyaml
-    when available: PyYAML's pure-Python parser costs ~15 ms per scene)."""
-    loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
-    return Scene.from_dict(yaml.load(scene.to_yaml(decimals), Loader=loader))
+    """The scene as its canonical text stores it."""
+    return scene.rounded(decimals)
 
 
 # --------------------------------------------------------------------------- public API
