@@ -1,0 +1,442 @@
+"""Metrics used in every report (DESIGN.md §7).
+
+* **Composition accuracy**: the predicted multiset of shapes equals the true multiset.
+* **Mask IoU**: objects are matched one-to-one by Hungarian assignment
+  (``scipy.optimize.linear_sum_assignment``) on their IoU averaged over the sequence; the IoU of
+  each matched pair is averaged over the *true* objects, an unmatched true object counting 0.
+  *Initial* IoU is frame 0, *full-sequence* IoU the mean over all frames. *Foreground* IoU
+  compares the union of all objects and needs no matching.
+* **Flow EPE**: mean Euclidean distance (px at the rendered resolution) between the
+  re-simulated and the observed flow over the pixels where either is foreground.
+* **Parameter errors** (synthetic scenes only): per-field absolute errors after matching.
+
+Segmentations are ``(T, H, W)`` integer label maps: object index ``0..n-1`` per pixel and
+``-1`` (:data:`pipeline.render.BACKGROUND`) for the floor and background. A ``bool`` array is
+accepted wherever a segmentation is, as one foreground "object" (label 0).
+
+Conventions for empty masks (documented choices, used consistently):
+
+* :func:`mask_iou` of two empty masks is **1.0**: both say "nothing here", which is agreement
+  (an object hidden in the true and the predicted frame is not an error).
+* :func:`flow_epe` with no foreground pixel in either mask is **0.0**: there is no pixel on
+  which the two flows disagree.
+
+Example::
+
+    res = sequence_iou(true_seg, pred_seg)    # dict: initial_iou, full_iou, per_frame, ...
+    epe = flow_epe(pred_flow, obs_flow, pred_seg[:-1] >= 0, true_seg[:-1] >= 0)
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, Sequence
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from pipeline.scene import Scene
+
+BACKGROUND = -1
+"""Label of the floor/background in segmentations (same as ``pipeline.render.BACKGROUND``)."""
+
+OBJECT_FIELDS = ("position", "orientation", "linear_velocity", "angular_velocity", "size", "mass",
+                 "sliding_friction", "rolling_friction", "damping")
+"""Per-object fields of :func:`parameter_errors`, averaged over matched objects."""
+
+SCENE_FIELDS = ("camera_position", "camera_pitch", "camera_fov", "gravity")
+"""Scene-level fields of :func:`parameter_errors`."""
+
+PARAMETER_UNITS = {
+    "position": "m (Euclidean distance)", "orientation": "deg (geodesic angle)",
+    "linear_velocity": "m/s (Euclidean)", "angular_velocity": "rad/s (Euclidean)",
+    "size": "m (mean absolute error of the 3 full extents)", "mass": "kg",
+    "sliding_friction": "1", "rolling_friction": "m", "damping": "N s/m",
+    "camera_position": "m (Euclidean, camera centre)", "camera_pitch": "deg", "camera_fov": "deg",
+    "gravity": "m/s^2",
+}
+"""Units of every :func:`parameter_errors` field (for reports)."""
+
+
+# --------------------------------------------------------------------------- masks
+def mask_iou(a: np.ndarray, b: np.ndarray) -> float:
+    """Intersection over union of two boolean masks of the same shape.
+
+    Args:
+        a, b: bool arrays, any (equal) shape.
+    Returns:
+        ``|a & b| / |a | b|`` in [0, 1]; **1.0 when both masks are empty** (see module docstring).
+    Raises:
+        ValueError: shapes differ.
+    """
+    a, b = np.asarray(a, dtype=bool), np.asarray(b, dtype=bool)
+    if a.shape != b.shape:
+        raise ValueError(f"mask_iou: shapes must be equal, got {a.shape} and {b.shape}")
+    union = int(np.count_nonzero(a | b))
+    if union == 0:
+        return 1.0
+    return int(np.count_nonzero(a & b)) / union
+
+
+def as_labels(seg: np.ndarray, name: str = "seg") -> np.ndarray:
+    """A ``(T, H, W)`` segmentation as int64 labels (-1 background); bool -> one object (0).
+
+    Raises:
+        ValueError: not 3-D, not integer/bool, or a label below -1.
+    """
+    seg = np.asarray(seg)
+    if seg.ndim != 3:
+        raise ValueError(f"{name}: must be (T, H, W), got shape {seg.shape}")
+    if seg.dtype == bool:
+        return np.where(seg, 0, BACKGROUND).astype(np.int64)
+    if not np.issubdtype(seg.dtype, np.integer):
+        raise ValueError(f"{name}: must be an integer label map or bool, got dtype {seg.dtype}")
+    seg = seg.astype(np.int64)
+    if seg.size and seg.min() < BACKGROUND:
+        raise ValueError(f"{name}: labels must be >= -1, got {int(seg.min())}")
+    return seg
+
+
+def n_labels(seg: np.ndarray) -> int:
+    """Number of objects in a label map: ``max label + 1`` (0 if all background)."""
+    return int(seg.max()) + 1 if seg.size else 0
+
+
+def pairwise_iou(true_seg: np.ndarray, pred_seg: np.ndarray, n_true: int | None = None,
+                 n_pred: int | None = None) -> np.ndarray:
+    """IoU of every (true object, predicted object) pair in every frame.
+
+    Args:
+        true_seg, pred_seg: ``(T, H, W)`` label maps (int, -1 background) or bool.
+        n_true, n_pred: object counts (default: max label + 1); labels at or above the count
+            are treated as background.
+    Returns:
+        ``(T, n_true, n_pred)`` float64; 1.0 where both masks are empty in that frame.
+    Raises:
+        ValueError: shapes differ or a segmentation is malformed.
+    """
+    t, p = as_labels(true_seg, "true_seg"), as_labels(pred_seg, "pred_seg")
+    if t.shape != p.shape:
+        raise ValueError(f"segmentations must have equal shapes, got {t.shape} and {p.shape}")
+    nt = n_labels(t) if n_true is None else int(n_true)
+    npd = n_labels(p) if n_pred is None else int(n_pred)
+    T = t.shape[0]
+    t = np.where(t < nt, t, BACKGROUND).reshape(T, -1) + 1  # 0 = background
+    p = np.where(p < npd, p, BACKGROUND).reshape(T, -1) + 1
+    idx = (np.arange(T)[:, None] * (nt + 1) + t) * (npd + 1) + p
+    counts = np.bincount(idx.ravel(), minlength=T * (nt + 1) * (npd + 1)).reshape(T, nt + 1, npd + 1)
+    inter = counts[:, 1:, 1:].astype(np.float64)
+    area_t = counts[:, 1:, :].sum(axis=2).astype(np.float64)
+    area_p = counts[:, :, 1:].sum(axis=1).astype(np.float64)
+    union = area_t[:, :, None] + area_p[:, None, :] - inter
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(union > 0, inter / np.maximum(union, 1.0), 1.0)
+
+
+def _match(iou: np.ndarray) -> list[tuple[int, int]]:
+    """Hungarian assignment maximising the sequence-mean IoU of ``iou (T, n_true, n_pred)``."""
+    if iou.shape[1] == 0 or iou.shape[2] == 0:
+        return []
+    rows, cols = linear_sum_assignment(iou.mean(axis=0), maximize=True)
+    return sorted((int(r), int(c)) for r, c in zip(rows, cols))
+
+
+def match_objects(true_seg: np.ndarray, pred_seg: np.ndarray) -> list[tuple[int, int]]:
+    """Match true to predicted objects one-to-one (DESIGN §7).
+
+    Hungarian assignment (``scipy.optimize.linear_sum_assignment``) maximising the IoU
+    averaged over the sequence. With unequal counts, ``min(n_true, n_pred)`` pairs are
+    returned; the remaining objects are unmatched.
+
+    Args:
+        true_seg, pred_seg: ``(T, H, W)`` int8 label maps (-1 background) or bool.
+    Returns:
+        ``[(true_index, pred_index), ...]`` sorted by true index.
+    Raises:
+        ValueError: shapes differ or a segmentation is malformed.
+    """
+    return _match(pairwise_iou(true_seg, pred_seg))
+
+
+def sequence_iou(true_seg: np.ndarray, pred_seg: np.ndarray) -> dict[str, Any]:
+    """Mask IoU of a re-simulated clip against the observed one (DESIGN §7).
+
+    Args:
+        true_seg: ``(T, H, W)`` observed labels (int8, -1 background; bool = foreground only,
+            one object).
+        pred_seg: ``(T, H, W)`` re-simulated labels, same convention.
+    Returns:
+        dict with
+
+        * ``initial_iou`` (float): frame-0 IoU, matched objects averaged over true objects;
+        * ``full_iou`` (float): the same averaged over all T frames;
+        * ``per_frame`` ((T,) float64): the matched IoU per frame;
+        * ``foreground_iou_initial`` / ``foreground_iou_full`` (float): IoU of the union of
+          objects at frame 0 / averaged over frames (no matching);
+        * ``matches``: the ``(true, pred)`` pairs used;
+        * ``n_true``, ``n_pred`` (int): object counts (max label + 1).
+
+        With no true object at all, ``per_frame`` is the foreground IoU (1.0 where the
+        prediction is empty too).
+    Raises:
+        ValueError: shapes differ or a segmentation is malformed.
+    """
+    t, p = as_labels(true_seg, "true_seg"), as_labels(pred_seg, "pred_seg")
+    iou = pairwise_iou(t, p)
+    matches = _match(iou)
+    nt = iou.shape[1]
+    fg_t, fg_p = t >= 0, p >= 0
+    inter = np.count_nonzero(fg_t & fg_p, axis=(1, 2))
+    union = np.count_nonzero(fg_t | fg_p, axis=(1, 2))
+    fg = np.where(union > 0, inter / np.maximum(union, 1), 1.0)
+    if nt == 0:
+        per_frame = fg.astype(np.float64)
+    else:
+        per_frame = np.zeros(t.shape[0], dtype=np.float64)
+        for i, j in matches:
+            per_frame += iou[:, i, j]
+        per_frame /= nt
+    return {
+        "initial_iou": float(per_frame[0]) if len(per_frame) else math.nan,
+        "full_iou": float(per_frame.mean()) if len(per_frame) else math.nan,
+        "per_frame": per_frame,
+        "foreground_iou_initial": float(fg[0]) if len(fg) else math.nan,
+        "foreground_iou_full": float(fg.mean()) if len(fg) else math.nan,
+        "matches": matches,
+        "n_true": nt,
+        "n_pred": int(iou.shape[2]),
+    }
+
+
+# --------------------------------------------------------------------------- flow
+def flow_epe(flow_pred: np.ndarray, flow_obs: np.ndarray, fg_pred: np.ndarray, fg_obs: np.ndarray) -> float:
+    """Mean end-point error between re-simulated and observed flow over the foreground.
+
+    Args:
+        flow_pred: ``(T-1, H, W, 2)`` float re-simulated forward flow, px at the rendered
+            resolution (``flow[..., 0]`` = u along x, ``[..., 1]`` = v along y).
+        flow_obs: ``(T-1, H, W, 2)`` float observed flow (float16 from the flow stage is fine).
+        fg_pred, fg_obs: ``(T-1, H, W)`` bool foreground of frames ``0..T-2`` (the frames the
+            flow starts from), e.g. ``seg[:-1] >= 0``.
+    Returns:
+        Mean of ``||flow_pred - flow_obs||_2`` over pixels where ``fg_pred | fg_obs``, px;
+        **0.0 if neither has a foreground pixel** (see module docstring).
+    Raises:
+        ValueError: shapes disagree.
+    """
+    fp, fo = np.asarray(flow_pred), np.asarray(flow_obs)
+    mp, mo = np.asarray(fg_pred, dtype=bool), np.asarray(fg_obs, dtype=bool)
+    if fp.shape != fo.shape or fp.ndim != 4 or fp.shape[-1] != 2:
+        raise ValueError(f"flow_epe: flows must both be (T-1, H, W, 2), got {fp.shape} and {fo.shape}")
+    if mp.shape != fp.shape[:-1] or mo.shape != fp.shape[:-1]:
+        raise ValueError(f"flow_epe: masks must be {fp.shape[:-1]}, got {mp.shape} and {mo.shape}")
+    mask = mp | mo
+    if not mask.any():
+        return 0.0
+    d = fp[mask].astype(np.float64) - fo[mask].astype(np.float64)
+    return float(np.sqrt((d * d).sum(axis=-1)).mean())
+
+
+# --------------------------------------------------------------------------- scenes
+def composition_accuracy(true_scenes: Sequence[Scene], pred_scenes: Sequence[Scene | None]) -> float:
+    """Fraction of scenes whose predicted multiset of shapes equals the true one.
+
+    Args:
+        true_scenes: N true scenes.
+        pred_scenes: N predictions; ``None`` (unparseable output) counts as wrong.
+    Returns:
+        Accuracy in [0, 1]; NaN for N = 0.
+    Raises:
+        ValueError: the lists differ in length.
+    """
+    if len(true_scenes) != len(pred_scenes):
+        raise ValueError(f"composition_accuracy: {len(true_scenes)} true scenes but {len(pred_scenes)} predictions")
+    if not true_scenes:
+        return math.nan
+    hits = [p is not None and p.composition == t.composition for t, p in zip(true_scenes, pred_scenes)]
+    return float(np.mean(hits))
+
+
+def extents(obj) -> np.ndarray:
+    """Full extents (3,) m of a scene object along its body x, y, z axes."""
+    s = obj.size
+    if obj.shape == "sphere":
+        return np.full(3, 2.0 * s.radius)
+    if obj.shape == "cylinder":
+        return np.array([2.0 * s.radius, 2.0 * s.radius, s.height])
+    return np.array([s.width, s.depth, s.height])
+
+
+def _quat_angle_deg(q1: Sequence[float], q2: Sequence[float]) -> float:
+    """Geodesic angle (deg) between two rotations given as quaternions (q and -q equal)."""
+    a = np.asarray(q1, dtype=np.float64) / np.linalg.norm(q1)
+    b = np.asarray(q2, dtype=np.float64) / np.linalg.norm(q2)
+    return float(np.degrees(2.0 * np.arccos(np.clip(abs(float(a @ b)), 0.0, 1.0))))
+
+
+def match_by_position(true_scene: Scene, pred_scene: Scene) -> list[tuple[int, int]]:
+    """Hungarian matching on initial-position distance, only between objects of the same shape.
+
+    Returns:
+        ``[(true_index, pred_index), ...]`` sorted by true index; objects whose shape has no
+        counterpart stay unmatched.
+    """
+    pt = np.array([o.position for o in true_scene.objects], dtype=np.float64)
+    pp = np.array([o.position for o in pred_scene.objects], dtype=np.float64)
+    dist = np.linalg.norm(pt[:, None] - pp[None], axis=-1)
+    same = np.array([[a.shape == b.shape for b in pred_scene.objects] for a in true_scene.objects])
+    big = 1e6 + dist.max(initial=0.0) * 10
+    rows, cols = linear_sum_assignment(np.where(same, dist, big))
+    return sorted((int(r), int(c)) for r, c in zip(rows, cols) if same[r, c])
+
+
+def parameter_errors(true_scene: Scene, pred_scene: Scene, true_seg: np.ndarray | None = None,
+                     pred_seg: np.ndarray | None = None) -> dict[str, Any]:
+    """Per-field absolute errors of a predicted scene after matching objects (DESIGN §7).
+
+    Objects are matched by :func:`match_objects` when both segmentations are given (pred
+    labels are the predicted scene's object indices, as rendered), else by
+    :func:`match_by_position` (same shape only). Object fields are averaged over matched
+    pairs; units in :data:`PARAMETER_UNITS`. Sizes are compared as full extents along the body
+    axes, so a sphere matched to a box still has a size error. The camera is compared by its
+    centre (paper form: (0, -2, height)), pitch and fov.
+
+    Args:
+        true_scene, pred_scene: validated scenes.
+        true_seg, pred_seg: optional ``(T, H, W)`` label maps of both scenes' renders.
+    Returns:
+        dict: every name in :data:`OBJECT_FIELDS` (float, NaN when no object matched) and
+        :data:`SCENE_FIELDS` (float), plus ``n_true``, ``n_matched`` (int) and ``matches``.
+    """
+    if true_seg is not None and pred_seg is not None:
+        iou = pairwise_iou(true_seg, pred_seg, len(true_scene.objects), len(pred_scene.objects))
+        matches = _match(iou)
+    else:
+        matches = match_by_position(true_scene, pred_scene)
+    per: dict[str, list[float]] = {k: [] for k in OBJECT_FIELDS}
+    for i, j in matches:
+        a, b = true_scene.objects[i], pred_scene.objects[j]
+        per["position"].append(float(np.linalg.norm(np.subtract(a.position, b.position))))
+        per["orientation"].append(_quat_angle_deg(a.orientation, b.orientation))
+        per["linear_velocity"].append(float(np.linalg.norm(np.subtract(a.linear_velocity, b.linear_velocity))))
+        per["angular_velocity"].append(float(np.linalg.norm(np.subtract(a.angular_velocity, b.angular_velocity))))
+        per["size"].append(float(np.abs(extents(a) - extents(b)).mean()))
+        per["mass"].append(abs(a.mass - b.mass))
+        per["sliding_friction"].append(abs(a.material.sliding_friction - b.material.sliding_friction))
+        per["rolling_friction"].append(abs(a.material.rolling_friction - b.material.rolling_friction))
+        per["damping"].append(abs(a.material.damping - b.material.damping))
+    out: dict[str, Any] = {k: (float(np.mean(v)) if v else math.nan) for k, v in per.items()}
+    ct, cp = true_scene.camera, pred_scene.camera
+    out["camera_position"] = float(np.linalg.norm(np.subtract(ct.eye, cp.eye)))
+    out["camera_pitch"] = abs(ct.pitch - cp.pitch)
+    out["camera_fov"] = abs(ct.fov - cp.fov)
+    out["gravity"] = abs(true_scene.gravity - pred_scene.gravity)
+    out.update(n_true=len(true_scene.objects), n_matched=len(matches), matches=matches)
+    return out
+
+
+# --------------------------------------------------------------------------- reports
+def scene_report(true_scene: Scene | None, pred_scene: Scene | None, true_seg: np.ndarray,
+                 obs_flow: np.ndarray | None, pred_seg: np.ndarray | None,
+                 pred_flow: np.ndarray | None) -> dict[str, Any]:
+    """All metrics of one prediction of one scene (one row of a report).
+
+    An invalid prediction (``pred_scene is None``: unparseable output, or nothing to refine)
+    scores composition wrong and IoU 0; its EPE and parameter errors are NaN (left out of
+    means, counted in ``n - n_valid``).
+
+    Args:
+        true_scene: the true scene (None for real video: no composition/parameter errors).
+        pred_scene: the prediction, or None.
+        true_seg: ``(T, H, W)`` observed labels (-1 background).
+        obs_flow: ``(T-1, H, W, 2)`` observed flow, px, or None (no EPE).
+        pred_seg, pred_flow: the prediction's re-simulated labels and flow (None if invalid).
+    Returns:
+        flat dict: ``valid``, ``composition_correct``, ``initial_iou``, ``full_iou``,
+        ``foreground_iou_initial``, ``foreground_iou_full``, ``epe`` and
+        ``param/<field>`` for every parameter error (NaN if unavailable).
+    """
+    row: dict[str, Any] = {"valid": pred_scene is not None}
+    row["composition_correct"] = bool(
+        pred_scene is not None and true_scene is not None and pred_scene.composition == true_scene.composition)
+    keys = ("initial_iou", "full_iou", "foreground_iou_initial", "foreground_iou_full")
+    if pred_scene is None or pred_seg is None:
+        row.update({k: 0.0 for k in keys}, epe=math.nan)
+        row.update({f"param/{k}": math.nan for k in OBJECT_FIELDS + SCENE_FIELDS})
+        return row
+    iou = sequence_iou(true_seg, pred_seg)
+    row.update({k: iou[k] for k in keys})
+    row["epe"] = (flow_epe(pred_flow, obs_flow, pred_seg[:-1] >= 0, np.asarray(true_seg)[:-1] >= 0)
+                  if pred_flow is not None and obs_flow is not None else math.nan)
+    if true_scene is not None:
+        err = parameter_errors(true_scene, pred_scene, true_seg, pred_seg)
+        row.update({f"param/{k}": err[k] for k in OBJECT_FIELDS + SCENE_FIELDS})
+    else:
+        row.update({f"param/{k}": math.nan for k in OBJECT_FIELDS + SCENE_FIELDS})
+    return row
+
+
+def summarize(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """Aggregate :func:`scene_report` rows of one method and split.
+
+    Returns:
+        dict: ``n``, ``n_valid``, ``composition_accuracy``, ``initial_iou``, ``full_iou``,
+        ``foreground_iou_initial``, ``foreground_iou`` (full sequence) — means over all rows
+        (invalid rows count 0) — and ``epe`` and ``parameter_errors`` (dict per field) —
+        means over valid rows with a finite value (NaN when none).
+    """
+    def mean(key: str, valid_only: bool = False) -> float:
+        vals = [r[key] for r in rows if (r["valid"] or not valid_only)]
+        vals = [v for v in vals if v is not None and not (isinstance(v, float) and math.isnan(v))]
+        return float(np.mean(vals)) if vals else math.nan
+
+    return {
+        "n": len(rows),
+        "n_valid": int(sum(bool(r["valid"]) for r in rows)),
+        "composition_accuracy": mean("composition_correct"),
+        "initial_iou": mean("initial_iou"),
+        "full_iou": mean("full_iou"),
+        "foreground_iou_initial": mean("foreground_iou_initial"),
+        "foreground_iou": mean("foreground_iou_full"),
+        "epe": mean("epe", valid_only=True),
+        "parameter_errors": {k: mean(f"param/{k}", valid_only=True) for k in OBJECT_FIELDS + SCENE_FIELDS},
+    }
+
+
+def markdown_table(summaries: dict[str, dict[str, Any]], labels: dict[str, str], inputs: dict[str, str],
+                   split: str) -> str:
+    """A paper-style Markdown table of one split.
+
+    Args:
+        summaries: method key -> :func:`summarize` output for this split.
+        labels: method key -> row label (e.g. ``"Best@32 + CMA-ES"``).
+        inputs: method key -> input modality shown in the table (``flow`` / ``rgb`` / ``-``).
+        split: split name, for the heading.
+    Returns:
+        Markdown: a heading and a table with composition accuracy, initial IoU, full-sequence
+        IoU, foreground IoU and EPE (px) per method.
+    """
+    def f(x: float, nd: int = 3) -> str:
+        return "–" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{nd}f}"
+
+    n = max((s["n"] for s in summaries.values()), default=0)
+    lines = [f"### Split `{split}` (n = {n})", "",
+             "| Method | Input | Composition acc. | Initial IoU | Full-sequence IoU | Foreground IoU | EPE (px) | valid |",
+             "|---|---|---|---|---|---|---|---|"]
+    for key, s in summaries.items():
+        lines.append(f"| {labels.get(key, key)} | {inputs.get(key, '-')} | {f(s['composition_accuracy'])} | "
+                     f"{f(s['initial_iou'])} | {f(s['full_iou'])} | {f(s['foreground_iou'])} | {f(s['epe'], 2)} | "
+                     f"{s['n_valid']}/{s['n']} |")
+    return "\n".join(lines) + "\n"
+
+
+def json_safe(obj: Any) -> Any:
+    """``obj`` with every non-finite float (NaN, ±inf) replaced by None, recursively, so the
+    report is strict JSON (``dvc metrics show`` and browsers reject NaN)."""
+    if isinstance(obj, dict):
+        return {k: json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if math.isfinite(obj) else None
+    return obj

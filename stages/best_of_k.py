@@ -1,0 +1,56 @@
+"""DVC stage `best_of_k`: re-simulate every sampled scene and score it against its clip.
+
+Reads ``paths.predictions`` (scene_id, split, sample, text, scene YAML or null, error),
+``paths.video`` (observed segmentation = the rendered ground truth) and ``paths.flow``
+(observed flow, params ``flow.method``). For each scene of ``search.splits``, the first
+``search.k`` samples are re-timed to the clip, simulated and scored with the fitness
+``full_iou - lambda_epe * EPE`` (pipeline.search). Writes ``paths.best_of_k``: one Parquet
+shard per predictions shard with scene_id, split, sample, valid, initial_iou, full_iou, epe
+(px), fitness, is_best, error.
+"""
+
+import pyarrow as pa
+from tqdm import tqdm
+
+from pipeline import shards
+from pipeline.mjcf import SimOptions
+from pipeline.params import load_params, path_of
+from pipeline.search import (EvaluatorPool, Observations, SearchConfig, at_clip_timing, best_of_k, parse_sample,
+                             samples_by_scene)
+
+SCHEMA = pa.schema([("scene_id", pa.string()), ("split", pa.string()), ("sample", pa.int32()),
+                    ("valid", pa.bool_()), ("initial_iou", pa.float64()), ("full_iou", pa.float64()),
+                    ("epe", pa.float64()), ("fitness", pa.float64()), ("is_best", pa.bool_()),
+                    ("error", pa.string())])
+
+
+def main() -> None:
+    p = load_params()
+    cfg, sim = SearchConfig(**(p.get("search") or {})), SimOptions(**p["sim"])
+    obs = Observations(path_of(p, "video"), path_of(p, "flow"))
+    pred_shards = shards.list_shards(path_of(p, "predictions"), "parquet")
+    out = shards.reset_dir(path_of(p, "best_of_k"))
+    used = ("k", "lambda_epe", "prior_weight", "penalize_extra", "splits")  # the dvc.yaml params of this stage
+    meta = {"params": {"search": {k: v for k, v in cfg.model_dump().items() if k in used}, "sim": p["sim"]},
+            "units": {"epe": "px (rendered resolution)"},
+            "observed": {"seg": "rendered ground truth", "flow": (p.get("flow") or {}).get("method")}}
+    with EvaluatorPool(*obs.frame_size, sim) as pool:
+        for i, shard in enumerate(pred_shards):
+            rows = []
+            scenes = samples_by_scene(shards.read_table(shard), cfg.splits, cfg.k)
+            for sid, preds in tqdm(scenes.items(), desc=f"best_of_k shard {i}", unit="scene"):
+                seg, flow, fps = obs.get(sid)
+                cands = [parse_sample(r) for r in preds]  # None: the output did not parse
+                cands = [None if c is None else at_clip_timing(c, len(seg), fps) for c in cands]
+                scores, best = best_of_k(cands, seg, flow, cfg, sim, pool=pool)
+                rows += [{"scene_id": sid, "split": r["split"], "sample": r["sample"], "valid": s["valid"],
+                          "initial_iou": s["initial_iou"], "full_iou": s["full_iou"], "epe": s["epe"],
+                          "fitness": s["fitness"], "is_best": j == best, "error": r["error"] or s["error"]}
+                         for j, (r, s) in enumerate(zip(preds, scores))]
+            shards.write_table(shards.shard_path(out, i, "parquet"), rows, schema=SCHEMA, metadata=meta)
+    shards.write_meta(out, {**meta, "shards": {"shard": len(pred_shards)},
+                            "features": {c: str(SCHEMA.field(c).type) for c in SCHEMA.names}})
+
+
+if __name__ == "__main__":
+    main()

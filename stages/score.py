@@ -1,0 +1,88 @@
+"""DVC stage `score`: the paper-style results table, metrics.json and the search plot.
+
+Scores four predictors on the scenes of ``search.splits`` that have predictions, each
+re-simulated on the clip's time base and compared with the observed clip (segmentation =
+rendered ground truth, flow = the flow stage's ``flow.method``): the trivial baseline (the
+training split's most common composition with its mean parameters per shape slot), the
+model's first sample, Best@K and Best@K + CMA-ES. Reads ``paths.configs``,
+``paths.predictions``, ``paths.best_of_k``, ``paths.cmaes``, ``paths.video``, ``paths.flow``;
+writes ``<paths.reports>/metrics.json``, ``table.md`` and ``search.png`` (atomically).
+"""
+
+import json
+
+from tqdm import tqdm
+
+from pipeline import shards
+from pipeline.metrics import PARAMETER_UNITS, json_safe, markdown_table, scene_report, summarize
+from pipeline.mjcf import SimOptions
+from pipeline.params import load_params, path_of
+from pipeline.scene import Scene, SceneError
+from pipeline.search import (EvaluatorPool, Observations, SearchConfig, at_clip_timing, baseline_scene, parse_sample,
+                             plot_history, samples_by_scene)
+
+
+def main() -> None:
+    p = load_params()
+    cfg, sim = SearchConfig(**(p.get("search") or {})), SimOptions(**p["sim"])
+    model_input, flow_method = (p.get("model") or {}).get("input", "flow"), (p.get("flow") or {}).get("method")
+    configs = shards.read_table(path_of(p, "configs")).to_pylist()
+    preds = samples_by_scene(shards.read_table(path_of(p, "predictions")), cfg.splits)
+    best = {r["scene_id"]: r["sample"] for r in shards.read_table(path_of(p, "best_of_k")).to_pylist() if r["is_best"]}
+    cmaes = {r["scene_id"]: r for r in shards.read_table(path_of(p, "cmaes")).to_pylist()}
+    truth = {r["scene_id"]: (r["split"], Scene.from_yaml(r["scene"], source=r["scene_id"]))
+             for r in configs if r["split"] in cfg.splits and r["scene_id"] in preds}
+    baseline = baseline_scene(configs, split="train")
+    k = min(cfg.k, max((len(v) for v in preds.values()), default=cfg.k))  # Best@K used the first k samples
+
+    def best_sample(sid: str) -> Scene | None:
+        return parse_sample(next(r for r in preds[sid] if r["sample"] == best[sid])) if sid in best else None
+
+    def refined(sid: str) -> Scene | None:
+        text = (cmaes.get(sid) or {}).get("scene")
+        return Scene.from_yaml(text, source=f"{sid} (cmaes)") if text else None
+
+    methods = {  # key: (table label, input, predictor)
+        "trivial_baseline": ("Trivial baseline", "–", lambda sid: baseline),
+        "first_sample": ("Model (first sample)", model_input, lambda sid: parse_sample(preds[sid][0])),
+        "best_of_k": (f"Best@{k}", model_input, best_sample),
+        "best_of_k_cmaes": (f"Best@{k} + CMA-ES", model_input, refined),
+    }
+    rows = {(m, s): [] for m in methods for s in cfg.splits}
+    obs = Observations(path_of(p, "video"), path_of(p, "flow"))
+    with EvaluatorPool(*obs.frame_size, sim) as pool:
+        for sid, (split, true) in tqdm(truth.items(), desc="score", unit="scene"):
+            seg, flow, fps = obs.get(sid)
+            for m, (_, _, predict) in methods.items():
+                pred = predict(sid)
+                pred = None if pred is None else at_clip_timing(pred, len(seg), fps)
+                try:
+                    pseg, pflow = (None, None) if pred is None else pool.evaluate(pred, len(seg))
+                except (SceneError, ValueError):  # e.g. an unknown effect: counts as invalid
+                    pred, pseg, pflow = None, None, None
+                rows[m, split].append(scene_report(true, pred, seg, flow, pseg, pflow))
+    splits = [s for s in cfg.splits if rows["trivial_baseline", s]]
+    metrics = {
+        "observed": {"segmentation": "rendered ground truth (synthetic)", "flow": flow_method},
+        "input": model_input, "reasoning": (p.get("model") or {}).get("reasoning"), "k": k,
+        "cmaes_budget": {"popsize": cfg.popsize, "iterations": cfg.iterations, "free": list(cfg.free)},
+        "units": {"epe": "px at the rendered resolution", "parameter_errors": PARAMETER_UNITS},
+        "methods": {m: {s: summarize(rows[m, s]) for s in splits} for m in methods},
+    }
+    reports = path_of(p, "reports")
+    shards.write_json(reports / "metrics.json", json_safe(metrics))  # NaN -> null
+    labels, inputs = {m: v[0] for m, v in methods.items()}, {m: v[1] for m, v in methods.items()}
+    width, height = obs.frame_size
+    table = ["# Results", "",
+             f"Observed masks: rendered ground truth; observed flow: `{flow_method}`; IoU and EPE on "
+             f"{width}x{height} re-simulations (EPE in px). CMA-ES: popsize {cfg.popsize} x {cfg.iterations} "
+             f"iterations, free: {', '.join(cfg.free)}. Invalid predictions count as IoU 0 and are left out of EPE.", ""]
+    table += [markdown_table({m: metrics["methods"][m][s] for m in methods}, labels, inputs, s) for s in splits]
+    shards.write_text(reports / "table.md", "\n".join(table))
+    histories = [json.loads(r["history"]) for r in cmaes.values() if r["split"] in splits and r["history"]]
+    shards.write_bytes(reports / "search.png", plot_history(histories, title=f"CMA-ES ({', '.join(splits)})"))
+    print("\n".join(table))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,331 @@
+"""Tests for pipeline.search: fast in-place evaluation equals rebuilding the model, fitness,
+Best@K, CMA-ES refinement, the search space and the trivial baseline."""
+
+import math
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from pipeline.metrics import sequence_iou
+from pipeline.mjcf import compile_model
+from pipeline.render import render_scene
+from pipeline.scene import Scene
+from pipeline.search import (
+    SceneEvaluator, SearchConfig, SearchSpace, baseline_scene, best_of_k, cmaes_refine, evaluate_scene,
+    fitness, floor_height,
+)
+
+W, H = 48, 32
+
+
+def _scene(**changes) -> Scene:
+    """Three objects big in a 48x32 view, 0.4 s (12 frames)."""
+    data = {
+        "duration": 0.4,
+        "camera": {"height": 1.0, "pitch": 35.0, "fov": 45.0},
+        "objects": [
+            {"shape": "box", "size": {"width": 0.25, "depth": 0.2, "height": 0.15}, "mass": 0.8,
+             "position": [-0.2, -0.8, 0.075], "linear_velocity": [0.6, 0.3, 0.0]},
+            {"shape": "sphere", "size": {"radius": 0.1}, "mass": 0.3, "position": [0.2, -0.7, 0.3],
+             "linear_velocity": [-0.4, 0.0, 1.0], "material": {"sliding_friction": 0.3, "damping": 0.05}},
+            {"shape": "cylinder", "size": {"radius": 0.08, "height": 0.2}, "mass": 0.5,
+             "position": [0.05, -0.4, 0.1], "angular_velocity": [0.0, 0.0, 4.0]},
+        ],
+    }
+    data.update(changes)
+    return Scene.from_dict(data)
+
+
+def _edit(scene: Scene, i: int, **fields) -> Scene:
+    d = scene.model_dump()
+    d["objects"][i].update(fields)
+    return Scene.from_dict(d)
+
+
+# ----------------------------------------------------------------------- fast == naive
+def _candidates(base: Scene) -> dict[str, Scene]:
+    return {
+        "size": _edit(_edit(base, 0, size={"width": 0.3, "depth": 0.15, "height": 0.2}, position=[-0.2, -0.8, 0.1]),
+                      1, size={"radius": 0.13}),
+        "mass+material": _edit(_edit(base, 1, mass=2.0, material={"sliding_friction": 0.9, "rolling_friction": 0.01,
+                                                                   "damping": 0.5}), 0, mass=0.2),
+        "camera+gravity": base.replace(camera={"height": 1.3, "pitch": 40.0, "fov": 52.0}, gravity=7.0),
+        "velocity+orientation": _edit(_edit(base, 0, linear_velocity=[-0.5, 1.0, 0.5], angular_velocity=[0, 2, 0]),
+                                      2, orientation=[0.9239, 0.3827, 0.0, 0.0]),
+        "six_dof_camera": base.replace(camera={"position": [0.3, -1.9, 1.1], "yaw": 8.0, "pitch": 30.0,
+                                               "roll": 3.0, "fov": 48.0}),
+    }
+
+
+def test_fast_evaluator_equals_rebuilding_the_model():
+    base = _scene()
+    cands = _candidates(base)
+    with SceneEvaluator(base, W, H) as ev:
+        for name, cand in [*cands.items(), ("base again", base)]:
+            seg, flow = ev.evaluate(cand)
+            naive_model = compile_model(cand)
+            # the edited model equals the compiled one in every field that the edits touch
+            for field in ("body_mass", "body_inertia", "body_invweight0", "dof_invweight0", "dof_M0",
+                          "geom_size", "geom_rbound", "geom_aabb", "bvh_aabb", "geom_friction", "dof_damping",
+                          "key_qpos", "key_qvel", "qpos0", "cam_pos", "cam_quat", "cam_fovy", "cam_pos0",
+                          "cam_mat0", "body_subtreemass", "dof_length"):
+                np.testing.assert_allclose(getattr(ev.model, field), getattr(naive_model, field),
+                                           rtol=1e-9, atol=1e-12, err_msg=f"{name}: {field}")
+            np.testing.assert_allclose(ev.model.opt.gravity, naive_model.opt.gravity)
+            for stat in ("meanmass", "meaninertia", "meansize", "extent", "center"):
+                np.testing.assert_allclose(getattr(ev.model.stat, stat), getattr(naive_model.stat, stat),
+                                           rtol=1e-9, err_msg=f"{name}: stat.{stat}")
+            _, frames = render_scene(cand, W, H, rgb=False, depth=False)
+            assert sequence_iou(frames.seg, seg)["full_iou"] == 1.0, name
+            np.testing.assert_array_equal(seg, frames.seg, err_msg=name)
+            np.testing.assert_allclose(flow, frames.flow, atol=1e-4, err_msg=name)
+
+
+def test_fast_evaluator_with_an_effect():
+    """Effects belong to the structure; in-place edits keep them (quadratic drag uses the
+    edited masses and inertias at run time)."""
+    drag = _scene(effects=[{"effect": "quadratic_drag", "parameters": {"density": 40.0}}])
+    cand = _edit(drag, 1, size={"radius": 0.14}, mass=0.1, linear_velocity=[-1.0, 0.5, 2.0])
+    with SceneEvaluator(drag, W, H) as ev:
+        seg, flow = ev.evaluate(cand)
+    _, frames = render_scene(cand, W, H, rgb=False, depth=False)
+    np.testing.assert_array_equal(seg, frames.seg)
+    np.testing.assert_allclose(flow, frames.flow, atol=1e-4)
+
+
+def test_candidates_really_differ():
+    """Guard for the test above: each candidate changes the rendered clip."""
+    base_seg, _ = evaluate_scene(_scene(), W, H)
+    for name, cand in _candidates(_scene()).items():
+        if name == "mass+material":
+            continue  # mass and friction barely show in 0.4 s; checked field by field above
+        seg, _ = evaluate_scene(cand, W, H)
+        assert sequence_iou(base_seg, seg)["full_iou"] < 0.99, name
+
+
+def test_evaluator_rejects_other_structure():
+    base = _scene()
+    other = base.replace(objects=[o.model_dump() for o in base.objects[:2]])
+    with SceneEvaluator(base, W, H) as ev, pytest.raises(ValueError, match="structure"):
+        ev.evaluate(other)
+
+
+def test_evaluator_n_frames_and_no_flow():
+    with SceneEvaluator(_scene(), W, H) as ev:
+        seg, flow = ev.evaluate(_scene(), n_frames=5, flow=False)
+    assert seg.shape == (5, H, W) and seg.dtype == np.int8 and flow is None
+
+
+# ----------------------------------------------------------------------------- fitness
+def test_fitness_of_the_truth():
+    seg, flow = evaluate_scene(_scene(), W, H)
+    f = fitness(seg, flow, seg, flow, SearchConfig(lambda_epe=1.0))
+    assert f["full_iou"] == 1.0 and f["epe"] == 0.0 and f["fitness"] == 1.0
+
+
+def test_fitness_weights_and_foreground_only_observation():
+    seg, flow = evaluate_scene(_scene(), W, H)
+    obs_flow = flow + np.float32(1.0)                     # EPE sqrt(2) on the foreground
+    f = fitness(seg, flow, seg, obs_flow, SearchConfig(lambda_epe=0.5, prior_weight=2.0), prior=0.1)
+    assert f["epe"] == pytest.approx(math.sqrt(2), rel=1e-6)
+    assert f["fitness"] == pytest.approx(1.0 - 0.5 * math.sqrt(2) - 0.2, rel=1e-6)
+    # pseudo masks without identities: foreground IoU; relabelling objects changes nothing
+    relabelled = np.where(seg >= 0, 0, -1).astype(np.int8)
+    f = fitness(relabelled, None, seg >= 0, None, SearchConfig())
+    assert f["full_iou"] == 1.0 and math.isnan(f["epe"])
+
+
+def test_search_config_rejects_unknown_keys():
+    with pytest.raises(ValidationError):
+        SearchConfig(popsize=8, typo=1)
+    with pytest.raises(ValidationError):
+        SearchConfig(free=["position", "colour"])
+
+
+# ------------------------------------------------------------------------------ Best@K
+def test_best_of_k_picks_the_truth():
+    truth = _scene()
+    obs_seg, obs_flow = evaluate_scene(truth, W, H)
+    off = _edit(truth, 0, position=[-0.1, -0.75, 0.075])
+    fov = truth.replace(camera={"height": 1.0, "pitch": 35.0, "fov": 50.0})
+    fewer = truth.replace(objects=[o.model_dump() for o in truth.objects[:2]])  # another structure
+    extra = truth.replace(objects=[*(o.model_dump() for o in truth.objects),
+                                   {**truth.objects[1].model_dump(), "position": (-0.3, -0.5, 0.2)}])
+    cands = [None, off, fewer, truth, fov, extra]
+    scores, best = best_of_k(cands, obs_seg, obs_flow, SearchConfig())
+    assert best == 3
+    # an extra object leaves the DESIGN §7 IoU at 1 but costs fitness (1/4 of the IoU term)
+    assert scores[5]["full_iou"] == 1.0 and scores[5]["fitness"] < 0.8
+    assert scores[0]["fitness"] == -math.inf and not scores[0]["valid"]
+    assert scores[3]["full_iou"] == 1.0 and scores[3]["epe"] == 0.0
+    assert all(s["fitness"] < scores[3]["fitness"] for i, s in enumerate(scores) if i != 3)
+    assert scores[2]["full_iou"] < 0.7                    # a missing object counts 0
+    scores, best = best_of_k([None, None], obs_seg, obs_flow, SearchConfig())
+    assert best is None and not any(s["valid"] for s in scores)
+
+
+# ------------------------------------------------------------------------------ CMA-ES
+def _two_objects() -> Scene:
+    return Scene.from_dict({
+        "duration": 0.5,
+        "camera": {"height": 1.0, "pitch": 35.0, "fov": 45.0},
+        "objects": [
+            {"shape": "box", "size": {"width": 0.25, "depth": 0.25, "height": 0.2}, "mass": 0.8,
+             "position": [-0.15, -0.8, 0.1], "linear_velocity": [0.6, 0.3, 0.0]},
+            {"shape": "sphere", "size": {"radius": 0.1}, "mass": 0.3, "position": [0.2, -0.7, 0.3],
+             "linear_velocity": [-0.4, 0.0, 1.0]},
+        ],
+    })
+
+
+def test_cmaes_recovers_a_perturbed_scene():
+    truth = _two_objects()
+    obs_seg, obs_flow = evaluate_scene(truth, 64, 48)
+    # positions off by ~10 cm, fov off by 5 deg
+    start = _edit(_edit(truth, 0, position=[-0.07, -0.74, 0.1]), 1, position=[0.13, -0.63, 0.3])
+    start = start.replace(camera={"height": 1.0, "pitch": 35.0, "fov": 50.0})
+    cfg = SearchConfig(popsize=8, iterations=30, free=["position", "camera"])  # sigma 0.05, IoU - 1.0 EPE
+    best, history = cmaes_refine(start, obs_seg, obs_flow, cfg, seed=0)
+    before = sequence_iou(obs_seg, evaluate_scene(start, 64, 48)[0])["full_iou"]
+    after = sequence_iou(obs_seg, evaluate_scene(best, 64, 48)[0])["full_iou"]
+    assert before < 0.5
+    assert after > 0.8, f"IoU {before:.3f} -> {after:.3f}"
+    assert [h["iteration"] for h in history] == list(range(31))
+    assert history[-1]["evaluations"] == 1 + 8 * 30
+    best_f = [h["best_fitness"] for h in history]
+    assert best_f == sorted(best_f)                          # best so far never decreases
+    assert history[-1]["best_full_iou"] == pytest.approx(after)
+    assert best.composition == truth.composition
+
+
+def test_cmaes_is_deterministic_and_keeps_mass_fixed():
+    truth = _scene()
+    obs_seg, obs_flow = evaluate_scene(truth, W, H)
+    start = _edit(truth, 1, position=[0.25, -0.7, 0.3])
+    cfg = SearchConfig(popsize=4, iterations=2)
+    a, ha = cmaes_refine(start, obs_seg, obs_flow, cfg, seed=3)
+    b, hb = cmaes_refine(start, obs_seg, obs_flow, cfg, seed=3)
+    assert a == b and ha[-1]["best_fitness"] == hb[-1]["best_fitness"]
+    assert [o.mass for o in a.objects] == [o.mass for o in start.objects]
+    assert [o.material for o in a.objects] == [o.material for o in start.objects]
+    assert ha[-1]["evaluations"] == 9 and ha[-1]["best_fitness"] >= ha[0]["best_fitness"]
+
+
+# -------------------------------------------------------------------------- search space
+def test_search_space_decodes_start_and_stays_valid():
+    scene = _scene()
+    space = SearchSpace(scene, SearchConfig().free + ("mass", "friction", "damping", "angular_velocity"),
+                        SearchConfig().ranges)
+    back = space.decode(space.x0)
+    for a, b in zip(back.objects, scene.objects):
+        np.testing.assert_allclose(a.position, b.position, atol=1e-9)
+        np.testing.assert_allclose(a.orientation, b.orientation, atol=1e-9)
+        np.testing.assert_allclose(list(a.size.model_dump().values()), list(b.size.model_dump().values()), rtol=1e-9)
+        assert a.mass == pytest.approx(b.mass)
+    assert back.camera.fov == pytest.approx(scene.camera.fov)
+    for x in (np.zeros(space.dim), np.ones(space.dim)):       # corners of the box decode to valid scenes
+        corner = space.decode(x)
+        for o in corner.objects:
+            assert o.position[2] >= floor_height(o) - 1e-9 or o.position[2] >= 0.0
+            assert o.material.sliding_friction >= 0.0
+
+
+def test_yaw_rotates_about_world_z():
+    scene = _scene()
+    space = SearchSpace(scene, ["yaw"], SearchConfig().ranges)   # +-45 deg
+    turned = space.decode(np.ones(space.dim))
+    q = np.asarray(turned.objects[0].orientation)
+    np.testing.assert_allclose(q, [math.cos(math.radians(22.5)), 0, 0, math.sin(math.radians(22.5))], atol=1e-9)
+
+
+def test_floor_height():
+    box = _scene().objects[0]                                  # height 0.15, upright
+    assert floor_height(box) == pytest.approx(0.075)
+    tilted = _edit(_scene(), 2, orientation=[math.cos(math.pi / 4), math.sin(math.pi / 4), 0, 0]).objects[2]
+    assert floor_height(tilted) == pytest.approx(0.08)         # cylinder on its side: radius
+
+
+# ------------------------------------------------------------------------------ baseline
+def test_baseline_scene_most_common_composition_and_slot_means():
+    s = _scene()
+    two_a = s.replace(objects=[s.objects[1].model_dump(), s.objects[0].model_dump()])      # sphere, box
+    moved = _edit(_edit(s, 0, position=[0.0, 0.0, 0.075]), 1, mass=0.5)
+    two_b = moved.replace(objects=[moved.objects[0].model_dump(), moved.objects[1].model_dump()])  # box, sphere
+    rows = [{"scene_id": "a", "split": "train", "scene": two_a.to_yaml()},
+            {"scene_id": "b", "split": "train", "scene": two_b.to_yaml()},
+            {"scene_id": "c", "split": "train", "scene": s.to_yaml()},
+            {"scene_id": "d", "split": "test", "scene": s.to_yaml()},
+            {"scene_id": "e", "split": "test", "scene": s.to_yaml()}]
+    base = baseline_scene(rows)
+    assert base.composition == ("box", "sphere")
+    box, sphere = base.objects                                   # slots in shape order
+    assert box.shape == "box" and sphere.shape == "sphere"
+    np.testing.assert_allclose(box.position, [-0.1, -0.4, 0.075])
+    assert sphere.mass == pytest.approx(0.4)
+    with pytest.raises(ValueError, match="no scene"):
+        baseline_scene(rows, split="val")
+
+
+# ------------------------------------------------------------------------------ stages
+def _run_stage(name: str) -> None:
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "stages" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(f"stage_{name}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    module.main()
+
+
+def test_stages_best_of_k_cmaes_score(tmp_path, monkeypatch):
+    """The three stages on a tiny dataset: 3 train scenes, 2 test scenes, K = 2 samples (the
+    truth and an unparseable output); observed flow = the exact flow."""
+    import json
+
+    import pyarrow as pa
+    import yaml
+
+    from pipeline import shards
+
+    paths = {k: str(tmp_path / k) for k in ("configs", "video", "flow", "predictions", "best_of_k", "cmaes", "reports")}
+    params = {"seed": 0, "paths": paths, "sim": {"timestep": 0.002}, "flow": {"method": "gt"},
+              "model": {"input": "flow"}, "search": {"k": 2, "popsize": 2, "iterations": 1}}
+    (tmp_path / "params.yaml").write_text(yaml.safe_dump(params))
+    monkeypatch.setenv("DYNAMICS_PARAMS", str(tmp_path / "params.yaml"))
+    base = _scene(duration=0.2)
+    scenes = [base, _edit(base, 0, position=[-0.1, -0.8, 0.075]), base.replace(objects=[base.objects[1].model_dump()]),
+              _edit(base, 1, position=[0.1, -0.7, 0.3]), base.replace(objects=[base.objects[2].model_dump()])]
+    splits = ["train", "train", "train", "test", "test_comp"]
+    ids = [shards.scene_id(i) for i in range(len(scenes))]
+    shards.write_table(shards.shard_path(paths["configs"], 0, "parquet"),
+                       [{"scene_id": i, "split": s, "scene": sc.to_yaml(), "composition": ",".join(sc.composition)}
+                        for i, s, sc in zip(ids, splits, scenes)])
+    segs, flows = zip(*(evaluate_scene(sc, W, H) for sc in scenes))
+    shards.write_arrays(shards.shard_path(paths["video"], 0, "zarr"), {"seg": np.stack(segs)}, {"fps": 30}, ids)
+    shards.write_arrays(shards.shard_path(paths["flow"], 0, "zarr"), {"flow": np.stack(flows).astype(np.float16)},
+                        scene_ids=ids)
+    schema = pa.schema([("scene_id", pa.string()), ("split", pa.string()), ("sample", pa.int32()),
+                        ("text", pa.string()), ("scene", pa.string()), ("error", pa.string())])
+    preds = [{"scene_id": ids[i], "split": splits[i], "sample": j, "text": "",
+              "scene": scenes[i].to_yaml() if j == 1 else None, "error": "no answer" if j == 0 else None}
+             for i in (3, 4) for j in (0, 1)]
+    shards.write_table(shards.shard_path(paths["predictions"], 0, "parquet"), preds, schema=schema)
+
+    for stage in ("best_of_k", "cmaes", "score"):
+        _run_stage(stage)
+
+    bok = shards.read_table(paths["best_of_k"]).to_pylist()
+    assert [(r["sample"], r["valid"], r["is_best"]) for r in bok] == [(0, False, False), (1, True, True)] * 2
+    assert all(r["full_iou"] == 1.0 for r in bok if r["valid"]) and bok[0]["error"] == "no answer"
+    cm = shards.read_table(paths["cmaes"]).to_pylist()
+    assert [r["evaluations"] for r in cm] == [3, 3] and all(r["full_iou"] > 0.99 for r in cm)
+    assert Scene.from_yaml(cm[0]["scene"]).composition == scenes[3].composition
+    metrics = json.loads((tmp_path / "reports" / "metrics.json").read_text())
+    test = metrics["methods"]["best_of_k_cmaes"]["test"]
+    assert test["n"] == 1 and test["composition_accuracy"] == 1.0 and test["full_iou"] > 0.99
+    assert metrics["methods"]["first_sample"]["test_comp"]["full_iou"] == 0.0   # sample 0 did not parse
+    table = (tmp_path / "reports" / "table.md").read_text()
+    assert "| Best@2 + CMA-ES | flow |" in table and "Trivial baseline" in table
+    assert (tmp_path / "reports" / "search.png").read_bytes()[:4] == b"\x89PNG"
