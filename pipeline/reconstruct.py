@@ -109,11 +109,12 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
             errors.append(str(exc))
     n_valid = sum(c is not None for c in candidates)
     print(f"[infer] {len(texts)} samples, {n_valid} valid scenes")
-    fallback = n_valid == 0
-    if fallback:  # honest fallback: the trivial baseline scene of the training set
+    scores, best = search.best_of_k(candidates, obs["seg"], obs["flow"], scfg, sim) if n_valid else ([], None)
+    fallback = best is None
+    if fallback:  # no sample parsed or simulated: fall back (honestly flagged) to the trivial baseline
         candidates = [search.baseline_scene(shards.read_table(path_of(params, "configs"))).replace(
             fps=scene_fps, duration=duration)]
-    scores, best = search.best_of_k(candidates, obs["seg"], obs["flow"], scfg, sim)
+        scores, best = search.best_of_k(candidates, obs["seg"], obs["flow"], scfg, sim)
     refined, history = search.cmaes_refine(candidates[best], obs["seg"], obs["flow"], scfg, sim, seed=seed)
 
     def score(scene: Scene) -> tuple[dict, object]:
