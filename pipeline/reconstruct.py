@@ -94,6 +94,9 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     print(f"[infer] {video}: {len(obs['frames'])} frames at {scene_fps} fps ({W}x{H}), "
           f"{int((obs['seg'] >= 0).any(axis=0).sum())} px ever foreground")
 
+    import torch
+
+    torch.set_num_threads(1)  # as in stages/infer.py: decoding K samples, 1 thread is as fast
     net, tok = vlm.load_model(model_dir or path_of(params, "model"))
     x = vlm.model_input(obs["frames"], obs["flow"], mcfg, fcfg.max_magnitude)
     texts = vlm.generate(net, tok, x, mcfg, k=k or mcfg.k, seed=seed)

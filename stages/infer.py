@@ -33,6 +33,11 @@ def predict(text: str, decimals: Decimals) -> tuple[str | None, str | None]:
 
 
 def main() -> None:
+    import torch
+
+    # decoding batches of K short sequences: one thread is as fast as two here, and immune to
+    # the OpenMP oversubscription that slowed sampling ~40x on a busy 2-core machine
+    torch.set_num_threads(1)
     p = load_params()
     cfg = ModelConfig.from_params(p)
     decimals = Decimals(**(p.get("scene") or {}).get("decimals", {}))
