@@ -155,7 +155,7 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     viz.record_clip(out / "recording.rrd", rgb=obs["frames"], seg=fr.seg, flow=obs["flow"],
                     positions=trace.qpos[..., :3], quaternions=trace.qpos[..., 3:],
                     objects=scene_objects(refined), camera=camera_dict(refined, W, H), fps=scene_fps,
-                    app_id="dynamics/infer",
+                    app_id="dynamics_infer",
                     scalars={"iou/frame": sequence_iou(obs["seg"], fr.seg)["per_frame"]})
     print(f"[infer] wrote {out}: full IoU {m_ref['full_iou']:.3f} (pseudo GT), EPE {m_ref['epe']:.2f} px, "
           f"{n} objects, {metrics['seconds']} s")

@@ -83,7 +83,7 @@ def record_shard(shard: str | Path, scene_id: str | None, out: str | Path, param
     visible = np.asarray(trow["visible"], dtype=np.float64).reshape(T, n)
     return viz.record_clip(out, rgb=rgb, seg=seg, flow=flow, depth=depth, positions=qpos[..., :3],
                            quaternions=qpos[..., 3:], objects=scene_objects(scene),
-                           camera=camera_dict(scene, W, H), fps=scene.fps, app_id=f"dynamics/{sid}",
+                           camera=camera_dict(scene, W, H), fps=scene.fps, app_id=f"dynamics_{sid}",
                            scalars={f"visible_px/{name}": visible[:, k] for k, name in enumerate(scene.object_names)})
 
 
