@@ -215,8 +215,8 @@ def write_arrays(
             z = group.create_array(name, shape=arr.shape, dtype=arr.dtype, chunks=chunks)
             z[...] = arr
         if scene_ids is not None:
-            ids = np.asarray(list(scene_ids), dtype=str)
-            z = group.create_array("scene_id", shape=ids.shape, dtype=ids.dtype)
+            ids = np.asarray(list(scene_ids), dtype=object)
+            z = group.create_array("scene_id", shape=ids.shape, dtype=str)  # variable-length UTF-8 (zarr v3 spec)
             z[...] = ids
         group.attrs.update(json.loads(json.dumps(dict(attrs or {}), default=_json_default)))
         _replace(tmp, path)

@@ -319,8 +319,10 @@ def test_stages_best_of_k_cmaes_score(tmp_path, monkeypatch):
     bok = shards.read_table(paths["best_of_k"]).to_pylist()
     assert [(r["sample"], r["valid"], r["is_best"]) for r in bok] == [(0, False, False), (1, True, True)] * 2
     assert all(r["full_iou"] == 1.0 for r in bok if r["valid"]) and bok[0]["error"] == "no answer"
-    cm = shards.read_table(paths["cmaes"]).to_pylist()
+    rows = shards.read_table(paths["cmaes"]).to_pylist()
+    cm = [r for r in rows if r["start"] == "model"]
     assert [r["evaluations"] for r in cm] == [3, 3] and all(r["full_iou"] > 0.99 for r in cm)
+    assert [r["start"] for r in rows].count("baseline") == 2  # the trivial baseline is refined too
     assert Scene.from_yaml(cm[0]["scene"]).composition == scenes[3].composition
     metrics = json.loads((tmp_path / "reports" / "metrics.json").read_text())
     test = metrics["methods"]["best_of_k_cmaes"]["test"]
@@ -328,4 +330,5 @@ def test_stages_best_of_k_cmaes_score(tmp_path, monkeypatch):
     assert metrics["methods"]["first_sample"]["test_comp"]["full_iou"] == 0.0   # sample 0 did not parse
     table = (tmp_path / "reports" / "table.md").read_text()
     assert "| Best@2 + CMA-ES | flow |" in table and "Trivial baseline" in table
+    assert "Trivial baseline + CMA-ES" in table
     assert (tmp_path / "reports" / "search.png").read_bytes()[:4] == b"\x89PNG"
