@@ -88,6 +88,9 @@ class Effect:
     structural: ClassVar[bool] = False
     """True if the effect changes what the compiler derives (the model must be compiled with
     the effect present before :meth:`set_model` can change its values)."""
+    nested: ClassVar[bool] = True
+    """True if the model without the effect is the effect at the first value of each fitted
+    parameter's ``grid`` (the fits then start from the model without it)."""
 
     @classmethod
     def apply(cls, root, params: Mapping[str, float]) -> None:  # root: dm_control mjcf.RootElement
@@ -208,6 +211,7 @@ class Wind(Effect):
 
     name = "wind"
     mechanism = "option wind, with option density (air unless quadratic_drag sets it)"
+    nested = False  # no wind still leaves air drag
     parameters = {
         "wind_x": ParamSpec(-20.0, 20.0, "m/s", 0.0, scale=1.0, grid=(0.0, -5.0, -2.5, 2.5, 5.0)),
         "wind_y": ParamSpec(-20.0, 20.0, "m/s", 0.0, scale=1.0, grid=(0.0, -5.0, -2.5, 2.5, 5.0)),
@@ -303,6 +307,7 @@ class Restitution(Effect):
 
     name = "restitution"
     mechanism = "geom solref (timeconst, dampratio) of the objects, dampratio from e"
+    nested = False  # e = 0.14 is close to, not equal to, the base contact (critically damped)
     parameters = {"e": ParamSpec(MIN_RESTITUTION, 0.95, "1", 0.5, scale=0.1,
                                 grid=(MIN_RESTITUTION, 0.3, 0.45, 0.6, 0.75, 0.9))}
 
