@@ -20,6 +20,7 @@ import json
 import os
 import shutil
 import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Mapping, Sequence
 
@@ -81,10 +82,17 @@ def chunked(n: int, size: int) -> list[range]:
 
 
 # --------------------------------------------------------------------------- atomic writes
-def _tmp_sibling(path: Path) -> Path:
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _tmp_sibling(path: Path, suffix: str = ".tmp") -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
     os.close(fd)
+    os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600 files; artifacts get normal permissions
     return Path(tmp)
 
 
@@ -99,6 +107,20 @@ def _replace(tmp: Path, path: Path) -> None:
         shutil.rmtree(old)
     else:
         os.replace(tmp, path)
+
+
+@contextmanager
+def atomic_path(path: str | Path, suffix: str = ".tmp") -> Iterator[Path]:
+    """Yield a temporary sibling of ``path`` (ending in ``suffix``, e.g. ``.mp4`` for writers that
+    pick the format from the name); it is renamed onto ``path`` only if the block completes."""
+    path = Path(path)
+    tmp = _tmp_sibling(path, suffix)
+    try:
+        yield tmp
+        _replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
 
 
 def write_bytes(path: str | Path, data: bytes) -> Path:
@@ -207,6 +229,7 @@ def write_arrays(
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    os.chmod(tmp, 0o777 & ~_umask())
     try:
         group = zarr.open_group(str(tmp), mode="w")
         for name, arr in arrays.items():

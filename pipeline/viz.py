@@ -23,7 +23,6 @@ from __future__ import annotations
 import functools
 import io
 import os
-import tempfile
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -145,11 +144,10 @@ def side_by_side_mp4(
     W = sum(c.shape[2] for c in cols)
     size = (W + W % 2, H + H % 2)
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".mp4", dir=path.parent)
-    os.close(fd)
-    try:
-        writer = cv2.VideoWriter(tmp, cv2.VideoWriter_fourcc(*"mp4v"), float(fps), size)
+    from pipeline.shards import atomic_path
+
+    with atomic_path(path, suffix=".mp4") as tmp:  # OpenCV picks the container from the name
+        writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), size)
         if not writer.isOpened():
             raise OSError(f"{path}: cannot open an mp4v video writer")
         try:
@@ -165,10 +163,6 @@ def side_by_side_mp4(
                 writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
         finally:
             writer.release()
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
     return path
 
 
