@@ -26,6 +26,8 @@ TINY = {
     "model": {"max_steps": 4, "max_minutes": 1.0, "eval_interval": 2, "eval_batches": 1, "batch_size": 2,
               "warmup_steps": 1, "k": 2, "max_new_tokens": 48},
     "search": {"k": 2, "popsize": 4, "iterations": 1},
+    "measure_hidden": {"effect": "quadratic_drag", "n_clips": 2, "duration": 0.5},
+    "discrepancy": {"max_effects": 1, "max_nfev": 6, "max_nfev_warm": 4, "recording": False},
 }
 
 
@@ -67,12 +69,14 @@ def workspace(tmp_path_factory) -> tuple[Path, dict]:
 def test_repro_builds_every_stage_and_reports(workspace):
     ws, _ = workspace
     for stage_dir in ("configs", "mjcf", "video", "traces", "flow", "events", "tokenizer", "examples", "model",
-                      "predictions", "best_of_k", "cmaes"):
+                      "predictions", "best_of_k", "cmaes", "hidden", "hidden_truth", "discrepancy"):
         assert (ws / "data" / stage_dir).is_dir(), stage_dir
     metrics = json.loads((ws / "reports" / "metrics.json").read_text())
     assert metrics, "empty metrics"
     table = (ws / "reports" / "table.md").read_text()
     assert "Trivial baseline" in table and "CMA-ES" in table
+    report = json.loads((ws / "reports" / "discrepancy.json").read_text())
+    assert {"named", "gap"} <= set(report) and report["gap"]["before"] >= 0
     # the configs hold the held-out compositions only in test_comp
     from pipeline.shards import read_table
 
