@@ -42,6 +42,7 @@ Example::
 from __future__ import annotations
 
 import argparse
+import contextlib
 import copy
 import csv
 import io
@@ -60,10 +61,10 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from pipeline import effects as fx
-from pipeline.mjcf import SimOptions, build_mjcf, initial_state
-from pipeline.scene import Decimals, Scene, SceneError
-from pipeline.shards import write_json, write_table, write_text
-from pipeline.simulate import read_state, reset_to_scene
+from pipeline.mjcf import SimOptions, compile_model, initial_state
+from pipeline.scene import Decimals, Scene
+from pipeline.shards import write_bytes, write_json, write_text
+from pipeline.simulate import reset_to_scene
 
 TABLE_COLUMNS = ("clip", "object", "t", "x", "y", "z")
 """Required columns of a trajectory table (m, s; world frame, z up)."""
@@ -73,6 +74,10 @@ SPEC_COLUMNS = ("shape", "radius", "width", "depth", "height", "mass")
 """Optional per-object columns (constant within an object): shape, size (m), mass (kg)."""
 PHASES = ("flight", "contact", "sliding", "rolling", "rest")
 MIN_SAMPLES = 5
+TWO_D_FLOOR_CLEARANCE = 0.05
+"""m. Two-dimensional Tracker exports have an arbitrary vertical origin and no floor (the
+ball drops end before the impact): the reader lifts such a clip so that every object's
+lowest point stays at least this far above z = 0, i.e. the clip is free flight."""
 MAX_ABS_COORDINATE = 100.0
 """m; larger values are taken for pixels (a one-line error names the column)."""
 NUISANCE = ("px", "py", "pz", "vx", "vy", "vz", "rx", "ry", "rz", "wx", "wy", "wz",
@@ -82,7 +87,7 @@ perturbation (rotation vector, rad, body frame, relative to the reference orient
 linear velocity (m/s, world), angular velocity (rad/s, world), ``material.damping``
 (freejoint damping, N s/m) and ``material.sliding_friction``."""
 _P, _V, _R, _W, _D, _F = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), 12, 13
-DISCREPANCY_DECIMALS = Decimals(position=4, orientation=4, velocity=3, damping=6, friction=3,
+DISCREPANCY_DECIMALS = Decimals(position=4, orientation=4, velocity=3, damping=6, friction=3, mass=6, size=5,
                                 effect=4, duration=3)
 """Decimals of the written extended scenes (finer than the model target: they are fits)."""
 
@@ -113,20 +118,23 @@ class DiscrepancyConfig(_Strict):
     Attributes:
         candidates: effect names tried (default: the whole library).
         max_effects: most effects named by greedy forward selection.
-        noise_floor_chi2: after naming an effect, stop when every clip's held-out chi2 per
-            residual is at most this (the model is at the noise floor).
+        noise_floor_chi2: after naming an effect, stop when every clip's chi2 per residual
+            is at most this (the model fits every clip to the noise floor).
         bic_threshold: an effect must lower BIC by at least this much (10 = "very strong"
             evidence, Kass & Raftery 1995).
         heldout_threshold: ... and lower the held-out chi-square (noise-normalised squared
             residuals of clips not used to fit its coefficients) by at least this much.
-        segment_p: a sample's residual is flagged when its chi-square tail probability
-            under the noise model is below this.
+        segment_p: residuals are flagged where a window's chi-square tail probability under
+            the noise model is below this.
+        segment_window: samples per window (:func:`residual_segments`).
         min_segment_samples: shortest flagged segment, samples.
         contact_tolerance: m; an object is on the floor when its lowest point is closer.
         rest_speed: m/s; below it an object on the floor is at rest.
         max_nfev: function evaluations per least-squares fit of the base model.
         max_nfev_warm: ... per warm-started fit (joint fits of candidates, held-out refits).
         threads: MuJoCo rollout threads.
+        rescreen_all: after the first step, try every remaining candidate again (default:
+            only those whose profile improved the base model by ``heldout_threshold``).
         horizons: fractions of each clip fitted in turn by the base fit (continuation).
         diff_step: finite-difference step, in units of each parameter's scale.
         ci_level: confidence level of the coefficient intervals.
@@ -141,11 +149,13 @@ class DiscrepancyConfig(_Strict):
     heldout_threshold: float = Field(10.0, ge=0)
     segment_p: float = Field(1e-3, gt=0, lt=1)
     min_segment_samples: int = Field(2, ge=1)
+    segment_window: int = Field(5, ge=1)
     contact_tolerance: float = Field(0.005, gt=0)
     rest_speed: float = Field(0.05, gt=0)
-    max_nfev: int = Field(30, ge=2)
+    max_nfev: int = Field(15, ge=2)
     max_nfev_warm: int = Field(10, ge=2)
     threads: int = Field(2, ge=1)
+    rescreen_all: bool = False
     horizons: tuple[float, ...] = (0.5, 1.0)
     diff_step: float = Field(1e-2, gt=0)
     ci_level: float = Field(0.95, gt=0, lt=1)
@@ -226,12 +236,15 @@ class Clip:
         source: file it was read from.
         tracks: one per object, in scene order.
         t0: s, absolute time of the first sample (tracks' ``t`` are relative to it).
+        z_offset: m added to the file's vertical coordinate (two-dimensional files only, see
+            :data:`TWO_D_FLOOR_CLEARANCE`).
     """
 
     name: str
     source: str
     tracks: list[Track]
     t0: float = 0.0
+    z_offset: float = 0.0
 
     @property
     def times(self) -> np.ndarray:
@@ -395,7 +408,8 @@ def read_trajectory_file(path: str | Path, objects: Mapping | None = None,
     and object columns) may hold many clips and objects. Two-dimensional files (header with
     ``t`` and two of ``x``, ``y``, y up; e.g. Tracker exports) hold one clip named after the
     file stem with one object ``sphere_0`` (shape from ``objects`` if given); they map to the
-    world frame as x -> x, y -> z, with world y unobserved.
+    world frame as x -> x, y -> z, with world y unobserved, lifted by ``Clip.z_offset`` so that
+    the floor (unknown in these files) stays out of reach.
 
     Args:
         path: ``.csv``, ``.parquet``, ``.txt`` or ``.tsv`` file.
@@ -434,7 +448,7 @@ def _clips_from_columns(path: Path, cols: Mapping[str, Any], two_d: bool, first:
         ys = _column_floats(path, "y", cols["y"], first)
         xyz = np.stack([xs, np.zeros(n), ys], axis=1)
         axes = np.array([True, False, True])
-        col_of_axis = ("x", "y", "z")  # messages name the file's columns: world z is file y
+        # messages name the file's columns: world z is the file's y
         file_col = {0: "x", 2: "y"}
     else:
         _check_required(path, cols, TABLE_COLUMNS)
@@ -448,7 +462,6 @@ def _clips_from_columns(path: Path, cols: Mapping[str, Any], two_d: bool, first:
         t = _column_floats(path, "t", cols["t"], first)
         xyz = np.stack([_column_floats(path, c, cols[c], first) for c in "xyz"], axis=1)
         axes = np.array([True, True, True])
-        col_of_axis = ("x", "y", "z")
         file_col = {0: "x", 1: "y", 2: "z"}
     if n == 0:
         raise _err(path, "t", "no rows")
@@ -508,9 +521,14 @@ def _clips_from_columns(path: Path, cols: Mapping[str, Any], two_d: bool, first:
             spec = _object_spec(o, given, default, f"{path}: clip {c!r}, object {o!r}")
             tracks.append(Track(o, tt, xyz[idx], None if quat is None else quat[idx], axes.copy(), spec))
         t0 = min(float(tr.t[0]) for tr in tracks)
+        z_offset = 0.0
+        if two_d:  # the file's vertical origin is arbitrary and has no floor: keep clear of z = 0
+            lowest = min(float(np.min(tr.pos[:, 2]) - tr.spec.bounding_radius) for tr in tracks)
+            z_offset = max(0.0, TWO_D_FLOOR_CLEARANCE - lowest)
         for tr in tracks:
             tr.t = tr.t - t0
-        out.append(Clip(c, str(path), tracks, t0))
+            tr.pos[:, 2] += z_offset
+        out.append(Clip(c, str(path), tracks, t0, z_offset))
     return out
 
 
@@ -887,6 +905,40 @@ def clip_residuals(clip: Clip, qpos: np.ndarray, weights: Weights) -> tuple[np.n
 
 
 # =========================================================================== fitting
+@contextlib.contextmanager
+def single_threaded_blas():
+    """Run the block with every loaded OpenBLAS (numpy's and scipy's) on one thread, restoring
+    the previous counts after. The fits make thousands of small SVDs (scipy's trust region):
+    on a loaded 2-core machine a threaded SVD of an 880 x 45 Jacobian took 606 ms instead of
+    1.2 ms. (What ``threadpoolctl`` does, without the dependency; no-op where the libraries
+    or ``/proc/self/maps`` are missing.)"""
+    import ctypes
+
+    restore = []
+    try:
+        paths = sorted({ln.split()[-1] for ln in open("/proc/self/maps") if "openblas" in ln.lower()})
+    except OSError:
+        paths = []
+    for path in paths:
+        try:
+            lib = ctypes.CDLL(path)
+        except OSError:
+            continue
+        for get, put in (("scipy_openblas_get_num_threads64_", "scipy_openblas_set_num_threads64_"),
+                         ("scipy_openblas_get_num_threads", "scipy_openblas_set_num_threads"),
+                         ("openblas_get_num_threads", "openblas_set_num_threads")):
+            if hasattr(lib, get) and hasattr(lib, put):
+                before = int(getattr(lib, get)())
+                getattr(lib, put)(1)
+                restore.append((getattr(lib, put), before))
+                break
+    try:
+        yield
+    finally:
+        for put, before in restore:
+            put(before)
+
+
 def _nuisance_scales(clip: Clip) -> np.ndarray:
     """``(n, 14)`` typical magnitudes of the per-object parameters (normalisation)."""
     out = []
@@ -1291,10 +1343,12 @@ def residual_segments(clip: Clip, qpos: np.ndarray, noise: Noise, phases: Sequen
                       cfg: DiscrepancyConfig) -> list[dict[str, Any]]:
     """Time ranges where the model's residual exceeds the measurement noise.
 
-    A sample is flagged when its squared residual norm over sigma^2 exceeds the chi-square
-    quantile ``1 - segment_p`` (degrees of freedom: observed coordinates, or 3 for
-    orientation); runs of flagged samples (gaps of one sample bridged) of at least
-    ``min_segment_samples`` form a segment.
+    Samples are flagged in windows of ``segment_window`` consecutive samples whose summed
+    squared residual over sigma^2 exceeds the chi-square quantile ``1 - segment_p`` (degrees
+    of freedom: window length times observed coordinates, or 3 for orientation), so both
+    single outliers and small systematic offsets that persist are found; runs of flagged
+    samples of at least ``min_segment_samples`` form a segment. ``threshold`` is the RMS
+    residual at which a window is flagged.
 
     Args:
         clip: measured clip.
@@ -1319,11 +1373,13 @@ def residual_segments(clip: Clip, qpos: np.ndarray, noise: Noise, phases: Sequen
             err = np.linalg.norm(_qlog(_qmul(_qconj(qpos[idx, i, 3:]), tr.quat)), axis=1)
             chans.append(("orientation", err, noise.angle, 3, 180.0 / math.pi))
         for name, e, sigma, dof, unit in chans:
-            thr = sigma * math.sqrt(chi2.isf(cfg.segment_p, dof))
-            flag = e > thr
-            for k in range(1, len(flag) - 1):  # bridge single-sample gaps
-                if not flag[k] and flag[k - 1] and flag[k + 1]:
-                    flag[k] = True
+            w = min(cfg.segment_window, len(e))
+            thr = sigma * math.sqrt(chi2.isf(cfg.segment_p, w * dof) / w)
+            flag = np.zeros(len(e), bool)
+            z = (e / sigma) ** 2
+            for k in range(len(e) - w + 1):
+                if z[k:k + w].sum() > chi2.isf(cfg.segment_p, w * dof):
+                    flag[k:k + w] = True
             k = 0
             while k < len(flag):
                 if not flag[k]:
@@ -1408,7 +1464,7 @@ def _truncate(clip: Clip, t_max: float) -> Clip | None:
             return None
         tracks.append(Track(tr.object, tr.t[keep], tr.pos[keep], None if tr.quat is None else tr.quat[keep],
                             tr.axes, tr.spec))
-    return Clip(clip.name, clip.source, tracks, clip.t0)
+    return Clip(clip.name, clip.source, tracks, clip.t0, clip.z_offset)
 
 
 class Workspace:
@@ -1519,6 +1575,12 @@ CHI2_1_95 = 3.841
 """95 % quantile of chi-square with one degree of freedom (profile-likelihood interval)."""
 
 
+def _fit_rows(prof: "Profile", p: int) -> Fit:
+    """Profile row ``p`` as a :class:`Fit` (per-clip values only)."""
+    n = len(prof.chi2[p])
+    return Fit({}, list(prof.nuis[p]), list(prof.chi2[p]), list(prof.sq[p]), [0] * n, [0] * n, 0)
+
+
 def _parabola_min(s: Sequence[float], y: np.ndarray) -> float:
     """Coordinate of the minimum of ``y(s)``: the vertex of the parabola through the best
     point and its neighbours (sorted by ``s``), or the best point at an edge."""
@@ -1595,9 +1657,10 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
        with air drag at chi2/n 3-6 instead of 0.8).
     2. Joint fit: from the best point, the coefficients and all clips' parameters together.
     3. Held-out (leave one clip out): the strength that minimises the other clips' profile,
-       refined by a parabola step, or no effect if that is within the others' 95 % profile
-       interval (clips that carry no information on the effect predict without it); the
-       left-out clip refitted there.
+       refined by a parabola step; but the effect's default value (a profile point, e.g. air
+       for drag), else no effect, where that lies within the others' 95 % profile interval
+       (clips that carry no information on the effect do not set it); the left-out clip
+       refitted there.
 
     Returns:
         ``(joint fit, held-out scores, profile)``.
@@ -1630,14 +1693,35 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
     effects = {**others, name: prof.params[b]}
     joint = ws.fit(idx, prof.nuis[b], effects, max_nfev=2 * ws.cfg.max_nfev_warm)
 
+    keys = [p for p, sp in fx.REGISTRY[name].parameters.items() if sp.fit]
+    theta = np.array([joint.effects[name][k] for k in keys])
+    if len(keys) > 1 and b > 0 and np.linalg.norm(theta) > 0:
+        # The first axis was a grid direction (45 degree steps); profile again along the
+        # jointly fitted direction, so that held-out clips are predicted along the right one.
+        first = prof
+        prof = Profile([], [], [], [], [])
+        prof.add(0.0, first.params[0], _fit_rows(first, 0))
+        norm = float(np.linalg.norm(theta))
+        to_params = lambda v: {**fx.REGISTRY[name].defaults(),  # noqa: E731
+                               **{k: float(v * t / norm) for k, t in zip(keys, theta)}}
+        for v in (0.5 * norm, 0.8 * norm, norm, 1.25 * norm, 1.6 * norm):
+            evaluate(v)
+
     n = len(idx)
     ho = HeldOut([0.0] * n, [0.0] * n, list(joint.n_res), list(joint.n_pos), [{}] * n)
     s2 = max(1.0, current.rss / max(current.n - current.k, 1))   # misfit inflates the noise
+    defaults = fx.REGISTRY[name].defaults()
+    prior = next((p for p, params in enumerate(prof.params)
+                  if p > 0 and all(abs(params[k] - defaults[k]) < 1e-12 for k in defaults)), None)
     for c in range(n):
         others_total = prof.total(without=c)
         v = _parabola_min(prof.s, others_total)
-        if n > 1 and others_total[0] <= others_total.min() + CHI2_1_95 * s2:
-            v = prof.s[0]  # the other clips do not call for the effect: predict without it
+        if n > 1:  # where the other clips do not call for another value: the prior, or none
+            tol = others_total.min() + CHI2_1_95 * s2
+            if prior is not None and others_total[prior] <= tol:
+                v = prof.s[prior]
+            elif others_total[0] <= tol:
+                v = prof.s[0]
         near = int(np.argmin(np.abs(np.array(prof.s) - v)))
         eff = {**others, name: to_params(v)}
         if abs(prof.s[near] - v) < 1e-9:
@@ -1687,9 +1771,17 @@ class Result:
 
     @property
     def gap(self) -> dict[str, float]:
-        """Held-out position RMSE (m) before (base) and after (named effects)."""
+        """Held-out position RMSE (m) before (base) and after (named effects), its relative
+        shrink, and the same for the part beyond the measurement noise
+        (``excess = sqrt(max(RMSE^2 - sigma^2, 0))``, sigma = pooled noise estimate): the RMSE
+        cannot fall below sigma, so an effect that starts near the noise floor (e.g.
+        torsional friction, which shows mostly in orientation) shrinks the raw RMSE little."""
         before, after = self.base_heldout.rmse, self.final_heldout.rmse
-        return {"before": before, "after": after, "shrink": 1.0 - after / before if before > 0 else 0.0}
+        sigma = float(np.sqrt(np.mean([n.position ** 2 for n in self.noise])))
+        eb, ea = math.sqrt(max(before ** 2 - sigma ** 2, 0.0)), math.sqrt(max(after ** 2 - sigma ** 2, 0.0))
+        return {"before": before, "after": after, "shrink": 1.0 - after / before if before > 0 else 0.0,
+                "noise": sigma, "excess_before": eb, "excess_after": ea,
+                "excess_shrink": 1.0 - ea / eb if eb > 0 else 0.0}
 
 
 def run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None = None,
@@ -1715,6 +1807,12 @@ def run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None = None,
     Returns:
         :class:`Result`.
     """
+    with single_threaded_blas():
+        return _run_workflow(clips, cfg, options, gravity, log)
+
+
+def _run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None, options: SimOptions | None,
+                  gravity: float, log) -> Result:
     cfg = cfg or DiscrepancyConfig()
     options = (options or SimOptions()).model_copy(update={"textured": False})
     say = log or (lambda *a, **k: None)
@@ -1731,6 +1829,10 @@ def run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None = None,
     named_order: list[str] = []
     for step in range(1, cfg.max_effects + 1):
         remaining = [e for e in cfg.candidates if e not in named_order]
+        if steps and not cfg.rescreen_all:  # screening: only effects that helped at step 1
+            remaining = [e for e in remaining
+                         if any(cd["effect"] == e and cd["profile_gain"] >= cfg.heldout_threshold
+                                for cd in steps[0]["candidates"])]
         if not remaining:
             break
         scored = []
@@ -1770,8 +1872,8 @@ def run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None = None,
             break
         named_order.append(winner[0]["effect"])
         current, cur_ho = _refit_from_data(ws, idx, winner[1]), (winner[2] or cur_ho)
-        if all(c2 / nr <= cfg.noise_floor_chi2 for c2, nr in zip(cur_ho.chi2, cur_ho.n_res)):
-            say(f"noise floor reached: held-out chi2/n <= {cfg.noise_floor_chi2:g} in every clip")
+        if all(c2 / nr <= cfg.noise_floor_chi2 for c2, nr in zip(current.chi2, current.n_res)):
+            say(f"noise floor reached: chi2/n <= {cfg.noise_floor_chi2:g} in every clip")
             break
 
     final = current
@@ -1811,7 +1913,8 @@ class HiddenConfig(_Strict):
 
     Attributes:
         effect: ``random`` (uniform over the library and ``none``), ``none`` or an effect name.
-        n_clips: clips per data set (kinds cycle through :data:`HIDDEN_KINDS`).
+        n_clips: clips per data set (kinds cycle through ``kinds``).
+        kinds: clip kinds, from ``throw``, ``spin_slide``, ``roll`` (:data:`HIDDEN_KINDS`).
         duration: s per clip. fps: samples per second.
         noise_position: m, Gaussian noise on each coordinate.
         noise_angle: deg, Gaussian noise on each rotation-vector component of the orientation.
@@ -1828,6 +1931,7 @@ class HiddenConfig(_Strict):
     noise_position: float = Field(0.001, ge=0)
     noise_angle: float = Field(1.0, ge=0)
     orientation: bool = True
+    kinds: tuple[str, ...] = HIDDEN_KINDS
     strengths: dict[str, dict[str, tuple[float, float]]] = {
         "quadratic_drag": {"density": (3.0, 12.0)},
         "wind": {"speed": (2.0, 5.0)},
@@ -1838,6 +1942,8 @@ class HiddenConfig(_Strict):
     }
 
     def model_post_init(self, _ctx: Any) -> None:
+        if not self.kinds or any(k not in ("throw", "spin_slide", "roll") for k in self.kinds):
+            raise ValueError(f"kinds: each must be throw, spin_slide or roll, got {list(self.kinds)}")
         if self.effect not in ("random", "none") and self.effect not in fx.REGISTRY:
             raise ValueError(f"effect: must be random, none or one of {', '.join(fx.REGISTRY)}, got {self.effect!r}")
 
@@ -1926,13 +2032,11 @@ def generate_hidden(seed: int, cfg: HiddenConfig | None = None, options: SimOpti
     truth: dict[str, Any] = {"seed": seed, "effect": name, "parameters": params, "clips": []}
     times = np.arange(int(round(cfg.duration * cfg.fps)) + 1) / cfg.fps
     for c in range(cfg.n_clips):
-        kind = HIDDEN_KINDS[c % len(HIDDEN_KINDS)]
+        kind = cfg.kinds[c % len(cfg.kinds)]
         obj = _hidden_object(rng, kind, c)
         scene = Scene.from_dict({"duration": cfg.duration, "fps": cfg.fps, "camera": {"height": 1.2},
                                  "objects": [obj],
                                  "effects": [{"effect": name, "parameters": params}] if name else []})
-        from pipeline.mjcf import compile_model
-
         model = compile_model(scene, options)
         qpos = _sample_rollout(model, mujoco.MjData(model), 1, times)[:, 0]
         clip_id = f"clip_{c:02d}_{kind}"
@@ -1993,7 +2097,8 @@ def report_dict(result: Result, files: Mapping[str, Any] | None = None) -> dict[
     for c, clip in enumerate(result.clips):
         nz = result.noise[c]
         clips.append({
-            "clip": clip.name, "source": clip.source, "t0": clip.t0, "n_samples": int(len(clip.times)),
+            "clip": clip.name, "source": clip.source, "t0": clip.t0, "z_offset": clip.z_offset,
+            "n_samples": int(len(clip.times)),
             "duration": float(clip.times[-1]), "orientation_measured": clip.has_orientation,
             "objects": [{"object": tr.object, "shape": tr.spec.shape, "size": tr.spec.size, "mass": tr.spec.mass,
                          "assumed": tr.spec.assumed, "observed_axes": "".join(a for a, o in zip("xyz", tr.axes) if o)}
@@ -2038,7 +2143,9 @@ def report_markdown(rep: Mapping[str, Any]) -> str:
              f"| before (base model) | {_fmt(rep['gap']['before'], mm)} |",
              f"| after ({', '.join(n['effect'] for n in rep['named']) or 'nothing named'}) | {_fmt(rep['gap']['after'], mm)} |",
              f"| noise floor (measurement sigma) | {_fmt(rep['noise_floor'], mm)} |", "",
-             f"Shrink: {100 * rep['gap']['shrink']:.1f} %. Held-out: the effects' coefficients are fitted on the other "
+             f"Shrink: {100 * rep['gap']['shrink']:.1f} % (of the part above the noise, "
+             f"sqrt(RMSE² − σ²): {1e3 * rep['gap']['excess_before']:.2f} → {1e3 * rep['gap']['excess_after']:.2f} mm, "
+             f"{100 * rep['gap']['excess_shrink']:.1f} %). Held-out: the effects' coefficients are fitted on the other "
              "clips (leave one clip out, from the effect's profile); only the clip's own initial state, damping and "
              "friction are refitted.", "",
              "## Named effects", ""]
@@ -2135,8 +2242,10 @@ def plot_residuals(result: Result, path: str | Path, max_clips: int = 8) -> Path
             e1 = np.linalg.norm((result.final_qpos[c][idx, i, :3] - tr.pos)[:, tr.axes], axis=1) * 1e3
             ax.plot(tr.t, e0, color="#d62728", lw=1.2, label=f"{tr.object}: base" if c == 0 else None)
             ax.plot(tr.t, e1, color="#1f77b4", lw=1.2, label=f"{tr.object}: + {label}" if c == 0 else None)
-            thr = result.noise[c].position * math.sqrt(chi2.isf(result.config.segment_p, int(tr.axes.sum()))) * 1e3
-            ax.axhline(thr, color="k", ls="--", lw=0.8, label="noise threshold" if c == 0 and i == 0 else None)
+            w, dof = min(result.config.segment_window, len(tr.t)), int(tr.axes.sum())
+            thr = result.noise[c].position * math.sqrt(chi2.isf(result.config.segment_p, w * dof) / w) * 1e3
+            ax.axhline(thr, color="k", ls="--", lw=0.8,
+                       label=f"noise threshold (RMS over {w} samples)" if c == 0 and i == 0 else None)
             top = max(float(np.max(e0)), thr) * 1.1
             ph = result.phases[c][i]
             for k in range(len(tr.t)):
@@ -2151,8 +2260,6 @@ def plot_residuals(result: Result, path: str | Path, max_clips: int = 8) -> Path
     fig.tight_layout(rect=(0, 0, 1, 0.97))
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
-    from pipeline.shards import write_bytes
-
     return write_bytes(path, buf.getvalue())
 
 
@@ -2187,8 +2294,6 @@ def plot_trajectories(result: Result, path: str | Path, max_clips: int = 8) -> P
     fig.tight_layout(rect=(0, 0, 1, 0.97))
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
-    from pipeline.shards import write_bytes
-
     return write_bytes(path, buf.getvalue())
 
 
@@ -2278,7 +2383,8 @@ def run_trial(seed: int, effect: str, cfg: DiscrepancyConfig | None = None, hidd
             "named_parameters": {n["effect"]: n["parameters"] for n in result.named},
             "named_ci": {n["effect"]: n["ci"] for n in result.named},
             "correct": named == expected, "gap_before": gap["before"], "gap_after": gap["after"],
-            "shrink": gap["shrink"], "runtime_s": time.perf_counter() - t0}
+            "shrink": gap["shrink"], "noise": gap["noise"], "excess_shrink": gap["excess_shrink"],
+            "runtime_s": time.perf_counter() - t0}
 
 
 def _trial_job(args: tuple) -> dict[str, Any]:
@@ -2348,6 +2454,8 @@ def run_benchmark(trials: int, null_trials: int, seed: int = 1000, jobs: int = 1
         "false_positive_rate": sum(bool(r["named"]) for r in null) / len(null) if null else None,
         "shrink_at_least_50pct": sum(r["shrink"] >= 0.5 for r in eff) / len(eff) if eff else None,
         "median_shrink": float(np.median([r["shrink"] for r in eff])) if eff else None,
+        "excess_shrink_at_least_50pct": (sum(r["excess_shrink"] >= 0.5 for r in eff) / len(eff)
+                                         if eff and all("excess_shrink" in r for r in eff) else None),
         "runtime_s": time.perf_counter() - t0, "jobs": jobs, "first_seed": seed,
     }
     return {"summary": summary, "per_effect": per, "trials": results,
@@ -2369,6 +2477,7 @@ def benchmark_markdown(bench: Mapping[str, Any], command: str = "") -> str:
               f"| naming accuracy ({s['effect_trials']} trials with a hidden effect) | {pct(s['naming_accuracy'])} |",
               f"| false-positive rate ({s['null_trials']} trials without) | {pct(s['false_positive_rate'])} |",
               f"| held-out gap shrink >= 50 % (effect trials) | {pct(s['shrink_at_least_50pct'])} |",
+              f"| held-out gap above the noise shrink >= 50 % | {pct(s.get('excess_shrink_at_least_50pct'))} |",
               f"| median held-out gap shrink | {pct(s['median_shrink'])} |",
               f"| runtime | {s['runtime_s'] / 60:.1f} min ({s['jobs']} jobs) |", "",
               "| effect | trials | correct | accuracy | median shrink | min shrink |", "|---|---|---|---|---|---|"]

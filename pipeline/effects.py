@@ -65,8 +65,9 @@ class ParamSpec:
         default: value used when a scene omits the parameter.
         scale: typical magnitude, used to normalise the parameter in fits.
         fit: whether the discrepancy workflow fits it (``False``: held at ``default``).
-        grid: values tried before a fit's least squares (the best start is kept; the
-            first value is where the effect vanishes or is weakest).
+        grid: profile points of the discrepancy workflow (the first value is where the
+            effect vanishes or is weakest; the default should be one of them: clips that
+            carry no information on the effect are predicted with it).
     """
 
     low: float
@@ -192,7 +193,7 @@ class QuadraticDrag(Effect):
     name = "quadratic_drag"
     mechanism = "option density (inertia-box model)"
     parameters = {"density": ParamSpec(0.0, 50.0, "kg/m^3", AIR_DENSITY, scale=1.0,
-                                      grid=(0.0, 1.0, 3.0, 8.0, 20.0))}
+                                      grid=(0.0, AIR_DENSITY, 3.0, 8.0, 20.0))}
 
     @classmethod
     def apply(cls, root, params):
@@ -309,7 +310,7 @@ class Restitution(Effect):
     mechanism = "geom solref (timeconst, dampratio) of the objects, dampratio from e"
     nested = False  # e = 0.14 is close to, not equal to, the base contact (critically damped)
     parameters = {"e": ParamSpec(MIN_RESTITUTION, 0.95, "1", 0.5, scale=0.1,
-                                grid=(MIN_RESTITUTION, 0.3, 0.45, 0.6, 0.75, 0.9))}
+                                grid=(MIN_RESTITUTION, 0.3, 0.5, 0.7, 0.9))}
 
     @classmethod
     def apply(cls, root, params):
