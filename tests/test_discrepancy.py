@@ -136,7 +136,7 @@ def test_phases_of_a_throw():
 
 
 # --------------------------------------------------------------------------- hidden effects
-FAST_HIDDEN = D.HiddenConfig(n_clips=2, duration=0.8, kinds=("throw", "throw"))
+FAST_HIDDEN = D.HiddenConfig(n_clips=2, duration=0.7, kinds=("throw", "throw"))
 FAST_CFG = D.DiscrepancyConfig(max_effects=1, threads=1)
 PLAN = {"none": 901, "quadratic_drag": 902, "wind": 903, "restitution": 904, "floor_tilt": 905,
         "magnus_lift": 906, "torsional_friction": 907}
@@ -159,8 +159,13 @@ def test_hidden_effect_is_named(hidden_trials, effect):
     trial = hidden_trials[effect]
     expected = [] if effect == "none" else [effect]
     assert trial["named"] == expected, trial
-    if effect != "none":  # the part of the held-out RMSE above the noise at least halves
+    if effect != "none" and trial["gap_before"] > 1.1 * trial["noise"]:
+        # the part of the held-out position RMSE above the noise at least halves (an effect
+        # seen only in orientation, e.g. weak torsional friction, can leave positions at the
+        # noise floor already: then there is no position gap to shrink)
         assert trial["excess_shrink"] >= 0.5, trial
+    if effect != "none":
+        assert trial["gap_after"] <= trial["gap_before"], trial
 
 
 def test_report_files_and_extended_scene(tmp_path):
