@@ -21,7 +21,9 @@ $(VENV)/.installed: pyproject.toml scripts/setup_system.sh
 	python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet -e .
-	$(PY) -c "import pipeline, mujoco, dm_control.mjcf, torch, transformers; print('setup ok: mujoco', mujoco.__version__, 'torch', torch.__version__)"
+	# xgrammar (constrained decoding) without its triton dependency: ~1 GB of GPU compiler, unused on CPU
+	$(PY) -m pip install --quiet --no-deps xgrammar==0.2.8
+	$(PY) -c "import pipeline, mujoco, dm_control.mjcf, torch, transformers, xgrammar; print('setup ok: mujoco', mujoco.__version__, 'torch', torch.__version__)"
 	touch $@
 
 repro: setup

@@ -51,6 +51,15 @@ def _observe(video: str | Path, fps: float | None, start: float, width: int, hei
     return {"frames": frames, "seg": seg, "flow": flow, "clip": window, "flow_method": method}
 
 
+def default_model_dir(params: dict) -> Path:
+    """``paths.model`` when it holds a trained model (after ``dvc repro``), else the shipped
+    checkpoint (:data:`pipeline.model.SHIPPED_CHECKPOINT`)."""
+    from pipeline.model import SHIPPED_CHECKPOINT
+
+    trained = path_of(params, "model")
+    return trained if (trained / "config.json").exists() else SHIPPED_CHECKPOINT
+
+
 def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | None = None,
                 start: float = 0.0, model_dir: str | Path | None = None, k: int | None = None,
                 seed: int = 0) -> dict:
@@ -63,7 +72,7 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
             ``realvideo``, ``paths``).
         fps: true frame rate of the video, overriding the container's.
         start: start of the 1 s window, s.
-        model_dir: trained model folder (default ``paths.model``).
+        model_dir: trained model folder (default :func:`default_model_dir`).
         k: samples for Best@K (default ``model.k``).
     Returns:
         the metrics dict written to ``metrics.json``.
@@ -83,7 +92,7 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     out = Path(out)
     W, H = int(params["render"]["width"]), int(params["render"]["height"])
     rv = params.get("realvideo", {})
-    mcfg = vlm.ModelConfig(**params["model"])
+    mcfg = vlm.ModelConfig.from_params(params)
     fcfg = FlowConfig(**params["flow"])
     scfg = search.SearchConfig(**params["search"])
     sim = SimOptions(**params["sim"])
@@ -97,19 +106,18 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     import torch
 
     torch.set_num_threads(1)  # as in stages/infer.py: decoding K samples, 1 thread is as fast
-    net, tok = vlm.load_model(model_dir or path_of(params, "model"))
+    model_dir = Path(model_dir) if model_dir else default_model_dir(params)
+    net, tok = vlm.load_model(model_dir)
+    codec, _ = vlm.load_codec(model_dir)
+    mcfg = vlm.checkpoint_config(model_dir, mcfg)
     x = vlm.model_input(obs["frames"], obs["flow"], mcfg, fcfg.max_magnitude)
-    texts = vlm.generate(net, tok, x, mcfg, k=k or mcfg.k, seed=seed)
+    samples = vlm.generate(net, tok, x, mcfg, codec, k=k or mcfg.k, seed=seed)
+    texts = [" ".join(t) for t in samples]
     candidates, errors = [], []
-    for text in texts:
-        _, answer = vlm.parse_output(text)
-        try:
-            s = Scene.from_yaml(answer or "", source="sample")
-            candidates.append(s.replace(fps=scene_fps, duration=duration))
-            errors.append(None)
-        except SceneError as exc:
-            candidates.append(None)
-            errors.append(str(exc))
+    for toks in samples:
+        s, err = vlm.to_scene(toks, codec)
+        candidates.append(s.replace(fps=scene_fps, duration=duration) if s is not None else None)
+        errors.append(err)
     n_valid = sum(c is not None for c in candidates)
     print(f"[infer] {len(texts)} samples, {n_valid} valid scenes")
     scores, best = search.best_of_k(candidates, obs["seg"], obs["flow"], scfg, sim) if n_valid else ([], None)
@@ -167,7 +175,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--fps", type=float, default=None, help="true frame rate (overrides the container's)")
     p.add_argument("--start", type=float, default=0.0, help="start of the 1 s window, s")
-    p.add_argument("--model", default=None, help="model folder (default params paths.model); a local "
+    p.add_argument("--model", default=None, help="model folder (default: params paths.model if trained, else the shipped "
+                   "checkpoint models/dynamics-tiny); a local "
                    "Qwen2.5-VL folder works when params model.pretrained points at it")
     p.add_argument("-k", type=int, default=None, help="samples for Best@K (default params model.k)")
     p.add_argument("--seed", type=int, default=0)

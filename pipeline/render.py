@@ -1,8 +1,12 @@
 """Offscreen rendering: RGB, segmentation, depth and exact ground-truth optical flow.
 
-Rendering uses ``mujoco.Renderer`` with ``MUJOCO_GL=egl`` (set in ``pipeline/__init__``).
-Create one :class:`FrameRenderer` per compiled model and reuse it (creating a renderer costs
-80-150 ms); close it explicitly (or use ``with``) or EGL errors print at exit.
+Rendering uses MuJoCo's OpenGL renderer (``mjr_render``) with ``MUJOCO_GL=egl`` (set in
+``pipeline/__init__``). A :class:`FrameRenderer` per compiled model; for many models pass one
+:class:`GLResources` (:func:`shared_gl` in a process) so that they share the GL context and
+the ``MjrContext`` objects: a private one costs ~100 ms to create plus ~30 ms of shader
+compilation on its first frame, a shared one nothing after its first use. Output is bit-identical
+to a fresh ``mujoco.Renderer`` per model (``tests/test_render.py``). Close renderers and
+private :class:`GLResources` explicitly (or use ``with``) or EGL errors print at exit.
 
 Ground-truth flow (DESIGN §3): for a pixel of object k at frame t with depth d, the world
 point ``X = unproject(uv, d)`` moves rigidly with body k, ``X' = R_{t+1} R_t^T (X - p_t) +
@@ -12,6 +16,8 @@ and background are static (flow 0) because the camera is fixed.
 
 from __future__ import annotations
 
+import atexit
+import hashlib
 from dataclasses import dataclass
 
 import mujoco
@@ -112,19 +118,196 @@ def rigid_flow(seg: np.ndarray, depth: np.ndarray, qpos0: np.ndarray, qpos1: np.
     return flow
 
 
+def _context_key(model: mujoco.MjModel, multisample: bool) -> bytes | None:
+    """Digest of everything ``mjr_makeContext`` uploads for ``model`` (MuJoCo 3.x
+    ``render_context.c``): offscreen buffer size and samples, shadow map size, builtin-geometry
+    quality, materials' texture bindings, texture pixels, plane grids. Two models with the same
+    key render identically with one ``MjrContext``. None for models with meshes, height fields,
+    skins or flexes (their GPU data is not compared: such models get a context of their own).
+
+    The context fields that depend on ``stat.extent`` (``shadowClip``, ``fogStart``,
+    ``fogEnd``) are set per model by :meth:`GLResources.context`; fog stays off (default
+    ``MjvScene`` flags), so the GL fog state made with another model's extent is never used.
+    """
+    if model.nmesh or model.nhfield or model.nskin or getattr(model, "nflex", 0):
+        return None
+    h = hashlib.blake2b(digest_size=20)
+    vis = model.vis
+    h.update(np.array([vis.global_.offwidth, vis.global_.offheight,
+                       vis.quality.offsamples if multisample else 0, vis.quality.shadowsize,
+                       vis.quality.numslices, vis.quality.numstacks, vis.quality.numquads],
+                      dtype=np.int64).tobytes())
+    h.update(np.array([vis.global_.linewidth, vis.map.fogstart, vis.map.fogend, vis.map.shadowclip,
+                       vis.map.shadowscale, *vis.rgba.fog], dtype=np.float64).tobytes())
+    for name in ("tex_type", "tex_width", "tex_height", "tex_nchannel", "tex_colorspace", "tex_adr",
+                 "tex_data", "mat_texid", "mat_texuniform", "mat_texrepeat"):
+        arr = getattr(model, name, None)
+        if arr is not None:
+            h.update(name.encode())
+            h.update(np.ascontiguousarray(arr).tobytes())
+    planes = np.flatnonzero(model.geom_type == int(mujoco.mjtGeom.mjGEOM_PLANE))
+    h.update(np.ascontiguousarray(model.geom_size[planes]).tobytes())
+    h.update(np.ascontiguousarray(model.geom_matid[planes]).tobytes())
+    if (model.geom_size[planes, :2] <= 0).any():  # infinite planes: grid spans zfar * extent
+        h.update(np.array([vis.map.zfar, model.stat.extent], dtype=np.float64).tobytes())
+    return h.digest()
+
+
+class GLResources:
+    """One offscreen OpenGL (EGL) context and the ``MjrContext`` objects made in it, shared by
+    the :class:`FrameRenderer` objects of a process.
+
+    Creating a ``mujoco.Renderer`` costs ~100 ms (GL context, ``MjrContext`` with fonts and
+    textures, a 10,000-geom ``MjvScene``) plus ~30 ms for llvmpipe to compile its shaders on the
+    first frame. Models that upload the same GPU data (same textures, materials, buffer size:
+    :func:`_context_key`; in this project every scene with the same number of objects) share
+    one ``MjrContext`` here, so a scene costs only its frames. Renders equal a fresh
+    ``mujoco.Renderer`` per model bit for bit (``tests/test_render.py``).
+
+    One per process (:func:`shared_gl`), or a private one owned by a single renderer. Not
+    thread-safe. Close it (or use ``with``) before the process exits.
+    """
+
+    def __init__(self) -> None:
+        self._gl = None
+        self._contexts: dict[bytes, mujoco.MjrContext] = {}
+        self._bound: mujoco.MjrContext | None = None
+
+    def make_current(self) -> None:
+        """Create the GL context on first use and make it current."""
+        if self._gl is None:
+            from mujoco.rendering.classic.gl_context import GLContext
+
+            self._gl = GLContext(_GL_SIZE[0], _GL_SIZE[1])
+        self._gl.make_current()
+
+    def context(self, model: mujoco.MjModel, multisample: bool = True) -> tuple[mujoco.MjrContext, bool]:
+        """``(MjrContext, owned)`` for ``model``, bound as the offscreen target.
+
+        Args:
+            multisample: False makes the offscreen buffer single-sampled (used for
+                segmentation and depth, which MuJoCo renders without multisampling).
+        Returns:
+            the context and whether the caller owns it (must ``free()`` it: models that
+            cannot share a context).
+        """
+        self.make_current()
+        key = _context_key(model, multisample)
+        con = self._contexts.get(key) if key is not None else None
+        owned = False
+        if con is None:
+            samples = model.vis.quality.offsamples
+            if not multisample:
+                model.vis.quality.offsamples = 0
+            try:
+                con = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_150.value)
+            finally:
+                model.vis.quality.offsamples = samples
+            con.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZEROFAR  # as mujoco.Renderer
+            if key is None:
+                owned = True
+            else:
+                self._contexts[key] = con
+        # model-dependent scalars that mjr_makeContext copies (render_context.c)
+        con.shadowClip = model.stat.extent * model.vis.map.shadowclip
+        con.fogStart = float(np.float32(model.stat.extent * model.vis.map.fogstart))
+        con.fogEnd = float(np.float32(model.stat.extent * model.vis.map.fogend))
+        self._bound = None
+        self.bind(con)
+        return con, owned
+
+    def bind(self, con: mujoco.MjrContext) -> None:
+        """Make the GL context current and ``con``'s offscreen buffer the render target."""
+        self.make_current()
+        if self._bound is not con:
+            mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN.value, con)
+            self._bound = con
+
+    @property
+    def n_contexts(self) -> int:
+        """Number of shared ``MjrContext`` objects made so far."""
+        return len(self._contexts)
+
+    def close(self) -> None:
+        """Free every ``MjrContext`` and the GL context (renderers using them must be closed)."""
+        if self._gl is not None:
+            self._gl.make_current()
+            for con in self._contexts.values():
+                con.free()
+            self._contexts.clear()
+            self._gl.free()
+            self._gl = None
+        self._bound = None
+
+    def __enter__(self) -> "GLResources":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+_GL_SIZE = (64, 64)
+"""Size of the EGL surface, px; rendering goes to the model's offscreen buffer instead."""
+_SHARED: GLResources | None = None
+
+
+def shared_gl() -> GLResources:
+    """The process-wide :class:`GLResources` (made on first use, closed at exit)."""
+    global _SHARED
+    if _SHARED is None:
+        _SHARED = GLResources()
+        _SHARED.make_current()  # EGL registers its display's atexit termination here: close before it
+        atexit.register(_close_shared)
+    return _SHARED
+
+
+def _close_shared() -> None:
+    global _SHARED
+    if _SHARED is not None:
+        _SHARED.close()
+        _SHARED = None
+
+
 class FrameRenderer:
     """Renders frames of one compiled model from its camera ``main``.
+
+    Per frame it draws twice: the RGB image (multisampled, as the model asks) and one
+    segmentation pass whose colour buffer gives the object ids and whose depth buffer gives
+    the depth (the same pixels as ``mujoco.Renderer``'s separate segmentation and depth
+    renders, which both draw with segmentation flags).
 
     Args:
         model: compiled scene model (objects are bodies 1..n, one geom each).
         width, height: image size, px (at most the model's offscreen buffer).
+        gl: GL resources to share with other renderers (:func:`shared_gl`); None makes a
+            private GL context that :meth:`close` frees (~100 ms to create, as before).
     """
 
-    def __init__(self, model: mujoco.MjModel, width: int, height: int):
+    def __init__(self, model: mujoco.MjModel, width: int, height: int, gl: GLResources | None = None):
+        if width > model.vis.global_.offwidth or height > model.vis.global_.offheight:
+            raise ValueError(f"image {width}x{height} px exceeds the model's offscreen buffer "
+                             f"{model.vis.global_.offwidth}x{model.vis.global_.offheight} px")
         self.model = model
         self.width, self.height = width, height
         self.data = mujoco.MjData(model)
-        self._renderer = mujoco.Renderer(model, height=height, width=width)
+        self._own_gl = gl is None
+        self._gl = GLResources() if gl is None else gl
+        self._owned: list[mujoco.MjrContext] = []
+        self._con_rgb, owned = self._gl.context(model, multisample=True)
+        if owned:
+            self._owned.append(self._con_rgb)
+        self._con_ids, owned = self._gl.context(model, multisample=False)
+        if owned:
+            self._owned.append(self._con_ids)
+        # room for every model geom plus decorations; checked after each scene update
+        self._scene = mujoco.MjvScene(model, maxgeom=max(1000, 4 * model.ngeom + 100))
+        self._option = mujoco.MjvOption()
+        self._camera = mujoco.MjvCamera()
+        self._camera.fixedcamid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_CAMERA, "main")
+        if self._camera.fixedcamid < 0:
+            raise ValueError('the model has no camera "main"')
+        self._camera.type = mujoco.mjtCamera.mjCAMERA_FIXED
+        self._rect = mujoco.MjrRect(0, 0, width, height)
         # geom id -> object index (-1 for the floor / world geoms)
         self.geom_object = np.full(model.ngeom, BACKGROUND, dtype=np.int16)
         for g in range(model.ngeom):
@@ -132,11 +315,19 @@ class FrameRenderer:
             if b > 0:
                 self.geom_object[g] = b - 1
         self.n_objects = model.nbody - 1
+        self._closed = False
 
     def close(self) -> None:
-        if self._renderer is not None:
-            self._renderer.close()
-            self._renderer = None
+        if self._closed:
+            return
+        self._closed = True
+        if self._owned:
+            self._gl.make_current()
+            for con in self._owned:
+                con.free()
+            self._owned.clear()
+        if self._own_gl:
+            self._gl.close()
 
     def __enter__(self) -> "FrameRenderer":
         return self
@@ -150,28 +341,70 @@ class FrameRenderer:
         mujoco.mj_kinematics(self.model, self.data)
         mujoco.mj_camlight(self.model, self.data)  # mj_kinematics alone does not move cameras
 
-    def _render(self, kind: str) -> np.ndarray:
-        r = self._renderer
-        if kind == "seg":
-            r.enable_segmentation_rendering()
-        elif kind == "depth":
-            r.enable_depth_rendering()
-        r.update_scene(self.data, camera="main")
-        out = r.render()
-        if kind == "seg":
-            r.disable_segmentation_rendering()
-        elif kind == "depth":
-            r.disable_depth_rendering()
-        return out
+    # ------------------------------------------------------------------ drawing
+    def _update_scene(self) -> None:
+        if self._closed:
+            raise RuntimeError("render called after close")
+        scn = self._scene
+        mujoco.mjv_updateScene(self.model, self.data, self._option, None, self._camera,
+                               mujoco.mjtCatBit.mjCAT_ALL.value, scn)
+        if scn.ngeom >= scn.maxgeom:
+            raise RuntimeError(f"MjvScene full ({scn.maxgeom} geoms): raise maxgeom")
+
+    def _draw_rgb(self, out: np.ndarray) -> None:
+        """Draw the current scene; ``out (H, W, 3) uint8`` gets it bottom row first."""
+        self._gl.bind(self._con_rgb)
+        mujoco.mjr_render(self._rect, self._scene, self._con_rgb)
+        mujoco.mjr_readPixels(out, None, self._rect, self._con_rgb)
+
+    def _draw_ids(self, ids: np.ndarray, depth: np.ndarray | None) -> np.ndarray:
+        """Segmentation pass. ``ids (H, W, 3) uint8`` gets the id colours and ``depth (H, W)
+        float32`` the raw depth buffer, bottom row first. Returns the lookup table
+        ``(ngeom + 1,) int8``: id colour (segid + 1, 0 = nothing) -> object index or -1."""
+        scn = self._scene
+        flags = scn.flags.copy()
+        scn.flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = True
+        scn.flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = True
+        self._gl.bind(self._con_ids)
+        mujoco.mjr_render(self._rect, scn, self._con_ids)
+        mujoco.mjr_readPixels(ids, depth, self._rect, self._con_ids)
+        np.copyto(scn.flags, flags)
+        lut = np.full(scn.ngeom + 1, BACKGROUND, dtype=np.int8)
+        geom_type = int(mujoco.mjtObj.mjOBJ_GEOM)
+        for g in scn.geoms[: scn.ngeom]:
+            if g.segid != -1 and g.objtype == geom_type and g.objid >= 0:
+                lut[g.segid + 1] = self.geom_object[g.objid]
+        return lut
+
+    def _ids_to_seg(self, ids: np.ndarray, lut: np.ndarray) -> np.ndarray:
+        """``(..., H, W, 3) uint8`` id colours -> ``(..., H, W) int8`` object index."""
+        code = ids[..., 0].astype(np.int64) | (ids[..., 1].astype(np.int64) << 8) | (ids[..., 2].astype(np.int64) << 16)
+        return lut[code]
+
+    def _linear_depth(self, raw: np.ndarray) -> np.ndarray:
+        """Raw depth buffer values (mjDEPTH_ZEROFAR) -> distance along the optical axis, m,
+        float32; the same arithmetic as ``mujoco.Renderer.render``."""
+        extent = self.model.stat.extent
+        near = self.model.vis.map.znear * extent
+        far = self.model.vis.map.zfar * extent
+        zfar, znear = np.float32(far), np.float32(near)
+        out_64 = raw.astype(np.float64)
+        if self._scene.camera[0].orthographic:
+            out_64 = zfar - out_64 * (zfar - znear)
+        else:
+            c_coef = -(zfar + znear) / (zfar - znear)
+            d_coef = -(np.float32(2) * zfar * znear) / (zfar - znear)
+            c_coef = np.float32(-0.5) * c_coef - np.float32(0.5)
+            d_coef = np.float32(-0.5) * d_coef
+            out_64 = d_coef / (out_64 + c_coef)
+        return out_64.astype(np.float32)
 
     def segmentation(self) -> np.ndarray:
         """(H, W) int8 object index of the current pose (-1 background)."""
-        ids = self._render("seg")
-        geom = ids[..., 0]
-        is_geom = (ids[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)) & (geom >= 0)
-        seg = np.full(geom.shape, BACKGROUND, dtype=np.int8)
-        seg[is_geom] = self.geom_object[geom[is_geom]]
-        return seg
+        self._update_scene()
+        ids = np.empty((self.height, self.width, 3), dtype=np.uint8)
+        lut = self._draw_ids(ids, None)
+        return self._ids_to_seg(ids[::-1], lut)
 
     def render(self, qpos: np.ndarray, rgb: bool = True, seg: bool = True, depth: bool = True,
                flow: bool = True, progress: bool = False) -> Frames:
@@ -185,34 +418,62 @@ class FrameRenderer:
             :class:`Frames`.
         """
         qpos = np.asarray(qpos, dtype=np.float64)
-        T = qpos.shape[0]
+        T, H, W = qpos.shape[0], self.height, self.width
         need_seg, need_depth = seg or flow, depth or flow
-        out = {k: [] for k in ("rgb", "seg", "depth")}
+        rgb_buf = np.empty((T, H, W, 3), dtype=np.uint8) if rgb else None
+        ids_buf = np.empty((T, H, W, 3), dtype=np.uint8) if need_seg or need_depth else None
+        depth_buf = np.empty((T, H, W), dtype=np.float32) if need_depth else None
+        seg_out = np.empty((T, H, W), dtype=np.int8) if need_seg else None
         K = R = t = None
         for k in range(T):
             self.set_pose(qpos[k])
             if k == 0 and flow:
-                K, R, t = camera_matrices(self.model, self.data, self.width, self.height)
+                K, R, t = camera_matrices(self.model, self.data, W, H)
+            self._update_scene()
             if rgb:
-                out["rgb"].append(self._render("rgb").copy())
-            if need_seg:
-                out["seg"].append(self.segmentation())
-            if need_depth:
-                out["depth"].append(self._render("depth").astype(np.float32))
+                self._draw_rgb(rgb_buf[k])
+            if ids_buf is not None:
+                lut = self._draw_ids(ids_buf[k], depth_buf[k] if need_depth else None)
+                if need_seg:
+                    seg_out[k] = self._ids_to_seg(ids_buf[k, ::-1], lut)
         frames = Frames(
-            rgb=np.stack(out["rgb"]) if rgb else None,
-            seg=np.stack(out["seg"]) if need_seg else None,
-            depth=np.stack(out["depth"]) if need_depth else None,
+            rgb=np.ascontiguousarray(rgb_buf[:, ::-1]) if rgb else None,
+            seg=seg_out,
+            depth=self._linear_depth(depth_buf[:, ::-1]) if need_depth else None,
         )
         if flow:
             frames.flow = np.stack([
                 rigid_flow(frames.seg[k], frames.depth[k], qpos[k], qpos[k + 1], K, R, t) for k in range(T - 1)
-            ]) if T > 1 else np.zeros((0, self.height, self.width, 2), np.float32)
+            ]) if T > 1 else np.zeros((0, H, W, 2), np.float32)
         if not seg:
             frames.seg = None
         if not depth:
             frames.depth = None
         return frames
+
+
+def render_mjcf(mjcf: str, n_objects: int, n_frames: int, fps: float, width: int, height: int,
+                gl: GLResources | None = None) -> tuple["Trace", Frames]:
+    """Compile MJCF text, roll it out and render every output (what the ``render`` stage does
+    per scene).
+
+    Args:
+        mjcf: MJCF XML text (``compile_mjcf`` stage).
+        n_objects, n_frames, fps: the scene's object count, frame count T and frame rate.
+        width, height: image size W x H, px.
+        gl: GL resources to reuse; default: this process's :func:`shared_gl`.
+    Returns:
+        (trace, frames): the :class:`pipeline.simulate.Trace` (T frames) and :class:`Frames`
+        with rgb (T, H, W, 3) uint8, seg (T, H, W) int8, depth (T, H, W) float32 m and
+        ground-truth flow (T-1, H, W, 2) float32 px.
+    """
+    from pipeline.mjcf import compile_model
+    from pipeline.simulate import rollout
+
+    model = compile_model(mjcf)
+    trace = rollout(model, n_objects, n_frames, fps)
+    with FrameRenderer(model, width, height, gl or shared_gl()) as renderer:
+        return trace, renderer.render(trace.qpos)
 
 
 def render_scene(scene, width: int, height: int, options=None, **kwargs) -> tuple["Trace", Frames]:

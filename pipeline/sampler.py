@@ -32,8 +32,10 @@ Example::
 
 from __future__ import annotations
 
+import atexit
 import math
 from collections import Counter
+from dataclasses import dataclass
 from typing import Iterator
 
 import mujoco
@@ -514,6 +516,66 @@ def iter_dataset(cfg: SampleConfig, seed: int, filt: SceneFilter | None = None,
     finally:
         if own:
             filt.close()
+
+
+@dataclass(frozen=True)
+class SampleChunk:
+    """Scenes ``start <= index < stop`` of the dataset drawn with ``seed`` (a unit of work for
+    :func:`sample_chunk` in a process pool)."""
+
+    cfg: SampleConfig
+    seed: int
+    start: int
+    stop: int
+    decimals: Decimals | None = None
+    options: SimOptions | None = None
+
+
+_FILTERS: dict[str, SceneFilter] = {}
+"""This process's filters, by (sample params, sim options): made once, reused by every chunk."""
+
+
+def _process_filter(cfg: SampleConfig, options: SimOptions | None) -> SceneFilter:
+    key = cfg.model_dump_json() + (options.model_dump_json() if options else "")
+    if key not in _FILTERS:
+        _FILTERS[key] = SceneFilter(cfg, options)
+        if len(_FILTERS) == 1:  # after the filter's GL context: atexit runs this before EGL terminates
+            atexit.register(_close_filters)
+    return _FILTERS[key]
+
+
+def _close_filters() -> None:
+    for filt in _FILTERS.values():
+        filt.close()
+    _FILTERS.clear()
+
+
+def sample_chunk(chunk: SampleChunk) -> tuple[list[tuple[str, str, Scene]], Counter[str]]:
+    """Scenes ``chunk.start .. chunk.stop - 1`` exactly as :func:`iter_dataset` yields them,
+    with this process's :class:`SceneFilter`.
+
+    The filter keeps no state from one scene to the next (every candidate resets the whole
+    template), so a scene does not depend on which scenes the process drew before: the stage
+    gives the same configs with any number of workers.
+
+    Returns:
+        ``[(scene_id, split, scene)]`` in index order, and the rejected layouts of these
+        scenes by filter name (``horizon``, ``small``, ``overlap``, ``leaves_view``, ``unstable``).
+    """
+    filt = _process_filter(chunk.cfg, chunk.options)
+    # count this chunk's rejections apart, keys in order of first occurrence (merged in chunk
+    # order they give the same dict, order included, as one sequential pass)
+    total, filt.rejected = filt.rejected, Counter()
+    splits = split_names(chunk.cfg)
+    out = []
+    try:
+        for i in range(chunk.start, chunk.stop):
+            rng = np.random.default_rng(scene_seed(chunk.seed, i))
+            out.append((scene_id(i), splits[i], sample_scene(rng, chunk.cfg, splits[i], filt, chunk.decimals)))
+    finally:
+        rejected, filt.rejected = filt.rejected, total
+        total.update(rejected)
+    return out, rejected
 
 
 def sample_dataset(cfg: SampleConfig, seed: int, decimals: Decimals | None = None) -> list[tuple[str, str, Scene]]:

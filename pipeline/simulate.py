@@ -109,6 +109,7 @@ def rollout(
     qvel = np.zeros((n_frames, n_objects, 6))
     contacts: list[list[Contact]] = []
     force = np.zeros(6)
+    geom_body = [_body_name(model, g) for g in range(model.ngeom)]  # contact pair names, by geom id
     step = 0
     for k, t in enumerate(times):
         seen: dict[tuple[str, str], Contact] = {}
@@ -119,7 +120,7 @@ def rollout(
             if record_contacts:
                 for c in range(data.ncon):
                     con = data.contact[c]
-                    a, b = sorted((_body_name(model, con.geom1), _body_name(model, con.geom2)))
+                    a, b = sorted((geom_body[con.geom1], geom_body[con.geom2]))
                     mujoco.mj_contactForce(model, data, c, force)
                     fn = float(force[0])
                     prev = seen.get((a, b))
@@ -131,7 +132,7 @@ def rollout(
             mujoco.mj_forward(model, data)
             for c in range(data.ncon):
                 con = data.contact[c]
-                a, b = sorted((_body_name(model, con.geom1), _body_name(model, con.geom2)))
+                a, b = sorted((geom_body[con.geom1], geom_body[con.geom2]))
                 mujoco.mj_contactForce(model, data, c, force)
                 seen.setdefault((a, b), Contact(a, b, tuple(float(x) for x in con.pos), float(force[0])))
         qpos[k], qvel[k] = read_state(model, data, n_objects)

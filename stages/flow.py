@@ -2,7 +2,9 @@
 
 ``flow.method``: ``dis`` (OpenCV DIS, default), ``farneback``, or ``gt`` (the simulator's exact
 flow, for the ablation `dvc exp run -S flow.method=gt`). Reads ``paths.video``, writes
-``paths.flow`` (Zarr shards: flow (N, T-1, H, W, 2) float16 px, scene_id).
+``paths.flow`` (Zarr shards: flow (N, T-1, H, W, 2) float16 px, scene_id). Shards are
+processed over ``compute.workers`` processes (``pipeline.parallel``); each worker writes the
+shards it computes.
 """
 
 import numpy as np
@@ -10,27 +12,37 @@ from tqdm import tqdm
 
 from pipeline import shards
 from pipeline.flow import FlowConfig, estimate_flow
+from pipeline.parallel import parallel_map, workers_from_params
 from pipeline.params import load_params, path_of
+
+
+def flow_shard(task: tuple[str, int, str, dict]) -> int:
+    """Flow of video shard ``(video shard, index i, flow dir, params flow)``, written as flow
+    shard i. Returns the number of clips."""
+    shard, i, out, flow_params = task
+    cfg = FlowConfig(**flow_params)
+    group = shards.open_arrays(shard)
+    ids = shards.scene_ids_of(group)
+    if cfg.method == "gt":
+        flow = np.asarray(group["flow"][...], dtype=np.float16)
+    else:
+        flow = np.stack([estimate_flow(group["rgb"][j], method=cfg.method, preset=cfg.preset).astype(np.float16)
+                         for j in range(len(ids))])
+    shards.write_arrays(shards.shard_path(out, i, "zarr"), {"flow": flow}, scene_ids=ids,
+                        attrs={"units": {"flow": "px (u, v) forward"}, "params": flow_params,
+                               "max_magnitude": cfg.max_magnitude})
+    return len(ids)
 
 
 def main() -> None:
     p = load_params()
-    cfg = FlowConfig(**p["flow"])
+    FlowConfig(**p["flow"])  # validate before starting workers
     video_dir, out = path_of(p, "video"), shards.reset_dir(path_of(p, "flow"))
     video_shards = shards.list_shards(video_dir, "zarr")
-    for i, shard in enumerate(tqdm(video_shards, desc="flow shards", unit="shard")):
-        group = shards.open_arrays(shard)
-        ids = shards.scene_ids_of(group)
-        if cfg.method == "gt":
-            flow = np.asarray(group["flow"][...], dtype=np.float16)
-        else:
-            flow = np.stack([
-                estimate_flow(group["rgb"][j], method=cfg.method, preset=cfg.preset).astype(np.float16)
-                for j in tqdm(range(len(ids)), desc=f"shard {i}", unit="scene", leave=False)
-            ])
-        shards.write_arrays(shards.shard_path(out, i, "zarr"), {"flow": flow}, scene_ids=ids,
-                            attrs={"units": {"flow": "px (u, v) forward"}, "params": p["flow"],
-                                   "max_magnitude": cfg.max_magnitude})
+    tasks = [(str(s), i, str(out), p["flow"]) for i, s in enumerate(video_shards)]
+    workers = workers_from_params(p) if p["flow"].get("method", "dis") != "gt" else 1
+    for _ in tqdm(parallel_map(flow_shard, tasks, workers), total=len(tasks), desc="flow shards", unit="shard"):
+        pass
     shards.write_meta(out, {"shards": {"shard": len(video_shards)}, "params": p["flow"],
                             "features": {"flow": "(N, T-1, H, W, 2) float16 px"}})
 

@@ -6,20 +6,50 @@ Reads ``paths.mjcf`` and params ``render`` (width, height). Writes per mjcf shar
   index, -1 background), depth (N, T, H, W) float16 m, flow (N, T-1, H, W, 2) float16
   ground-truth forward flow px, scene_id;
 * ``paths.traces``: Parquet shard, one row per scene (``pipeline.traces.TRACES_SCHEMA``).
+
+Shards are rendered over ``compute.workers`` processes (``pipeline.parallel``), each with one
+GL context reused for all its scenes (``pipeline.render.shared_gl``). A worker writes the
+shards it renders itself: sending ~1.8 MB of arrays per scene back to one writer process
+would make that process the bottleneck on 2 cores.
 """
 
 import numpy as np
 from tqdm import tqdm
 
 from pipeline import shards
-from pipeline.mjcf import compile_model
+from pipeline.parallel import parallel_map, workers_from_params
 from pipeline.params import load_params, path_of
-from pipeline.render import FrameRenderer
-from pipeline.simulate import rollout
+from pipeline.render import render_mjcf
 from pipeline.traces import TRACES_SCHEMA, trace_to_row
 
 UNITS = {"rgb": "uint8 RGB", "seg": "object index, -1 = floor/background", "depth": "m along the optical axis",
          "flow": "px, forward (u, v), ground truth"}
+
+
+def render_shard(task: tuple[str, int, str, str, dict]) -> int:
+    """Render mjcf shard ``(mjcf shard, index i, video dir, traces dir, params)`` and write
+    video and traces shard i. Returns the number of scenes."""
+    shard, i, video, traces, p = task
+    W, H = int(p["render"]["width"]), int(p["render"]["height"])
+    attrs = {"units": UNITS, "params": {"render": p["render"]}, "width": W, "height": H}
+    arrays = {k: [] for k in ("rgb", "seg", "depth", "flow")}
+    rows = []
+    table = shards.read_table(shard).to_pylist()
+    for r in table:
+        trace, frames = render_mjcf(r["mjcf"], r["n_objects"], r["n_frames"], r["fps"], W, H)
+        arrays["rgb"].append(frames.rgb)
+        arrays["seg"].append(frames.seg)
+        arrays["depth"].append(frames.depth.astype(np.float16))
+        arrays["flow"].append(frames.flow.astype(np.float16))
+        rows.append({"scene_id": r["scene_id"], "split": r["split"],
+                     **trace_to_row(trace, frames.visible_pixels(r["n_objects"]))})
+    ids = [r["scene_id"] for r in rows]
+    shards.write_arrays(shards.shard_path(video, i, "zarr"), {k: np.stack(v) for k, v in arrays.items()},
+                        attrs={**attrs, "fps": int(table[0]["fps"])}, scene_ids=ids)
+    shards.write_table(shards.shard_path(traces, i, "parquet"), rows, schema=TRACES_SCHEMA,
+                       metadata={"units": "t s; qpos m + quaternion wxyz; qvel m/s, rad/s (world); "
+                                          "contacts N; visible px", "params": {"render": p["render"]}})
+    return len(rows)
 
 
 def main() -> None:
@@ -29,27 +59,11 @@ def main() -> None:
     video, traces = shards.reset_dir(path_of(p, "video")), shards.reset_dir(path_of(p, "traces"))
     mjcf_shards = shards.list_shards(mjcf_dir, "parquet")
     attrs = {"units": UNITS, "params": {"render": p["render"]}, "width": W, "height": H}
-    for i, shard in enumerate(tqdm(mjcf_shards, desc="render shards", unit="shard")):
-        arrays = {k: [] for k in ("rgb", "seg", "depth", "flow")}
-        rows = []
-        table = shards.read_table(shard).to_pylist()
-        for r in tqdm(table, desc=f"shard {i}", unit="scene", leave=False):
-            model = compile_model(r["mjcf"])
-            trace = rollout(model, r["n_objects"], r["n_frames"], r["fps"])
-            with FrameRenderer(model, W, H) as renderer:
-                frames = renderer.render(trace.qpos)
-            arrays["rgb"].append(frames.rgb)
-            arrays["seg"].append(frames.seg)
-            arrays["depth"].append(frames.depth.astype(np.float16))
-            arrays["flow"].append(frames.flow.astype(np.float16))
-            rows.append({"scene_id": r["scene_id"], "split": r["split"],
-                         **trace_to_row(trace, frames.visible_pixels(r["n_objects"]))})
-        ids = [r["scene_id"] for r in rows]
-        shards.write_arrays(shards.shard_path(video, i, "zarr"), {k: np.stack(v) for k, v in arrays.items()},
-                            attrs={**attrs, "fps": int(table[0]["fps"])}, scene_ids=ids)
-        shards.write_table(shards.shard_path(traces, i, "parquet"), rows, schema=TRACES_SCHEMA,
-                           metadata={"units": "t s; qpos m + quaternion wxyz; qvel m/s, rad/s (world); "
-                                              "contacts N; visible px", "params": {"render": p["render"]}})
+    params = {"render": p["render"]}
+    tasks = [(str(s), i, str(video), str(traces), params) for i, s in enumerate(mjcf_shards)]
+    for _ in tqdm(parallel_map(render_shard, tasks, workers_from_params(p)), total=len(tasks),
+                  desc="render shards", unit="shard"):
+        pass
     n = len(mjcf_shards)
     shards.write_meta(video, {"shards": {"shard": n}, **attrs,
                               "features": {"rgb": "(N, T, H, W, 3) uint8", "seg": "(N, T, H, W) int8",

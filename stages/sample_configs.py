@@ -4,6 +4,9 @@ Reads params ``sample`` (:class:`pipeline.sampler.SampleConfig`), ``seed``, ``si
 ``scene.decimals``; writes ``paths.configs``: Parquet shards of ``shard_size`` scenes with
 columns scene_id, split, seed (the scene's own seed), scene (canonical YAML), composition
 (comma-joined sorted shapes), n_objects; and meta.json (shard count, split counts, rejections).
+
+Scenes are drawn in chunks over ``compute.workers`` processes (``pipeline.parallel``); scene i
+depends only on (seed, i), so the output is the same for any worker count.
 """
 
 from collections import Counter
@@ -12,9 +15,13 @@ from tqdm import tqdm
 
 from pipeline import shards
 from pipeline.mjcf import SimOptions
+from pipeline.parallel import parallel_map, workers_from_params
 from pipeline.params import load_params, path_of
-from pipeline.sampler import SampleConfig, SceneFilter, iter_dataset, scene_seed
+from pipeline.sampler import SampleChunk, SampleConfig, sample_chunk, scene_seed
 from pipeline.scene import Decimals
+
+CHUNK = 20
+"""Scenes per unit of work (~0.5 s each)."""
 
 
 def main() -> None:
@@ -23,15 +30,21 @@ def main() -> None:
     cfg = SampleConfig(**{**p["sample"], "width": p["render"]["width"], "height": p["render"]["height"]})
     seed = int(p.get("seed", 0))
     decimals = Decimals(**(p.get("scene") or {}).get("decimals", {}))
+    options = SimOptions(**p["sim"])
     out = shards.reset_dir(path_of(p, "configs"))
     rows = []
-    with SceneFilter(cfg, SimOptions(**p["sim"])) as filt:
-        for i, (sid, split, scene) in enumerate(tqdm(iter_dataset(cfg, seed, filt, decimals), total=cfg.n_scenes,
-                                                     desc="sample_configs", unit="scene")):
-            rows.append({"scene_id": sid, "split": split, "seed": scene_seed(seed, i),
-                         "scene": scene.to_yaml(decimals), "composition": ",".join(scene.composition),
-                         "n_objects": len(scene.objects)})
-        rejected = dict(filt.rejected)
+    rejected: Counter[str] = Counter()
+    tasks = [SampleChunk(cfg, seed, r.start, r.stop, decimals, options) for r in shards.chunked(cfg.n_scenes, CHUNK)]
+    with tqdm(total=cfg.n_scenes, desc="sample_configs", unit="scene") as bar:
+        for scenes, chunk_rejected in parallel_map(sample_chunk, tasks, workers_from_params(p)):
+            for sid, split, scene in scenes:
+                i = len(rows)
+                rows.append({"scene_id": sid, "split": split, "seed": scene_seed(seed, i),
+                             "scene": scene.to_yaml(decimals), "composition": ",".join(scene.composition),
+                             "n_objects": len(scene.objects)})
+            rejected.update(chunk_rejected)
+            bar.update(len(scenes))
+    rejected = dict(rejected)
     meta = {"params": p["sample"], "seed": seed, "units": "scene language v1 (SI, camera angles in deg)"}
     ranges = shards.chunked(len(rows), cfg.shard_size)
     for k, r in enumerate(ranges):

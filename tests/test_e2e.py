@@ -23,8 +23,9 @@ REAL = ROOT.parent / "shared" / "data" / "real" / "video"
 TINY = {
     "sample": {"n_train": 8, "n_val": 2, "n_test": 2, "n_test_comp": 2, "shard_size": 4},
     "render": {"width": 48, "height": 32},
-    "model": {"max_steps": 4, "max_minutes": 1.0, "eval_interval": 2, "eval_batches": 1, "batch_size": 2,
-              "warmup_steps": 1, "k": 2, "max_new_tokens": 48},
+    # max_new_tokens stays at its default: it must cover the longest target (tests/test_model.py)
+    "model": {"max_steps": 4, "eval_interval": 2, "eval_batches": 1, "eval_samples": 2, "batch_size": 2,
+              "warmup_steps": 1, "k": 2},
     "search": {"k": 2, "popsize": 4, "iterations": 1},
     "measure_hidden": {"effect": "quadratic_drag", "n_clips": 2, "duration": 0.5},
     "discrepancy": {"max_effects": 1, "max_nfev": 6, "max_nfev_warm": 4, "recording": False},
@@ -50,8 +51,9 @@ def workspace(tmp_path_factory) -> tuple[Path, dict]:
     ws = tmp_path_factory.mktemp("e2e")
     for name in ("dvc.yaml", ".gitignore"):
         shutil.copy(ROOT / name, ws / name)
-    for name in ("stages", "pipeline"):
-        shutil.copytree(ROOT / name, ws / name, ignore=shutil.ignore_patterns("__pycache__"))
+    for name in ("stages", "pipeline", "models"):  # models/: the shipped checkpoint (model.init)
+        if (ROOT / name).exists():
+            shutil.copytree(ROOT / name, ws / name, ignore=shutil.ignore_patterns("__pycache__"))
     params = _merge(yaml.safe_load((ROOT / "params.yaml").read_text()), TINY)
     (ws / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     bindir = str(Path(sys.executable).parent)

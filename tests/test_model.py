@@ -1,8 +1,9 @@
-"""Tests of pipeline.model: patch layout, target text, tokenizer, tiny-model training and sampling."""
+"""Tests of pipeline.model: patch layout, inputs, tokenizer, schedule, training, constrained sampling."""
 
 from __future__ import annotations
 
 import ast
+import math
 import os
 from pathlib import Path
 
@@ -13,6 +14,7 @@ import pytest
 import torch
 
 from pipeline import model as M
+from pipeline.codec import SceneCodec, target_tokens, text_of
 from pipeline.scene import Scene
 
 SCENE = """\
@@ -35,30 +37,19 @@ objects:
     material: {sliding_friction: 0.4, rolling_friction: 0.001, damping: 0.1}
 effects: []
 """
-THINK = "t=0.00 s: sphere_0 rolls. t=0.73 s: sphere_0 stops."
+BOXES = SCENE.replace("""  - shape: sphere
+    size: {radius: 0.1}""", """  - shape: box
+    size: {width: 0.2, depth: 0.3, height: 0.1}""")
+THINK = "t=0.23 sphere_0 hits floor; t=0.73 sphere_0 stops"
+PARAMS: dict = {}  # defaults of every section
+CODEC = SceneCodec.from_params(PARAMS)
 
 # A config small enough for the tests: ~190k parameters, 4 frames of 32 x 48 px.
 TINY = M.ModelConfig(
-    n_frames=4,
-    hidden_size=64,
-    intermediate_size=128,
-    num_layers=2,
-    num_heads=4,
-    num_kv_heads=2,
-    vision_depth=2,
-    vision_hidden_size=32,
-    vision_intermediate_size=64,
-    vision_num_heads=2,
-    batch_size=2,
-    lr=3e-3,
-    min_lr=1e-3,
-    warmup_steps=5,
-    max_steps=40,
-    max_minutes=5.0,
-    eval_interval=20,
-    eval_batches=1,
-    max_new_tokens=24,
-    k=3,
+    n_frames=4, input="rgb", hidden_size=64, intermediate_size=128, num_layers=2, num_heads=4, num_kv_heads=2,
+    vision_depth=2, vision_hidden_size=32, vision_intermediate_size=64, vision_num_heads=2, batch_size=2,
+    lr=3e-3, min_lr=1e-3, warmup_steps=5, max_steps=40, eval_interval=20, eval_batches=1, eval_samples=2,
+    max_new_tokens=160, k=3, threads=1,
 )
 
 
@@ -72,7 +63,16 @@ def _one_thread():
 
 
 def _frames(seed: int, cfg: M.ModelConfig = TINY, h: int = 32, w: int = 48) -> np.ndarray:
-    return np.random.default_rng(seed).integers(0, 256, (cfg.n_frames, h, w, 3), dtype=np.uint8)
+    return np.random.default_rng(seed).integers(0, 256, (cfg.n_input_frames, h, w, 3), dtype=np.uint8)
+
+
+def _target(scene_yaml: str, think: str | None = THINK) -> str:
+    return text_of(target_tokens(CODEC, Scene.from_yaml(scene_yaml), think))
+
+
+@pytest.fixture(scope="module")
+def tokenizer(tmp_path_factory):
+    return M.build_tokenizer(CODEC, M.think_vocab(PARAMS, CODEC.max_objects), tmp_path_factory.mktemp("tok"))
 
 
 # ----------------------------------------------------------------------------- patches
@@ -130,7 +130,7 @@ def test_frame_indices_uniform():
     assert M.frame_indices(5, 5).tolist() == [0, 1, 2, 3, 4]
 
 
-def test_model_input_rgb_and_flow():
+def test_model_input_rgb_flow_and_both():
     cfg = M.ModelConfig(input="rgb")
     rgb = np.random.default_rng(0).integers(0, 256, (30, 64, 96, 3), dtype=np.uint8)
     out = M.model_input(rgb, None, cfg)
@@ -144,6 +144,13 @@ def test_model_input_rgb_and_flow():
     flow = np.random.default_rng(0).normal(size=(29, 64, 96, 2)).astype(np.float16)
     out = M.model_input(None, flow, cfg.model_copy(update={"input": "flow"}), max_magnitude=3.0)
     assert out.shape == (10, 64, 96, 3) and out.dtype == np.uint8
+    both = M.model_input(rgb, flow, cfg.model_copy(update={"input": "flow+rgb"}), max_magnitude=3.0)
+    assert both.shape == (12, 64, 96, 3) == (M.ModelConfig(input="flow+rgb").n_input_frames, 64, 96, 3)
+    np.testing.assert_array_equal(both[0], rgb[0])  # first RGB frame = one temporal patch
+    np.testing.assert_array_equal(both[1], rgb[0])
+    np.testing.assert_array_equal(both[2:], out)
+    with pytest.raises(M.ModelError, match="no rgb"):
+        M.model_input(None, flow, cfg.model_copy(update={"input": "flow+rgb"}))
 
 
 # ----------------------------------------------------------------------------- config
@@ -159,139 +166,157 @@ def test_config_errors_are_one_line():
     assert M.ModelConfig().mrope_section == [8, 12, 12]
 
 
-# ----------------------------------------------------------------------------- text
-def test_target_parse_round_trip():
-    for reasoning in (True, False):
-        text = M.target_text(SCENE, THINK, reasoning)
-        think, answer = M.parse_output(text)
-        assert answer == SCENE
-        assert think == (THINK if reasoning else None)
-        assert Scene.from_yaml(answer).to_yaml() == SCENE
-    assert M.target_text(SCENE, THINK, False) == f"<answer>{SCENE}</answer>"
-    assert M.parse_output("<think>a</think><answer>version: 1") == ("a", None)  # cut off
-    assert M.parse_output("garbage") == (None, None)
+def test_learning_rate_warmup_then_cosine_over_steps():
+    cfg = M.ModelConfig(lr=1e-3, min_lr=1e-4, warmup_steps=10, max_steps=110)
+    assert M.lr_at(0, cfg) == pytest.approx(1e-4)           # 1/10 of lr after the first step
+    assert M.lr_at(9, cfg) == pytest.approx(1e-3)           # warmup ends at lr
+    assert M.lr_at(10, cfg) == pytest.approx(1e-3)          # cosine starts at lr, not lower
+    assert M.lr_at(60, cfg) == pytest.approx(0.5 * (1e-3 + 1e-4))  # half way: mean of lr and min_lr
+    assert M.lr_at(110, cfg) == pytest.approx(1e-4)
+    assert M.lr_at(500, cfg) == pytest.approx(1e-4)
+    lrs = [M.lr_at(s, cfg) for s in range(10, 111)]
+    assert all(a >= b for a, b in zip(lrs, lrs[1:]))       # monotone decay after warmup
+    expected = 1e-4 + 0.5 * (1 + math.cos(math.pi * 0.25)) * 9e-4
+    assert M.lr_at(35, cfg) == pytest.approx(expected)
 
 
-@pytest.fixture(scope="module")
-def tokenizer(tmp_path_factory):
-    texts = [M.target_text(SCENE, THINK, True), M.target_text(SCENE.replace("0.1]", "0.25]"), THINK, False)] * 4
-    return M.train_tokenizer(texts, 512, tmp_path_factory.mktemp("tok"))
+def test_batches_cover_every_example_once_per_epoch():
+    cfg = M.ModelConfig(batch_size=4, seed=3)
+    seen = np.concatenate([M.batch_indices(10, cfg, s) for s in range(5)])  # 20 draws = 2 epochs
+    assert sorted(seen[:10].tolist()) == list(range(10)) and sorted(seen[10:].tolist()) == list(range(10))
+    np.testing.assert_array_equal(M.batch_indices(10, cfg, 3), M.batch_indices(10, cfg, 3))
 
 
-def test_tokenizer_round_trips_scene_yaml(tokenizer, tmp_path):
-    target = M.target_text(SCENE, THINK, True)
-    unseen = SCENE.replace("0.5", "7.25").replace("sphere", "box") + "é ü\t{}"
-    for text in (SCENE, target, unseen):
-        ids = tokenizer.encode(text, add_special_tokens=False)
-        assert tokenizer.decode(ids, skip_special_tokens=False, clean_up_tokenization_spaces=False) == text
+# ----------------------------------------------------------------------------- tokenizer
+def test_tokenizer_round_trips_targets(tokenizer, tmp_path):
+    target = _target(SCENE)
     ids = tokenizer.encode(target, add_special_tokens=False)
-    for tag in (M.THINK, M.END_THINK, M.ANSWER, M.END_ANSWER):
-        assert ids.count(tokenizer.convert_tokens_to_ids(tag)) == 1  # tags are single tokens
+    assert tokenizer.unk_token_id not in ids
+    assert tokenizer.decode(ids, skip_special_tokens=False, clean_up_tokenization_spaces=False) == target
+    assert len(ids) == len(target.split())  # one token per word: one per number
+    assert M.decode_tokens(tokenizer, ids + [tokenizer.eos_token_id, 42, 43]) == target.split()
     assert [tokenizer.convert_tokens_to_ids(t) for t in M.SPECIAL_TOKENS] == list(range(len(M.SPECIAL_TOKENS)))
-    assert M.decode(tokenizer, ids + [tokenizer.eos_token_id, 42, 43]) == target
     tokenizer.save_pretrained(tmp_path)
-    again = M.load_tokenizer(tmp_path)
-    assert again.encode(target, add_special_tokens=False) == ids
+    assert M.load_tokenizer(tmp_path).encode(target, add_special_tokens=False) == ids
+    with pytest.raises(M.ModelError, match="not in the tokenizer"):
+        M.encode_target(tokenizer, target + " banana")
 
 
 def test_collate_masks_prompt(tokenizer):
-    target = M.target_text(SCENE, THINK, True)
-    batch = M.collate([(_frames(0), target), (_frames(1), "<answer>x</answer>")], tokenizer, TINY)
+    target = _target(SCENE)
+    batch = M.collate([(_frames(0), target), (_frames(1), _target(SCENE, None))], tokenizer, TINY)
     n_video = 2 * 4 * 6 // 4  # grid (4/2, 32/8, 48/8) / merge^2
     assert batch["video_grid_thw"].tolist() == [[2, 4, 6]] * 2
     assert batch["pixel_values_videos"].shape == (2 * 48, 3 * 2 * 8 * 8)
     assert (batch["mm_token_type_ids"] == 2).sum(1).tolist() == [n_video, n_video]
     n_prompt = n_video + 2
     assert (batch["labels"][:, :n_prompt] == M.IGNORE_INDEX).all()
-    n_target = len(tokenizer.encode(target, add_special_tokens=False)) + 1  # + eos
-    assert (batch["labels"][0] != M.IGNORE_INDEX).sum() == n_target
+    assert (batch["labels"][0] != M.IGNORE_INDEX).sum() == len(target.split()) + 1  # + eos
     assert batch["attention_mask"][1].sum() < batch["attention_mask"][0].sum()  # right padding
     assert (batch["labels"][1][batch["attention_mask"][1] == 0] == M.IGNORE_INDEX).all()
+
+
+# ----------------------------------------------------------------------------- constrained sampling
+def test_untrained_model_constrained_samples_are_valid_scenes(tokenizer):
+    """Grammar-constrained decoding of random weights: K/K samples detokenise to scenes."""
+    cfg = TINY.model_copy(update={"temperature": 1.0, "top_p": 1.0})
+    model = M.build_model(cfg, tokenizer)
+    for seed in range(3):
+        samples = M.generate(model, tokenizer, _frames(seed), cfg, CODEC, k=4, seed=seed)
+        for toks in samples:
+            assert len(toks) <= cfg.max_new_tokens
+            scene, error = M.to_scene(toks, CODEC)
+            assert error is None and 1 <= len(scene.objects) <= 4
+            assert Scene.from_yaml(scene.to_yaml()) == scene  # canonical YAML round-trips
+    # the same random model without the grammar does not write scenes
+    free = M.generate(model, tokenizer, _frames(0), cfg.model_copy(update={"constrained": False}), CODEC, k=4)
+    assert all(M.to_scene(t, CODEC)[0] is None for t in free)
+
+
+def test_max_new_tokens_covers_the_longest_target():
+    """Defaults: the grammar's think part + the longest answer fit in max_new_tokens."""
+    cfg = M.ModelConfig()
+    longest_answer = CODEC.max_answer_tokens()
+    assert longest_answer == 2 + 3 + 4 * 21
+    room = cfg.max_new_tokens - longest_answer - 3
+    assert room // 6 >= 12  # twelve events of 6 tokens still fit
+    tok = M.build_tokenizer(CODEC, M.think_vocab(PARAMS, 4))
+    with pytest.raises(M.ModelError, match="max_new_tokens: must be >= 98"):
+        M.compiled_grammar(tok, CODEC, True, max_new_tokens=90)
 
 
 # ----------------------------------------------------------------------------- training
 @pytest.fixture(scope="module")
 def trained(tokenizer, tmp_path_factory):
-    """A tiny model trained on 2 examples (40 steps); returns (out_dir, result, examples)."""
-    examples = [
-        (_frames(0), M.target_text(SCENE, THINK, True)),
-        (_frames(1), M.target_text(SCENE.replace("0.1]", "0.25]"), THINK, False)),
-    ]
+    """A tiny model overfit on 3 examples with different videos and scenes."""
+    examples = [(_frames(0), _target(SCENE)), (_frames(1), _target(BOXES, "no events")),
+                (_frames(2), _target(SCENE.replace("0.1, 0.3", "-0.4, -0.2"), "t=0.50 sphere_0 stops"))]
+    cfg = TINY.model_copy(update={"max_steps": 240, "eval_interval": 120, "lr": 3e-3, "min_lr": 3e-4,
+                                  "aux_weight": 0.1, "batch_size": 3})
     out = tmp_path_factory.mktemp("model")
-    result = M.train(examples, examples, TINY, out, tokenizer=tokenizer, progress=False)
-    return out, result, examples
+    result = M.train(examples, examples, cfg, out, tokenizer=tokenizer, codec=CODEC,
+                     think_words=M.think_vocab(PARAMS, 4), progress=False)
+    return out, result, examples, cfg
 
 
-def test_tiny_model_overfits_two_examples(trained, tokenizer):
-    out, result, examples = trained
+def test_overfit_greedy_decoding_reproduces_targets(trained, tokenizer):
+    """Each video's greedy sample is exactly its own target (so the output depends on the input)."""
+    out, result, examples, cfg = trained
     curve = M.read_curve(out)
-    assert [r["step"] for r in curve] == [20, 40] and result["step"] == 40
-    assert list(curve[0]) == list(M.CURVE_COLUMNS)
-    # build_model seeds from cfg.seed: this is the model training started from
-    initial = M.estimate_loss(M.build_model(TINY, tokenizer), examples, tokenizer, TINY)
-    assert initial > 4.5  # ~ln(len(tokenizer)) = ln(~450) for a random init
-    assert result["val_loss"] < 0.5 * initial
-    assert result["train_loss"] < curve[0]["train_loss"]
-    assert {"config.json", "model.safetensors", "tokenizer.json", M.TRAINER_STATE_FILE, M.CONFIG_FILE} <= {
-        p.name for p in out.iterdir()
-    }
-
-
-def test_save_load_identical_logits(trained, tokenizer):
-    out, _, examples = trained
+    assert [r["step"] for r in curve] == [120, 240] and result["stopped_by"] == "max_steps"
+    assert result["train_loss"] < 0.05, result
+    greedy = cfg.model_copy(update={"temperature": 0.0})
     model, tok = M.load_model(out)
-    assert tok.get_vocab() == tokenizer.get_vocab()
-    batch = M.collate(examples, tok, TINY)
-    twice = M.load_model(out)[0]
+    outs = M.generate_many(model, tok, [f for f, _ in examples], greedy, CODEC)
+    for toks, (_, target) in zip(outs, examples):
+        assert " ".join(toks) == target
+        scene, error = M.to_scene(toks, CODEC)
+        assert error is None and Scene.from_yaml(scene.to_yaml()) == scene
+    assert len({" ".join(t) for t in outs}) == 3  # different videos, different scenes
+    assert curve[-1]["val_composition"] == 1.0 and curve[-1]["val_valid"] == 1.0
+
+
+def test_save_load_identical_logits_and_codec(trained):
+    out, _, examples, cfg = trained
+    model, tok = M.load_model(out)
+    batch = M.collate(examples, tok, cfg)
     with torch.no_grad():
         a = model(**batch, use_cache=False).logits
-        b = twice(**batch, use_cache=False).logits
+        b = M.load_model(out)[0](**batch, use_cache=False).logits
     torch.testing.assert_close(a, b, rtol=0, atol=0)
-    # and the same as the in-memory model that was saved: re-save and reload
-    model.save_pretrained(out / "again")
-    tok.save_pretrained(out / "again")
-    with torch.no_grad():
-        c = M.load_model(out / "again")[0](**batch, use_cache=False).logits
-    torch.testing.assert_close(a, c, rtol=0, atol=0)
+    codec, words = M.load_codec(out)
+    assert codec.to_dict() == CODEC.to_dict() and "t=0.50" in words
+    saved = M.checkpoint_config(out, M.ModelConfig(k=7, input="flow"))
+    assert saved.input == "rgb" and saved.n_frames == 4 and saved.k == 7  # input from the checkpoint
 
 
-def test_generate_returns_k_strings(trained):
-    out, _, examples = trained
-    model, tok = M.load_model(out)
-    texts = M.generate(model, tok, examples[0][0], TINY, k=3, seed=0)
-    assert len(texts) == 3 and all(isinstance(t, str) for t in texts)
-    assert M.generate(model, tok, examples[0][0], TINY, k=3, seed=0) == texts  # seeded
-    assert all(t.startswith((M.THINK, M.ANSWER)) for t in texts)  # learned how targets start
-    greedy = TINY.model_copy(update={"temperature": 0.0})
-    assert len(M.generate(model, tok, examples[0][0], greedy, k=2)) == 2
-
-
-def test_resume_continues_step_count(tokenizer, tmp_path):
-    examples = [(_frames(0), M.target_text(SCENE, THINK, True))]
-    cfg = TINY.model_copy(update={"max_steps": 3, "eval_interval": 2})
-    first = M.train(examples, [], cfg, tmp_path, tokenizer=tokenizer, progress=False)
+def test_init_from_checkpoint_and_resume(trained, tokenizer, tmp_path):
+    out, _, examples, cfg = trained
+    start = cfg.model_copy(update={"init": str(out), "max_steps": 3, "eval_interval": 2, "eval_samples": 0})
+    first = M.train(examples, [], start, tmp_path, codec=CODEC, progress=False)
     assert first["step"] == 3 and [r["step"] for r in M.read_curve(tmp_path)] == [2, 3]
-    state = torch.load(tmp_path / M.TRAINER_STATE_FILE, weights_only=False)
-    assert state["step"] == 3 and state["optimizer"]["state"]
-    more = cfg.model_copy(update={"max_steps": 5})
+    assert first["train_loss"] < 0.1  # started from the overfit weights, not from scratch
+    more = start.model_copy(update={"max_steps": 5})
     second = M.train(examples, [], more, tmp_path, resume=True, progress=False)
-    assert second["step"] == 5
-    assert [r["step"] for r in M.read_curve(tmp_path)] == [2, 3, 4, 5]
-    assert second["seconds"] >= first["seconds"]
+    assert second["step"] == 5 and [r["step"] for r in M.read_curve(tmp_path)] == [2, 3, 4, 5]
     with pytest.raises(M.ModelError, match="cannot resume: model.lr was"):
         M.train(examples, [], more.model_copy(update={"lr": 1.0}), tmp_path, resume=True, progress=False)
-    # resuming a finished run does nothing
-    assert M.train(examples, [], more, tmp_path, resume=True, progress=False)["step"] == 5
-    # without resume the run starts over
-    one = cfg.model_copy(update={"max_steps": 1})
-    fresh = M.train(examples, [], one, tmp_path, tokenizer=tokenizer, progress=False)
-    assert fresh["step"] == 1
+    other = SceneCodec.from_params({"tokens": {"bins": 128}})
+    with pytest.raises(M.ModelError, match="codec.json differs"):
+        M.train(examples, [], start, tmp_path / "x", codec=other, progress=False)
+
+
+def test_max_minutes_is_a_reported_safety_cap(tokenizer, tmp_path):
+    cfg = TINY.model_copy(update={"max_steps": 10_000, "max_minutes": 0.001, "eval_samples": 0})
+    result = M.train([(_frames(0), _target(SCENE))], [], cfg, tmp_path, tokenizer=tokenizer, codec=CODEC,
+                     progress=False)
+    assert result["stopped_by"] == "max_minutes" and result["step"] < 10_000
 
 
 def test_pretrained_folder_is_loaded_offline(trained, tmp_path):
     """``model.pretrained`` with a local folder: weights and tokenizer come from there."""
-    out, _, examples = trained
-    cfg = TINY.model_copy(update={"pretrained": str(out)})
+    out, _, _, cfg = trained
+    cfg = cfg.model_copy(update={"pretrained": str(out)})
     tok = M.load_tokenizer(out)
     model = M.build_model(cfg, tok)
     ref, _ = M.load_model(out)
@@ -325,22 +350,42 @@ def test_stages_tokenize_finetune_infer(tmp_path, monkeypatch):
         shards.write_arrays(shards.shard_path(tmp_path / "flow", s, "zarr"),
                             {"flow": rng.normal(size=(3, 8, 32, 48, 2)).astype(np.float16)},
                             scene_ids=ids[part], attrs={"max_magnitude": 2.0})
+        shards.write_arrays(shards.shard_path(tmp_path / "video", s, "zarr"),
+                            {"rgb": rng.integers(0, 256, (3, 9, 32, 48, 3), dtype=np.uint8)},
+                            scene_ids=ids[part])
     shards.write_table(shards.shard_path(tmp_path / "events", 0, "parquet", prefix="think"),
                        [{"scene_id": i, "think": THINK} for i in ids])
-    model = TINY.model_dump(exclude={"pretrained", "seed"}) | {"max_steps": 4, "eval_interval": 2, "k": 2}
+    model = TINY.model_dump(exclude={"pretrained", "seed"}) | {"max_steps": 4, "eval_interval": 2, "k": 2,
+                                                               "input": "flow+rgb"}
     paths = {name: str(tmp_path / name) for name in
-             ("configs", "events", "flow", "video", "tokenizer", "examples", "model", "predictions")}
+             ("configs", "events", "flow", "video", "tokenizer", "examples", "model", "predictions", "reports")}
     (tmp_path / "params.yaml").write_text(yaml.safe_dump({"seed": 1, "paths": paths, "model": model}))
     monkeypatch.setenv("DYNAMICS_PARAMS", str(tmp_path / "params.yaml"))
     for script in ("tokenize_targets.py", "finetune.py", "infer.py"):
-        monkeypatch.setattr("sys.argv", [script])
+        monkeypatch.setattr("sys.argv", [script, "--no-progress"] if script == "finetune.py" else [script])
         runpy.run_path(str(stages / script), run_name="__main__")
 
     examples = shards.read_table(tmp_path / "examples").to_pylist()
     assert [e["scene_id"] for e in examples] == ids
-    assert examples[0]["target"] == M.target_text(scenes[0], THINK, True)
+    assert examples[0]["target"] == _target(scenes[0])
+    meta = shards.read_meta(tmp_path / "examples")
+    assert meta["quantisation_error"]["position.x"]["max_abs"] <= CODEC.q["position.x"].step / 2 + 1e-9
     assert [r["step"] for r in M.read_curve(tmp_path / "model")] == [2, 4]
+    assert (tmp_path / "reports" / "train_curve.png").exists()
     preds = shards.read_table(tmp_path / "predictions").to_pylist()
     assert [(p["scene_id"], p["split"], p["sample"]) for p in preds] == [
         (ids[4], "test", 0), (ids[4], "test", 1), (ids[5], "test_comp", 0), (ids[5], "test_comp", 1)]
-    assert all((p["scene"] is None) != (p["error"] is None) for p in preds)
+    assert all(p["scene"] is not None and p["error"] is None for p in preds)  # constrained: always valid
+
+
+def test_think_vocab_covers_every_event_phrase():
+    """Every word events_to_text can write for a 1 s clip of <= 4 objects is in the vocabulary."""
+    from pipeline.codec import think_tokens
+    from pipeline.events import FLOOR, NO_EVENTS, Event, events_to_text
+
+    vocab = set(M.think_vocab(PARAMS, 4))
+    events = [Event("collision", 3, 0.1, ("box_3", FLOOR)), Event("collision", 4, 0.999, ("sphere_0", "cylinder_2")),
+              Event("stop", 30, 1.0, ("cylinder_1",)), Event("enter_view", 5, 0.0, ("box_0",)),
+              Event("leave_view", 6, 0.5, ("sphere_3",))]
+    for text in (events_to_text(events), NO_EVENTS):
+        assert set(think_tokens(text)) <= vocab, set(think_tokens(text)) - vocab

@@ -1,0 +1,203 @@
+"""The network: a tiny Qwen2.5-VL built from a config (or real weights), and the auxiliary
+composition head on its vision tower.
+
+Auxiliary loss (beyond the paper, issue 8): a decoder trained only on next-token loss can
+learn to write the dataset's average scene whatever the video. The :class:`CompositionHead`
+reads the vision tower's merged tokens (mean-pooled per video) and predicts how many objects
+of each shape the scene has (``max_objects + 1`` classes per shape); its cross-entropy is added
+to the language-model loss with weight ``model.aux_weight``, so the vision tokens the decoder
+attends to must carry the scene's content. It is used only in training.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import torch
+
+from pipeline.model.config import ModelConfig, ModelError
+from pipeline.model.tokenizer import IMAGE_PAD, VIDEO_PAD, VISION_END, VISION_START, load_tokenizer, token_id
+from pipeline.scene import SHAPES
+
+if TYPE_CHECKING:  # transformers takes ~3 s to import
+    from transformers import Qwen2_5_VLForConditionalGeneration
+
+AUX_HEAD_FILE = "composition_head.pt"
+
+
+def build_model(cfg: ModelConfig, tokenizer) -> "Qwen2_5_VLForConditionalGeneration":
+    """A Qwen2.5-VL for ``cfg``: tiny and random, or ``cfg.pretrained`` loaded offline.
+
+    Args:
+        cfg: model config (architecture fields are ignored when ``pretrained`` is set, except
+            the patch geometry, which must match the checkpoint).
+        tokenizer: its special token ids become the config's token ids; the embedding table
+            has ``len(tokenizer)`` rows.
+
+    Returns:
+        ``Qwen2_5_VLForConditionalGeneration`` in float32, train mode, SDPA attention.
+
+    Raises:
+        ModelError: ``pretrained`` folder missing or its patch geometry differs from ``cfg``.
+    """
+    from transformers import Qwen2_5_VLConfig, Qwen2_5_VLForConditionalGeneration
+
+    ids = dict(
+        video_token_id=token_id(tokenizer, VIDEO_PAD),
+        vision_start_token_id=token_id(tokenizer, VISION_START),
+        vision_end_token_id=token_id(tokenizer, VISION_END),
+    )
+    if cfg.pretrained:
+        path = Path(cfg.pretrained)
+        if not path.is_dir():
+            raise ModelError(f"model.pretrained: must be a local folder, got {cfg.pretrained!r}")
+        model = Qwen2_5_VLForConditionalGeneration.from_pretrained(str(path), local_files_only=True,
+                                                                   dtype=torch.float32)
+        _check_geometry(model, cfg)
+        if len(tokenizer) > model.get_input_embeddings().weight.shape[0]:
+            model.resize_token_embeddings(len(tokenizer))
+        for key, value in ids.items():
+            setattr(model.config, key, value)
+        model.train()
+        return model
+
+    text_config = dict(
+        vocab_size=len(tokenizer),
+        hidden_size=cfg.hidden_size,
+        intermediate_size=cfg.intermediate_size,
+        num_hidden_layers=cfg.num_layers,
+        num_attention_heads=cfg.num_heads,
+        num_key_value_heads=cfg.num_kv_heads,
+        max_position_embeddings=cfg.max_position_embeddings,
+        rope_parameters={"rope_type": "default", "rope_theta": cfg.rope_theta, "mrope_section": cfg.mrope_section},
+        bos_token_id=None,
+        eos_token_id=tokenizer.eos_token_id,
+        pad_token_id=tokenizer.pad_token_id,
+    )
+    vision_config = dict(
+        depth=cfg.vision_depth,
+        hidden_size=cfg.vision_hidden_size,
+        intermediate_size=cfg.vision_intermediate_size,
+        num_heads=cfg.vision_num_heads,
+        patch_size=cfg.patch_size,
+        spatial_merge_size=cfg.spatial_merge_size,
+        temporal_patch_size=cfg.temporal_patch_size,
+        window_size=cfg.window_size,
+        fullatt_block_indexes=[cfg.vision_depth - 1],  # last block sees the whole frame, as in Qwen2.5-VL
+        out_hidden_size=cfg.hidden_size,
+        tokens_per_second=1,  # one RoPE time step per temporal patch (no second_per_grid_ts passed)
+    )
+    config = Qwen2_5_VLConfig(
+        text_config=text_config,
+        vision_config=vision_config,
+        image_token_id=token_id(tokenizer, IMAGE_PAD) if IMAGE_PAD in tokenizer.get_vocab() else len(tokenizer),
+        **ids,
+    )
+    config._attn_implementation = "sdpa"
+    torch.manual_seed(cfg.seed)
+    model = Qwen2_5_VLForConditionalGeneration(config)
+    model.generation_config.pad_token_id = tokenizer.pad_token_id
+    model.generation_config.eos_token_id = tokenizer.eos_token_id
+    model.generation_config.bos_token_id = None
+    model.train()
+    return model
+
+
+def _check_geometry(model, cfg: ModelConfig) -> None:
+    vc = model.config.vision_config
+    for name in ("patch_size", "spatial_merge_size", "temporal_patch_size"):
+        if getattr(cfg, name) != getattr(vc, name):
+            raise ModelError(f"model.{name}: must match the checkpoint's vision_config.{name} "
+                             f"({getattr(vc, name)}), got {getattr(cfg, name)}")
+
+
+def load_model(model_dir: str | Path):
+    """Load a trained model and its tokenizer from a ``save_pretrained`` folder, offline.
+
+    Returns:
+        ``(model, tokenizer)``; the model is in eval mode, float32, on CPU.
+
+    Raises:
+        ModelError: the folder is missing or holds no model.
+    """
+    from transformers import Qwen2_5_VLForConditionalGeneration
+
+    model_dir = Path(model_dir)
+    if not (model_dir / "config.json").exists():
+        raise ModelError(f"{model_dir}: no model (config.json missing; run the finetune stage "
+                         f"or point --model at a checkpoint folder)")
+    model = Qwen2_5_VLForConditionalGeneration.from_pretrained(str(model_dir), local_files_only=True,
+                                                               dtype=torch.float32)
+    model.eval()
+    return model, load_tokenizer(model_dir)
+
+
+def n_parameters(model: torch.nn.Module) -> int:
+    """Number of parameters."""
+    return sum(p.numel() for p in model.parameters())
+
+
+class CompositionHead(torch.nn.Module):
+    """Object counts per shape from the vision tokens of one video.
+
+    Input: pooled vision features ``(B, hidden) float``; output: logits
+    ``(B, len(SHAPES), max_objects + 1)`` (class ``c`` = ``c`` objects of that shape).
+    """
+
+    def __init__(self, hidden: int, max_objects: int):
+        super().__init__()
+        self.max_objects = max_objects
+        self.net = torch.nn.Sequential(torch.nn.Linear(2 * hidden, hidden), torch.nn.GELU(),
+                                       torch.nn.Linear(hidden, len(SHAPES) * (max_objects + 1)))
+
+    def forward(self, pooled: torch.Tensor) -> torch.Tensor:
+        return self.net(pooled).view(len(pooled), len(SHAPES), self.max_objects + 1)
+
+
+def composition_targets(compositions: list[tuple[str, ...]], max_objects: int) -> torch.Tensor:
+    """``(B, len(SHAPES)) int64`` counts per shape (clipped to ``max_objects``)."""
+    return torch.tensor([[min(c.count(s), max_objects) for s in SHAPES] for c in compositions], dtype=torch.long)
+
+
+class VisionTap:
+    """Forward hook on the vision tower that keeps its merged output tokens for the aux loss.
+
+    ``pooled(grid_thw)`` returns ``(B, 2 * hidden)``: mean and max over each video's tokens.
+    """
+
+    def __init__(self, model):
+        self.output: torch.Tensor | None = None
+        self.merge = model.model.visual.spatial_merge_size
+        self.handle = model.model.visual.register_forward_hook(self._hook)
+
+    def _hook(self, module, args, output) -> None:
+        self.output = output.pooler_output if hasattr(output, "pooler_output") else output
+
+    def pooled(self, grid_thw: torch.Tensor) -> torch.Tensor:
+        if self.output is None:
+            raise ModelError("vision tap: the vision tower has not run")
+        sizes = (grid_thw.prod(-1) // self.merge**2).tolist()
+        parts = torch.split(self.output.float(), sizes)
+        return torch.stack([torch.cat([p.mean(0), p.amax(0)]) for p in parts])
+
+    def remove(self) -> None:
+        self.handle.remove()
+
+
+SAMPLING_FIELDS = ("max_new_tokens", "k", "temperature", "top_p", "constrained", "threads")
+"""Config fields a user may change at inference time; everything else comes from the checkpoint."""
+
+
+def checkpoint_config(model_dir: str | Path, cfg: ModelConfig) -> ModelConfig:
+    """The config a checkpoint was trained with, with the sampling fields of ``cfg``.
+
+    Input kind, frame count, reasoning and geometry must match what the model learned, whatever
+    params.yaml says now; ``k``, temperature, top-p, ``max_new_tokens`` come from ``cfg``.
+    Folders without ``dynamics_model.json`` (real Qwen2.5-VL weights) keep ``cfg``.
+    """
+    path = Path(model_dir) / "dynamics_model.json"
+    if not path.exists():
+        return cfg
+    saved = ModelConfig.model_validate_json(path.read_text())
+    return saved.model_copy(update={f: getattr(cfg, f) for f in SAMPLING_FIELDS})
