@@ -78,7 +78,12 @@ def main() -> None:
         metrics = evaluate(src, params, args.limit)
         (tmp / "metrics.json").write_text(json.dumps(metrics, indent=1) + "\n")
         size = sum(p.stat().st_size for p in tmp.iterdir())
-        result = json.loads((src / "result.json").read_text()) if (src / "result.json").exists() else {}
+        if (src / "result.json").exists():
+            result = json.loads((src / "result.json").read_text())
+        else:  # an intermediate checkpoint of a run still training: its last curve row
+            last = M.read_curve(src)[-1]
+            result = {"step": last["step"], "seconds": last["seconds"], "stopped_by": "an intermediate checkpoint",
+                      "examples_per_s": round(last["step"] * 8 / last["seconds"], 1)}
         cfg = json.loads((src / "dynamics_model.json").read_text())
         card = Path(__file__).with_name("model_card.md").read_text().format(
             params=args.params, seed=cfg.get("seed"), steps=result.get("step"), max_steps=cfg.get("max_steps"),
@@ -87,6 +92,9 @@ def main() -> None:
             reasoning=cfg.get("reasoning"), stopped_by=result.get("stopped_by"),
             metrics=json.dumps(metrics, indent=1), n_train=params["sample"]["n_train"])
         (tmp / "README.md").write_text(card)
+        tmp.chmod(0o755)  # mkdtemp makes 0700; the checkpoint is for everyone
+        for f in tmp.iterdir():
+            f.chmod(0o644)
         if dst.exists():
             shutil.rmtree(dst)
         dst.parent.mkdir(parents=True, exist_ok=True)

@@ -168,6 +168,8 @@ def read_inputs(
         ModelError: a requested scene is in no shard, or a needed directory is not given.
         pipeline.shards.ShardError: missing or unreadable shards.
     """
+    from tqdm.auto import tqdm
+
     from pipeline.shards import iter_array_shards, scene_ids_of
 
     use_flow, use_rgb = cfg.input in ("flow", "flow+rgb"), cfg.input in ("rgb", "flow+rgb")
@@ -181,6 +183,8 @@ def read_inputs(
                 if wanted is None or sid in wanted:
                     rgb_at[sid] = (group, i)
     out: dict[str, np.ndarray] = {}
+    bar = tqdm(total=len(wanted) if wanted is not None else None, desc=f"read {cfg.input} inputs", unit="scene",
+               disable=wanted is not None and len(wanted) < 500)
     if use_flow:
         for _, group in iter_array_shards(flow_dir):
             max_magnitude = group.attrs.get("max_magnitude")
@@ -194,9 +198,12 @@ def read_inputs(
                     g, j = rgb_at[sid]
                     rgb = np.asarray(g["rgb"][j, :1])
                 out[sid] = model_input(rgb, np.asarray(group["flow"][i]), cfg, max_magnitude)
+                bar.update(1)
     else:
         for sid, (g, j) in rgb_at.items():
             out[sid] = model_input(np.asarray(g["rgb"][j]), None, cfg)
+            bar.update(1)
+    bar.close()
     if wanted is not None and (missing := sorted(wanted - out.keys())):
         raise ModelError(f"{flow_dir if use_flow else video_dir}: no {cfg.input} input for {len(missing)} scenes, "
                          f"e.g. {missing[0]!r}")
