@@ -43,36 +43,12 @@ import pipeline  # noqa: E402,F401  (MUJOCO_GL before mujoco)
 def legacy_render(mjcf: str, n: int, T: int, fps: float, W: int, H: int):
     """The render path before issue 8: a fresh ``mujoco.Renderer`` per scene and three draws per
     frame (rgb, segmentation, depth). Returns ``(rgb, seg, depth)`` as the old FrameRenderer."""
-    import mujoco
-
     from pipeline.mjcf import compile_model
+    from pipeline.render import reference_frames
     from pipeline.simulate import rollout
 
     model = compile_model(mjcf)
-    trace = rollout(model, n, T, fps)
-    data = mujoco.MjData(model)
-    geom_object = np.where(model.geom_bodyid > 0, model.geom_bodyid - 1, -1).astype(np.int16)
-    rgb, seg, depth = [], [], []
-    with mujoco.Renderer(model, height=H, width=W) as r:
-        for k in range(T):
-            data.qpos[: 7 * n] = trace.qpos[k].reshape(-1)
-            mujoco.mj_kinematics(model, data)
-            mujoco.mj_camlight(model, data)
-            r.update_scene(data, camera="main")
-            rgb.append(r.render().copy())
-            r.enable_segmentation_rendering()
-            r.update_scene(data, camera="main")
-            ids = r.render()
-            r.disable_segmentation_rendering()
-            s = np.full(ids.shape[:2], -1, np.int8)
-            is_geom = (ids[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)) & (ids[..., 0] >= 0)
-            s[is_geom] = geom_object[ids[..., 0][is_geom]]
-            seg.append(s)
-            r.enable_depth_rendering()
-            r.update_scene(data, camera="main")
-            depth.append(r.render().astype(np.float32))
-            r.disable_depth_rendering()
-    return np.stack(rgb), np.stack(seg), np.stack(depth)
+    return reference_frames(model, rollout(model, n, T, fps).qpos, W, H)
 
 
 # --------------------------------------------------------------------------- driver

@@ -487,3 +487,43 @@ def render_scene(scene, width: int, height: int, options=None, **kwargs) -> tupl
     model, trace = simulate(scene, options)
     with FrameRenderer(model, width, height) as r:
         return trace, r.render(trace.qpos, **kwargs)
+
+
+def reference_frames(model: mujoco.MjModel, qpos: np.ndarray, width: int, height: int
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The naive render path (before issue 8), the reference the fast path is checked against:
+    a new ``mujoco.Renderer`` and three draws per frame (RGB, segmentation, depth).
+
+    Args:
+        model: compiled scene (camera ``main``, one free body per object).
+        qpos: ``(T, n, 7) float`` poses per frame.
+        width, height: image size, px.
+
+    Returns:
+        ``rgb (T, H, W, 3) uint8``, ``seg (T, H, W) int8`` (object index, -1 background) and
+        ``depth (T, H, W) float32`` (m).
+    """
+    n = model.nbody - 1
+    data = mujoco.MjData(model)
+    geom_object = np.where(model.geom_bodyid > 0, model.geom_bodyid - 1, -1).astype(np.int16)
+    rgb, seg, depth = [], [], []
+    with mujoco.Renderer(model, height=height, width=width) as r:
+        for q in qpos:
+            data.qpos[: 7 * n] = q.reshape(-1)
+            mujoco.mj_kinematics(model, data)
+            mujoco.mj_camlight(model, data)
+            r.update_scene(data, camera="main")
+            rgb.append(r.render().copy())
+            r.enable_segmentation_rendering()
+            r.update_scene(data, camera="main")
+            ids = r.render()
+            r.disable_segmentation_rendering()
+            s = np.full(ids.shape[:2], -1, np.int8)
+            is_geom = (ids[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)) & (ids[..., 0] >= 0)
+            s[is_geom] = geom_object[ids[..., 0][is_geom]]
+            seg.append(s)
+            r.enable_depth_rendering()
+            r.update_scene(data, camera="main")
+            depth.append(r.render().astype(np.float32))
+            r.disable_depth_rendering()
+    return np.stack(rgb), np.stack(seg), np.stack(depth)

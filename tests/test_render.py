@@ -14,14 +14,13 @@ import subprocess
 import sys
 from pathlib import Path
 
-import mujoco
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
 import yaml
 
 from pipeline.mjcf import compile_model
-from pipeline.render import FrameRenderer, GLResources
+from pipeline.render import FrameRenderer, GLResources, reference_frames
 from pipeline.scene import Scene
 from pipeline.simulate import rollout
 
@@ -57,34 +56,6 @@ def _clip(name):
     return model, trace.qpos
 
 
-def _reference(model, qpos):
-    """The render path before issue 8: a new mujoco.Renderer, three draws per frame."""
-    n = model.nbody - 1
-    data = mujoco.MjData(model)
-    geom_object = np.where(model.geom_bodyid > 0, model.geom_bodyid - 1, -1).astype(np.int16)
-    rgb, seg, depth = [], [], []
-    with mujoco.Renderer(model, height=H, width=W) as r:
-        for q in qpos:
-            data.qpos[: 7 * n] = q.reshape(-1)
-            mujoco.mj_kinematics(model, data)
-            mujoco.mj_camlight(model, data)
-            r.update_scene(data, camera="main")
-            rgb.append(r.render().copy())
-            r.enable_segmentation_rendering()
-            r.update_scene(data, camera="main")
-            ids = r.render()
-            r.disable_segmentation_rendering()
-            s = np.full(ids.shape[:2], -1, np.int8)
-            is_geom = (ids[..., 1] == int(mujoco.mjtObj.mjOBJ_GEOM)) & (ids[..., 0] >= 0)
-            s[is_geom] = geom_object[ids[..., 0][is_geom]]
-            seg.append(s)
-            r.enable_depth_rendering()
-            r.update_scene(data, camera="main")
-            depth.append(r.render().astype(np.float32))
-            r.disable_depth_rendering()
-    return np.stack(rgb), np.stack(seg), np.stack(depth)
-
-
 @pytest.fixture(scope="module")
 def clips():
     return {name: _clip(name) for name in SCENES}
@@ -92,7 +63,7 @@ def clips():
 
 @pytest.fixture(scope="module")
 def references(clips):
-    return {name: _reference(*clip) for name, clip in clips.items()}
+    return {name: reference_frames(*clip, W, H) for name, clip in clips.items()}
 
 
 def _assert_same(frames, ref, name):
