@@ -1,0 +1,75 @@
+"""Pseudo ground-truth masks of the real clips against hand labels (issue 9, item 6).
+
+Labels: ``tests/fixtures/realvideo/<clip>/<frame>.png`` (uint8, 0 background, 1..n
+objects), written by ``scripts/label_masks.py`` from the rules in ``labels.yaml`` (read off
+the frames, checked on overlays). Pseudo masks: :func:`pipeline.video.pseudo_ground_truth`
+with the background fitted over the whole clip and ``max_objects`` = labelled objects.
+
+Target: mean per-object IoU >= 0.8 per clip. Clips that do not reach it (as of this
+commit) are marked ``xfail`` with the reason, so a fix shows up as XPASS:
+
+* 01: a static blob on the board below the ball's starting place (x ~ 890-960, y ~ 100-260
+  px of the original frame) is foreground in most tracked frames and out-ranks the ball
+  as the largest track (cause not analysed yet); the ball itself is found in most frames;
+* 02: the glass ball is transparent: its pixels differ little from the board/floor
+  behind it, masks are fragmented; the person's legs move too;
+* 05: the struck puck rests at its final place for 75 % of the clip, so the median holds
+  it; its ghost merges with the other puck's blob in the early frames and is not repaired
+  (``pseudo_masks(ghosts=True)`` tests blobs, not parts of blobs);
+* 07: the disc is white on a light grey wall, the hand holds it in the first frames;
+* 08: the small block's blurred edges; IoU of a ~14 px object is sensitive to 1 px.
+"""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "scripts"))
+
+from label_masks import FIXTURES, load_spec, real_video_dir  # noqa: E402
+from pseudo_mask_report import clip_scores, frame_scores  # noqa: E402
+
+SPECS = load_spec()
+VIDEO = real_video_dir()
+KNOWN_SHORT = {"01", "02", "05", "07", "08"}      # see module docstring
+
+
+def test_fixtures_are_labels():
+    total = 0
+    for clip, spec in SPECS.items():
+        frames = sorted(int(i) for i in spec["frames"])
+        assert len(frames) >= 5, clip
+        for i in frames:
+            p = FIXTURES / clip / f"{i:04d}.png"
+            total += p.stat().st_size
+            import cv2
+            lab = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+            assert lab.dtype == np.uint8 and lab.ndim == 2
+            assert 1 <= lab.max() <= len(spec["objects"])
+    assert total < 2_000_000
+
+
+def test_frame_scores():
+    label = np.zeros((4, 6), np.uint8)
+    label[:2, :2], label[2:, 3:] = 1, 2
+    pred = np.full((4, 6), -1, np.int8)
+    pred[2:, 3:], pred[:2, :2] = 0, 1                     # swapped ids: matching undoes it
+    assert frame_scores(pred, label) == (1.0, 1.0)
+    pred[:2, :2] = -1
+    fg, obj = frame_scores(pred, label)
+    assert fg == pytest.approx(6 / 10) and obj == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize("clip", sorted(SPECS))
+def test_pseudo_masks_match_hand_labels(clip):
+    spec = SPECS[clip]
+    if not (VIDEO / spec["file"]).exists():
+        pytest.skip(f"real video not found under {VIDEO}")
+    r = clip_scores(clip, spec, VIDEO)
+    print(clip, r["mean_foreground_iou"], r["mean_object_iou"])
+    if clip in KNOWN_SHORT and r["mean_object_iou"] < 0.8:
+        pytest.xfail(f"{clip}: object IoU {r['mean_object_iou']:.3f} < 0.8 (see docstring)")
+    assert r["mean_object_iou"] >= 0.8, r
