@@ -4,6 +4,7 @@
     dynamics infer VIDEO --out DIR [--fps F] [--start S]   the main job on any video
     dynamics discrepancy TRAJECTORIES --out DIR   find -> name -> add -> show (DESIGN §8)
     dynamics view SHARD [--scene ID] [--save FILE.rrd]     rerun recording of a shard
+    dynamics schema [--out FILE]                  JSON Schema of a scene file (for editors)
 
 User mistakes (bad scene, unreadable video, missing shard, bad params or trajectories) print
 one line ``<file>: <field>: <problem>`` to stderr and exit with status 2; nothing is written.
@@ -68,7 +69,29 @@ def build_parser() -> argparse.ArgumentParser:
                        description=view.__doc__.split("\n\n")[0])
     view.add_arguments(p)
     p.set_defaults(func=view.main_cli)
+
+    p = sub.add_parser("schema", help="print or write the JSON Schema of a scene file (editors validate with it)",
+                       description="JSON Schema of scene language v1 (docs/scene.schema.json is a copy).")
+    p.add_argument("--out", metavar="FILE", help="write the schema here (atomically) instead of stdout")
+    p.set_defaults(func=_schema_cli)
     return parser
+
+
+def _schema_cli(args: argparse.Namespace) -> int:
+    import os
+    from pathlib import Path
+
+    from pipeline.scene import json_schema_text
+
+    text = json_schema_text()
+    if args.out is None:
+        sys.stdout.write(text)
+        return 0
+    out = Path(args.out)
+    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
+    tmp.write_text(text)
+    os.replace(tmp, out)
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -204,13 +204,17 @@ class SceneCodec:
         """Answer tokens of a scene (``<answer>`` ... ``</answer>``).
 
         Raises:
-            CodecError: 6-DoF camera, effects or more than ``max_objects`` objects (not
-            representable in the compact target).
+            CodecError: 6-DoF camera, effects, static geometry or more than ``max_objects``
+            objects (not representable in the compact target).
         """
         if scene.camera.is_six_dof:
             raise CodecError("camera: the token target holds the paper camera (height, pitch, fov), got 6-DoF")
         if scene.effects:
             raise CodecError("effects: the token target holds scenes without effects")
+        if scene.static:
+            raise CodecError(f"static geometry is not part of the token target; the model predicts "
+                             f"objects only (got {len(scene.static)} static geoms: sample with sample.p_ramp = 0 "
+                             f"for token data)")
         if len(scene.objects) > self.max_objects:
             raise CodecError(f"objects: at most {self.max_objects} in the token target, got {len(scene.objects)}")
         cam = scene.camera

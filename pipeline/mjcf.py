@@ -1,7 +1,9 @@
 """Scene language -> MJCF with ``dm_control.mjcf`` (DESIGN.md §3).
 
 One body per object, each with a free joint and one geom, named ``<shape>_<index>``; a floor
-plane ``floor``; one camera ``main``; a keyframe ``init`` carrying the initial qpos/qvel, so
+plane ``floor``; static geometry (``scene.static``) as world geoms ``static_<index>`` (no
+body, no joint: bodies 1..n stay the objects, and the renderer's segmentation shows them as
+background, -1); one camera ``main``; a keyframe ``init`` carrying the initial qpos/qvel, so
 the MJCF text alone reproduces the scene.
 
 Friction semantics (MuJoCo docs, "Contact parameters"): when two geoms touch, MuJoCo uses the
@@ -15,6 +17,9 @@ A frictionless object (``sliding_friction: 0``) gets ``condim=1``: MuJoCo's pyra
 with a zero coefficient and ``condim > 1`` is degenerate and blows up (a box spinning on the
 floor was launched metres into the air); with ``condim=1`` it slides and spins freely.
 ``damping`` is the free joint's ``damping`` (applies to all 6 DoF).
+Static geoms get the floor's contact parameters (``priority=0``, ``condim=3``,
+``floor_friction``, ``floor_solref``), so an object on a ramp slides with its own
+``sliding_friction`` exactly as on the floor.
 """
 
 from __future__ import annotations
@@ -28,6 +33,9 @@ import mujoco
 
 from pipeline.camera import camera_pose
 from pipeline.scene import Scene
+
+STATIC_COLOUR = (0.55, 0.5, 0.45, 1.0)
+"""RGBA of static geometry: a neutral warm grey, distinct from the floor and the objects."""
 
 OBJECT_COLOURS = [
     (0.85, 0.25, 0.2), (0.2, 0.45, 0.85), (0.95, 0.75, 0.15), (0.3, 0.7, 0.3),
@@ -56,6 +64,15 @@ def geom_size(obj) -> list[float]:
         return [s.radius]
     if obj.shape == "cylinder":
         return [s.radius, s.height / 2.0]
+    return [s.width / 2.0, s.depth / 2.0, s.height / 2.0]
+
+
+def static_geom_size(geom) -> list[float]:
+    """MuJoCo geom ``size`` of a static geom, m: a box's half extents; a plane's half width and
+    half depth (what is drawn; it collides as an infinite plane) and 0.1 (grid spacing)."""
+    s = geom.size
+    if geom.shape == "plane":
+        return [s.width / 2.0, s.depth / 2.0, 0.1]
     return [s.width / 2.0, s.depth / 2.0, s.height / 2.0]
 
 
@@ -107,6 +124,12 @@ def build_mjcf(scene: Scene, options: SimOptions | None = None) -> mjcf.RootElem
                        rgba=None if floor_mat else [0.45, 0.45, 0.48, 1],
                        friction=[opt.floor_friction, 0.0, 0.0], solref=list(opt.floor_solref),
                        priority=0, condim=3)
+    for g, name in zip(scene.static, scene.static_names):
+        q = np.asarray(g.orientation, dtype=np.float64)
+        root.worldbody.add("geom", name=name, type=g.shape, size=static_geom_size(g), pos=list(g.position),
+                           quat=(q / np.linalg.norm(q)).tolist(), rgba=list(STATIC_COLOUR),
+                           friction=[opt.floor_friction, 0.0, 0.0], solref=list(opt.floor_solref),
+                           priority=0, condim=3)
 
     pose = camera_pose(scene.camera)
     root.worldbody.add("camera", name="main", pos=pose.eye.tolist(),

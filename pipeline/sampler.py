@@ -19,8 +19,13 @@ distributions of object count and shape exactly:
 
 Layouts are made for motion that is visible for the whole clip: objects stand on the visible
 part of the floor (or hang above it, ``p_airborne``, and fall), and are launched towards
-another visible floor point. Objects are ordered left to right in the first frame, so names
-(``<shape>_<index>``) follow from the video. Every scene has its own seed
+another visible floor point. With probability ``p_ramp`` a scene also gets one ramp (a static
+box, :func:`pipeline.static.ramp`) on the visible floor, and one of its objects starts on the
+ramp's upper half, resting on it (spheres and lying cylinders roll, boxes and standing
+cylinders slide or are pushed down the slope). The ramp's random numbers come from a child
+generator of the scene's (``rng.spawn``), drawn only when ``p_ramp > 0``: with ``p_ramp = 0``
+every scene is exactly what it was before ramps existed. Objects are ordered left to right in
+the first frame, so names (``<shape>_<index>``) follow from the video. Every scene has its own seed
 (:func:`scene_seed`), so any one scene can be regenerated alone.
 
 Example::
@@ -43,8 +48,10 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from pipeline.camera import camera_pose, project, unproject
-from pipeline.mjcf import SimOptions, compile_model, geom_size
+from pipeline.mjcf import SimOptions, compile_model, geom_size, initial_state
 from pipeline.scene import SHAPES, Camera, Decimals, Scene
+from pipeline.static import ramp as make_ramp
+from pipeline.static import rotation_matrix, support_height
 from pipeline.shards import scene_id
 
 SPLITS = ("train", "val", "test", "test_comp")
@@ -100,6 +107,12 @@ class SampleConfig(BaseModel):
     keep_in_view: bool = True
     placement_margin: float = Field(0.12, ge=0, lt=0.5)  # image fraction kept clear at the sides
     max_tries: int = Field(300, gt=0)
+    # static geometry (scene language ``static:``); p_ramp = 0 keeps every scene as before
+    p_ramp: float = Field(0.0, ge=0, le=1)  # a scene gets one ramp with one object on it
+    ramp_angle: Range = (10.0, 30.0)       # deg, slope
+    ramp_length: Range = (0.7, 1.1)        # m, along the slope
+    ramp_width: Range = (0.45, 0.7)        # m, across the slope
+    ramp_thickness: float = Field(0.03, gt=0)  # m
 
     @field_validator("n_objects", "shapes")
     @classmethod
@@ -140,6 +153,10 @@ class SampleConfig(BaseModel):
             if isinstance(value, tuple) and len(value) == 2 and all(isinstance(x, (int, float)) for x in value):
                 if value[0] > value[1]:
                     raise ValueError(f"{name}: low must be <= high, got {list(value)}")
+        if not (0.0 <= self.ramp_angle[0] and self.ramp_angle[1] < 90.0):
+            raise ValueError(f"ramp_angle: must be within [0, 90) deg, got {list(self.ramp_angle)}")
+        if self.ramp_length[0] <= 0 or self.ramp_width[0] <= 0:
+            raise ValueError("ramp_length, ramp_width: must be > 0")
         if self.n_test_comp and not self.held_out:
             raise ValueError("n_test_comp > 0 needs at least one held_out composition")
         if self.n_objects.get(4, 0) > 0 and self.held_out:
@@ -260,8 +277,12 @@ def _floor_point(cam, u: float, v: float, z: float, width: int, height: int) -> 
     return eye + (z - eye[2]) / ray[2] * ray
 
 
-def _sample_layout(rng: np.random.Generator, cfg: SampleConfig, shapes: list[str]) -> dict | None:
-    """One candidate scene dict for ``shapes`` (None if a drawn pixel is above the horizon)."""
+def _sample_layout(rng: np.random.Generator, cfg: SampleConfig, shapes: list[str],
+                   ramp_rng: np.random.Generator | None = None, decimals: Decimals | None = None) -> dict | None:
+    """One candidate scene dict for ``shapes`` (None if a drawn pixel is above the horizon).
+
+    ``ramp_rng``: if given, the scene gets a ramp and one object on it (:func:`_place_on_ramp`),
+    drawn from this generator only (``rng`` is used exactly as without a ramp)."""
     W, H = cfg.width, cfg.height
     cam = {"height": round(float(rng.uniform(*cfg.camera_height)), 3),
            "pitch": round(float(rng.uniform(*cfg.camera_pitch)), 1),
@@ -320,6 +341,13 @@ def _sample_layout(rng: np.random.Generator, cfg: SampleConfig, shapes: list[str
                          "rolling_friction": float(rng.uniform(*cfg.rolling_friction)),
                          "damping": float(rng.uniform(*cfg.damping))},
         })
+    static = []
+    if ramp_rng is not None:
+        placed = _place_on_ramp(ramp_rng, cfg, camera, objects, decimals or Decimals())
+        if placed is None:
+            return None
+        static, k, moves = placed
+        moving[k] = moves
     if not any(moving):  # a still life: launch one object so that every scene has motion
         o = objects[int(rng.integers(len(objects)))]
         ang = float(rng.uniform(0, 2 * math.pi))
@@ -327,8 +355,70 @@ def _sample_layout(rng: np.random.Generator, cfg: SampleConfig, shapes: list[str
     # names follow the video: objects ordered left to right in the first frame
     uv, _ = project(np.array([o["position"] for o in objects]), camera, W, H)
     objects = [objects[i] for i in np.argsort(uv[:, 0], kind="stable")]
-    return {"version": 1, "duration": cfg.duration, "fps": cfg.fps, "gravity": cfg.gravity,
+    data = {"version": 1, "duration": cfg.duration, "fps": cfg.fps, "gravity": cfg.gravity,
             "camera": cam, "objects": objects, "effects": []}
+    if static:
+        data["static"] = static
+    return data
+
+
+def _place_on_ramp(rng: np.random.Generator, cfg: SampleConfig, camera: Camera, objects: list[dict],
+                   decimals: Decimals) -> tuple[list[dict], int, bool] | None:
+    """Draw a ramp on the visible floor and move one of ``objects`` (changed in place) onto
+    its upper half, touching its top surface (2 mm clearance for the rounding of the text).
+
+    Spheres and cylinders lying across the slope roll; a box or a standing cylinder slides by
+    itself only when its friction is below tan(angle). An object that moves by itself starts
+    at rest with probability ``p_at_rest``; any other is pushed down the slope (half of a
+    ``speed`` draw). Returns ``(static list with the ramp dict, object index, True: that object
+    moves)``, or None if the ramp's pixel is above the horizon.
+    """
+    W, H, m = cfg.width, cfg.height, cfg.placement_margin
+    angle = float(rng.uniform(*cfg.ramp_angle))
+    length = round(_grid(float(rng.uniform(*cfg.ramp_length)), 0.002), 3)
+    width = round(_grid(float(rng.uniform(*cfg.ramp_width)), 0.002), 3)
+    yaw = float(rng.uniform(-180.0, 180.0))
+    th = math.radians(angle)
+    u, v = float(rng.uniform(m, 1 - m)) * W, float(rng.uniform(0.3, 1 - m)) * H
+    top = _floor_point(camera, u, v, length / 2 * math.sin(th), W, H)
+    if top is None:
+        return None
+    box = make_ramp(angle, length, width, cfg.ramp_thickness, float(top[0]), float(top[1]), yaw)
+    # the ramp as the canonical text stores it: the object is placed on that one
+    box = box.model_copy(update={
+        "position": tuple(round(c, decimals.position) for c in box.position),
+        "orientation": tuple(round(c, decimals.orientation) for c in box.orientation)})
+    R = rotation_matrix(box.orientation)
+    qr = np.asarray(box.orientation, dtype=np.float64) / np.linalg.norm(box.orientation)
+    downhill, normal = R[:, 0], R[:, 2]
+    k = int(rng.integers(len(objects)))
+    o = objects[k]
+    shape, size = o["shape"], o["size"]
+    # a point on the centre line of the top surface, on the upper half
+    s = float(rng.uniform(0.1, 0.35)) * length
+    p = np.asarray(box.position) + cfg.ramp_thickness / 2 * normal - s * downhill
+    z = support_height(box, float(p[0]), float(p[1]))
+    if z is None:  # pragma: no cover (p lies on the top face)
+        return None
+    p[2] = z
+    spin = _yaw_quat(float(rng.uniform(-math.pi, math.pi)))
+    rolls = shape == "sphere"
+    if shape == "sphere":
+        quat, lift = _quat_mul(qr, spin), size["radius"]
+    elif shape == "cylinder" and rng.random() < cfg.p_lying:  # axis across the slope: rolls
+        quat, lift, rolls = _quat_mul(qr, [math.sqrt(0.5), math.sqrt(0.5), 0.0, 0.0]), size["radius"], True
+    else:
+        quat, lift = _quat_mul(qr, spin), size["height"] / 2
+    centre = p + (lift + 0.002) * normal
+    slides = o["material"]["sliding_friction"] < math.tan(th)
+    vel = np.zeros(3)
+    if not (rolls or slides) or rng.random() >= cfg.p_at_rest:
+        vel = 0.5 * float(rng.uniform(*cfg.speed)) * downhill
+    o.update({"position": [float(c) for c in centre], "orientation": [float(c) for c in quat],
+              "linear_velocity": vel.tolist(), "angular_velocity": [0.0, 0.0, 0.0]})
+    static = [{"shape": "box", "size": box.size.model_dump(), "position": list(box.position),
+               "orientation": list(box.orientation)}]
+    return static, k, True
 
 
 # --------------------------------------------------------------------------- filters
@@ -339,7 +429,9 @@ class SceneFilter:
     The template holds 4 bodies of each shape; a candidate scene is shown by editing the
     template's geom sizes (and ``geom_rbound`` / ``geom_aabb``), poses and camera in place;
     unused bodies are parked behind the camera. ``tests/test_sampler.py`` checks that its
-    segmentation equals a full render of the compiled scene.
+    segmentation equals a full render of the compiled scene. A scene with static geometry
+    (a ramp) is checked on its own compiled model instead (:meth:`static_first_frame`): the
+    template has no static geoms.
 
     Use as a context manager, or call :meth:`close`.
     """
@@ -419,20 +511,41 @@ class SceneFilter:
         return _penetration(data)
 
     # ------------------------------------------------------------------ checks
+    def static_first_frame(self, scene: Scene, model: mujoco.MjModel | None = None) -> tuple[np.ndarray, float]:
+        """First-frame segmentation ``(H, W) int8`` and deepest initial interpenetration (m) of
+        a scene with static geometry, from its compiled model (the template has no static
+        geoms): the ramp occludes objects and collides with them as in the full render."""
+        from pipeline.render import FrameRenderer, shared_gl
+
+        model = model or compile_model(scene, self.options)
+        qpos, _ = initial_state(scene)
+        with FrameRenderer(model, self.cfg.width, self.cfg.height, shared_gl()) as r:
+            r.set_pose(qpos.reshape(-1, 7))
+            seg = r.segmentation()
+        data = mujoco.MjData(model)
+        mujoco.mj_resetDataKeyframe(model, data, 0)
+        mujoco.mj_forward(model, data)
+        return seg, _penetration(data)
+
     def check(self, scene: Scene) -> str | None:
         """Name of the first failed filter (``small``, ``overlap``, ``leaves_view``,
         ``unstable``), or None if the scene passes all."""
         cfg = self.cfg
-        seg = self.first_frame_segmentation(scene)
+        model = None
+        if scene.static:
+            model = compile_model(scene, self.options)
+            seg, overlap = self.static_first_frame(scene, model)
+        else:
+            seg = self.first_frame_segmentation(scene)
         counts = np.bincount(seg[seg >= 0].astype(np.int64), minlength=len(scene.objects))
         if counts.min() < cfg.min_pixels:
             return "small"
-        if self.initial_overlap(scene) > cfg.overlap_tolerance:
+        if (overlap if scene.static else self.initial_overlap(scene)) > cfg.overlap_tolerance:
             return "overlap"
         if cfg.keep_in_view:
             from pipeline.simulate import rollout
 
-            model = compile_model(scene, self.options)
+            model = model or compile_model(scene, self.options)
             trace = rollout(model, len(scene.objects), scene.n_frames, scene.fps, record_contacts=False)
             pos = trace.position
             if not np.isfinite(pos).all() or np.abs(pos).max() > 100:
@@ -485,8 +598,13 @@ def sample_scene(rng: np.random.Generator, cfg: SampleConfig, split: str,
     filt = filt or SceneFilter(cfg)
     try:
         shapes = sample_composition(rng, cfg, split)
+        ramp_rng = None
+        if cfg.p_ramp > 0:  # a child stream: rng's own draws stay as without ramps
+            ramp_rng = rng.spawn(1)[0]
+            if not ramp_rng.random() < cfg.p_ramp:
+                ramp_rng = None
         for _ in range(cfg.max_tries):
-            data = _sample_layout(rng, cfg, shapes)
+            data = _sample_layout(rng, cfg, shapes, ramp_rng, decimals)
             if data is None:
                 filt.rejected["horizon"] += 1
                 continue

@@ -111,6 +111,13 @@ class Material(_Strict):
     damping: NonNegFloat = 0.0
 
 
+def _check_unit_quaternion(q: tuple[float, ...]) -> tuple[float, ...]:
+    n = math.sqrt(sum(c * c for c in q))
+    if abs(n - 1.0) > 1e-2:
+        raise ValueError(f"must be a unit quaternion (w, x, y, z), got norm {n:.4g}")
+    return q  # kept as written (canonical text stays stable); MuJoCo normalises on load
+
+
 class _ObjectBase(_Strict):
     mass: PositiveFloat
     position: Vec3
@@ -122,10 +129,7 @@ class _ObjectBase(_Strict):
     @field_validator("orientation")
     @classmethod
     def _unit_quaternion(cls, q: tuple[float, ...]) -> tuple[float, ...]:
-        n = math.sqrt(sum(c * c for c in q))
-        if abs(n - 1.0) > 1e-2:
-            raise ValueError(f"must be a unit quaternion (w, x, y, z), got norm {n:.4g}")
-        return q  # kept as written (canonical text stays stable); MuJoCo normalises on load
+        return _check_unit_quaternion(q)
 
 
 class Sphere(_ObjectBase):
@@ -146,6 +150,50 @@ class Box(_ObjectBase):
 SceneObject = Annotated[Union[Sphere, Cylinder, Box], Field(discriminator="shape")]
 
 
+STATIC_SHAPES = ("box", "plane")
+"""Shapes of static geometry (``static:`` list), in canonical order."""
+
+
+class PlaneSize(_Strict):
+    """Full extents of a static plane's visible rectangle, m (``width`` along its local x,
+    ``depth`` along its local y)."""
+
+    width: PositiveFloat
+    depth: PositiveFloat
+
+
+class _StaticBase(_Strict):
+    position: Vec3
+    orientation: tuple[FiniteFloat, FiniteFloat, FiniteFloat, FiniteFloat] = (1.0, 0.0, 0.0, 0.0)
+
+    @field_validator("orientation")
+    @classmethod
+    def _unit_quaternion(cls, q: tuple[float, ...]) -> tuple[float, ...]:
+        return _check_unit_quaternion(q)
+
+
+class StaticBox(_StaticBase):
+    """A fixed box (ramp, wall, table top): ``size`` = full extents (width along the geom's
+    local x, depth along y, height along z, m), ``position`` = centre (m, world frame),
+    ``orientation`` = unit quaternion (w, x, y, z) of the geom frame. It never moves; contacts
+    with objects use the object's material (as the floor does)."""
+
+    shape: Literal["box"]
+    size: BoxSize
+
+
+class StaticPlane(_StaticBase):
+    """A fixed one-sided plane (a wall, a tilted board without thickness): ``size`` = full
+    extents of its visible rectangle (m); the plane's normal is its local +z. MuJoCo planes
+    collide as if infinite on their front side: ``size`` bounds only what is drawn."""
+
+    shape: Literal["plane"]
+    size: PlaneSize
+
+
+StaticGeom = Annotated[Union[StaticBox, StaticPlane], Field(discriminator="shape")]
+
+
 class Effect(_Strict):
     """A physical effect beyond the base model (DESIGN §8), e.g.
     ``{effect: quadratic_drag, parameters: {density: 1.2}}``. Names and parameters are checked
@@ -156,7 +204,11 @@ class Effect(_Strict):
 
 
 class Scene(_Strict):
-    """One scene of scene language v1 (DESIGN §2)."""
+    """One scene of scene language v1 (DESIGN §2).
+
+    ``static`` (beyond the paper): fixed geometry (ramps, walls, table tops), compiled as
+    world geoms ``static_<index>``; optional, and omitted from the canonical text when empty.
+    """
 
     version: Literal[1] = 1
     duration: Annotated[float, Field(gt=0, le=60)] = 1.0
@@ -164,6 +216,7 @@ class Scene(_Strict):
     gravity: NonNegFloat = 9.81
     camera: Camera
     objects: Annotated[list[SceneObject], Field(min_length=1)]
+    static: list[StaticGeom] = []
     effects: list[Effect] = []
 
     # ------------------------------------------------------------------ helpers
@@ -176,6 +229,12 @@ class Scene(_Strict):
     def object_names(self) -> list[str]:
         """``<shape>_<index>`` names, index = position in ``objects`` (DESIGN §2)."""
         return [f"{o.shape}_{i}" for i, o in enumerate(self.objects)]
+
+    @property
+    def static_names(self) -> list[str]:
+        """``static_<index>`` names of the static geoms (MJCF geom names), index = position
+        in ``static``."""
+        return [f"static_{i}" for i in range(len(self.static))]
 
     @property
     def composition(self) -> tuple[str, ...]:
@@ -249,6 +308,20 @@ class Decimals(_Strict):
     effect: int = 4
 
 
+def json_schema() -> dict[str, Any]:
+    """JSON Schema (draft 2020-12) of a scene file, from the pydantic model (``dynamics schema``;
+    a copy is committed as ``docs/scene.schema.json`` for editors)."""
+    schema = Scene.model_json_schema()
+    return {"$schema": "https://json-schema.org/draft/2020-12/schema", **schema}
+
+
+def json_schema_text() -> str:
+    """:func:`json_schema` as the text of ``docs/scene.schema.json`` (2-space indent, newline)."""
+    import json
+
+    return json.dumps(json_schema(), indent=2) + "\n"
+
+
 def load_scene(path: str | Path) -> Scene:
     """Read and validate a scene YAML file.
 
@@ -274,7 +347,7 @@ def _format_error(exc: ValidationError) -> str:
             parts.append(f"[{item}]")
             prev_int = True
             continue
-        if prev_int and item in SHAPES:  # discriminated-union tag, not a field
+        if prev_int and (item in SHAPES or item in STATIC_SHAPES):  # discriminated-union tag, not a field
             prev_int = False
             continue
         prev_int = False
@@ -296,7 +369,8 @@ def _format_error(exc: ValidationError) -> str:
     elif kind == "missing":
         msg = "required field missing"
     elif kind == "union_tag_invalid":  # the input is the whole object: quote the tag here
-        msg = f"unknown shape, must be one of {', '.join(SHAPES)}, got {ctx.get('tag')!r}"
+        tags = STATIC_SHAPES if str(err["loc"][0]) == "static" else SHAPES
+        msg = f"unknown shape, must be one of {', '.join(tags)}, got {ctx.get('tag')!r}"
         path = path + ".shape" if not path.endswith("shape") else path
     elif kind == "union_tag_not_found":
         msg = "required field missing (shape)"
@@ -359,6 +433,16 @@ def _dump(scene: Scene, d: Decimals) -> str:
             f"rolling_friction: {_num(m.rolling_friction, d.rolling_friction)}, "
             f"damping: {_num(m.damping, d.damping)}}}",
         ]
+    if scene.static:  # omitted when empty: scenes without static geometry print as before
+        lines.append("static:")
+        for g in scene.static:
+            size = ", ".join(f"{k}: {_num(v, d.size)}" for k, v in g.size.model_dump().items())
+            lines += [
+                f"  - shape: {g.shape}",
+                f"    size: {{{size}}}",
+                f"    position: {_vec(g.position, d.position)}",
+                f"    orientation: {_vec(g.orientation, d.orientation)}",
+            ]
     if scene.effects:
         lines.append("effects:")
         for e in scene.effects:

@@ -44,7 +44,7 @@ class Clip:
             container's), frames per second.
         source: the file it was read from.
         original_size: ``(width, height)`` of the video in px.
-        crop: ``(x, y, width, height)`` of the centre crop in original px, before resizing
+        crop: ``(x, y, width, height)`` of the crop in original px, before resizing
             (the whole frame when no ``size`` was asked for).
         start_frame: index of ``frames[0]`` in the video.
         container_fps: frame rate the container declares (may be wrong).
@@ -84,6 +84,7 @@ def read_video(
     duration: float | None = None,
     size: tuple[int, int] | None = None,
     max_frames: int | None = None,
+    crop: tuple[int, int, int, int] | None = None,
 ) -> Clip:
     """Decode a window of a video file as RGB frames.
 
@@ -101,6 +102,10 @@ def read_video(
             reads to the end. A window running past the end is cut short.
         size: ``(width, height)`` of the output frames in px; ``None`` keeps the original.
         max_frames: read at most this many frames.
+        crop: ``(x, y, width, height)`` box in original px to cut out before resizing
+            (e.g. the region of motion, :func:`pipeline.perception.motion_crop`); default
+            the largest centred box of the aspect ratio of ``size``. It is clipped to the
+            frame.
 
     Returns:
         A :class:`Clip` with at least one frame.
@@ -147,15 +152,21 @@ def read_video(
             if not cap.grab():
                 raise past_end(skipped)
         frames: list[np.ndarray] = []
-        crop = None
+        crop_checked = False
         while count is None or len(frames) < count:
             ok, bgr = cap.read()
             if not ok or bgr is None:
                 break
-            if crop is None:
+            if not crop_checked:
                 orig_h, orig_w = bgr.shape[:2]
-                crop = (0, 0, orig_w, orig_h) if size is None else \
-                    centre_crop_box(orig_w, orig_h, size[0] / size[1])
+                if crop is None:
+                    crop = (0, 0, orig_w, orig_h) if size is None else \
+                        centre_crop_box(orig_w, orig_h, size[0] / size[1])
+                else:
+                    cx, cy, cw, ch = (int(round(c)) for c in crop)
+                    cx, cy = min(max(cx, 0), orig_w - 1), min(max(cy, 0), orig_h - 1)
+                    crop = (cx, cy, max(1, min(cw, orig_w - cx)), max(1, min(ch, orig_h - cy)))
+                crop_checked = True
             x, y, w, h = crop
             bgr = bgr[y:y + h, x:x + w]
             if size is not None and (w, h) != tuple(size):
@@ -232,17 +243,31 @@ def pseudo_masks(
     threshold: float | None = None,
     kernel: int | None = None,
     min_area: int | None = None,
+    ghosts: bool = True,
+    gain: bool = True,
 ) -> np.ndarray:
-    """Foreground masks of moving objects by background subtraction (pseudo ground truth).
+    """Foreground masks of objects by background subtraction (pseudo ground truth).
 
     Steps: fit a background model, mark pixels that differ from it, clean up with a
     morphological opening (removes speckle) then closing (fills small holes), and keep
     the 8-connected components of at least ``min_area`` px.
 
-    Limits (inherent to background subtraction): an object that rests in one place for
-    most of the fitting window becomes background; shadows, reflections and hands that
-    move are foreground too. Fit on a longer window (``background``) when the clip is
-    short or the objects rest in it.
+    Resting objects: with ``method="median"`` and ``ghosts``, an object that rests in one
+    place for most of the fitting frames (so the median holds it) is still found. Where
+    the median holds an object that has not arrived yet (or has left), the fitting frames
+    show a *ghost*: a foreground blob whose outline has edges in the background image but
+    not in the frame (:func:`_ghost_score`). The background of such pixels is replaced by
+    the median of the frames in which they were a ghost, i.e. the empty scene, so the
+    object is foreground while it rests. This needs fitting frames from both before and
+    after the object arrives (spread them over the whole clip).
+
+    Lighting: with ``gain`` each frame's brightness is matched to the background (one
+    robust gain per frame, the median ratio of grey levels over unsaturated pixels)
+    before the difference, so global flicker does not light up the whole frame.
+
+    Limits: an object resting in all fitting frames is background; shadows, reflections
+    and hands that move are foreground too; a static overlay that shows on a few frames
+    (title cards) is foreground on those frames.
 
     Args:
         frames: ``(T, H, W, 3)`` uint8 RGB.
@@ -252,16 +277,20 @@ def pseudo_masks(
             (Zivkovic 2004) fitted on the fitting frames, then applied frozen;
             ``threshold`` is its squared Mahalanobis distance (default 16). MOG2 lets
             anything that covers a pixel for more than ~10 % of the fitting frames into the
-            background: give it a longer window.
+            background: give it a longer window. ``ghosts`` and ``gain`` apply to
+            ``median`` only.
         background: ``(N, H, W, 3)`` uint8 frames to fit the background model on (e.g. a
-            longer window of the same video at the same size); default ``frames``.
+            longer window of the same video at the same size, spread over the clip);
+            default ``frames``.
         threshold: see ``method``.
         kernel: side of the elliptical structuring element in px (odd); default about 1 %
             of the smaller image side, at least 3.
         min_area: smallest component kept, px; default 0.1 % of the frame, at least 4.
+        ghosts: repair the median background where it holds a resting object (see above).
+        gain: compensate a per-frame brightness gain (flicker) before differencing.
 
     Returns:
-        ``(T, H, W)`` bool, True on moving foreground.
+        ``(T, H, W)`` bool, True on foreground.
 
     Raises:
         ValueError: bad shapes/dtypes or an unknown method.
@@ -276,15 +305,16 @@ def pseudo_masks(
     h, w = frames.shape[1:3]
     kernel = _odd(max(3, 0.01 * min(h, w))) if kernel is None else _odd(kernel)
     min_area = max(4, round(1e-3 * h * w)) if min_area is None else int(min_area)
+    element = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (kernel, kernel))
 
     if method == "median":
         threshold = 30.0 if threshold is None else float(threshold)
         sigma = max(0.5, 0.002 * min(h, w))
-        smooth = lambda x: cv2.GaussianBlur(x, (0, 0), sigma)  # noqa: E731
-        bg = np.median(fit, axis=0).astype(np.uint8)
-        bg = smooth(bg).astype(np.int16)
-        raw = np.stack([(np.abs(smooth(f).astype(np.int16) - bg).max(axis=-1) > threshold)
-                        for f in frames])
+        smooth = lambda x: cv2.GaussianBlur(x, (0, 0), sigma).astype(np.float32)  # noqa: E731
+        bg = smooth(np.median(fit, axis=0).astype(np.uint8))
+        if ghosts and len(fit) >= 3:
+            bg = _repair_ghosts(fit, bg, smooth, threshold, gain, element, min_area)
+        raw = np.stack([_differs(smooth(f), bg, threshold, gain) for f in frames])
     elif method == "mog2":
         threshold = 16.0 if threshold is None else float(threshold)
         model = cv2.createBackgroundSubtractorMOG2(history=len(fit), varThreshold=threshold,
@@ -298,16 +328,7 @@ def pseudo_masks(
     else:
         raise ValueError(f"method: must be 'median' or 'mog2', got {method!r}")
 
-    element = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (kernel, kernel))
-    out = np.zeros(frames.shape[:3], dtype=bool)
-    for t, m in enumerate(raw.astype(np.uint8)):
-        m = cv2.morphologyEx(m, cv2.MORPH_OPEN, element)
-        m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, element)
-        n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
-        keep = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= min_area)
-        keep = keep[keep > 0]
-        out[t] = np.isin(labels, keep)
-    return out
+    return np.stack([_clean(m, element, min_area) for m in raw])
 
 
 def label_objects(
@@ -395,3 +416,145 @@ def label_objects(
     for new, k in enumerate(keep):
         lookup[k] = new
     return lookup[raw]
+
+
+# -- helpers of pseudo_masks / label_objects, and pseudo ground truth of a whole clip --
+
+
+def _clean(raw: np.ndarray, element: np.ndarray, min_area: int) -> np.ndarray:
+    """Opening, closing, then the 8-connected components of >= ``min_area`` px (bool)."""
+    m = cv2.morphologyEx(raw.astype(np.uint8), cv2.MORPH_OPEN, element)
+    m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, element)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+    keep = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= min_area)
+    return np.isin(labels, keep[keep > 0])
+
+
+def _grey(img: np.ndarray) -> np.ndarray:
+    """``(H, W)`` float32 luma of a float RGB image."""
+    return img @ np.array([0.299, 0.587, 0.114], np.float32)
+
+
+def _differs(frame: np.ndarray, bg: np.ndarray, threshold: float, gain: bool) -> np.ndarray:
+    """Pixels of a smoothed float RGB frame that differ from the background (bool).
+
+    With ``gain`` the frame is first divided by its brightness gain against ``bg``: the
+    median grey-level ratio over pixels that are neither dark nor saturated in either.
+    """
+    if gain:
+        gf, gb = _grey(frame), _grey(bg)
+        ok = (gb > 20) & (gb < 235) & (gf > 10) & (gf < 245)
+        if np.count_nonzero(ok) > 0.1 * ok.size:
+            g = float(np.clip(np.median(gf[ok] / gb[ok]), 0.5, 2.0))
+            frame = frame / g
+    return np.abs(frame - bg).max(axis=-1) > threshold
+
+
+def _gradient(grey: np.ndarray) -> np.ndarray:
+    return cv2.magnitude(cv2.Sobel(grey, cv2.CV_32F, 1, 0), cv2.Sobel(grey, cv2.CV_32F, 0, 1))
+
+
+def _ghost_score(component: np.ndarray, frame_grad: np.ndarray, bg_grad: np.ndarray) -> float:
+    """Share of the edge strength on a blob's outline that is in the frame, 0..1.
+
+    A real object has its edges in the frame (score near 1); a ghost, a place where the
+    background model holds an object that the frame does not show, has them in the
+    background image (score near 0).
+    """
+    m = component.astype(np.uint8)
+    ring = (cv2.dilate(m, None) > 0) & ~(cv2.erode(m, None) > 0)
+    f, b = float(frame_grad[ring].mean()), float(bg_grad[ring].mean())
+    return f / (f + b + 1e-6)
+
+
+def _repair_ghosts(fit: np.ndarray, bg: np.ndarray, smooth, threshold: float, gain: bool,
+                   element: np.ndarray, min_area: int, ghost_score: float = 0.35,
+                   min_share: float = 0.05) -> np.ndarray:
+    """Median background with its ghosts replaced by the empty scene (see pseudo_masks).
+
+    A pixel that is inside a ghost blob (:func:`_ghost_score` below ``ghost_score``) in at
+    least ``min_share`` of the fitting frames (and at least 2) gets the median of those
+    frames as background.
+    """
+    bg_grad = _gradient(_grey(bg))
+    flags = np.zeros(fit.shape[:3], dtype=bool)
+    for t, f in enumerate(fit):
+        fs = smooth(f)
+        m = _clean(_differs(fs, bg, threshold, gain), element, min_area)
+        n, labels = cv2.connectedComponents(m.astype(np.uint8), connectivity=8)
+        if n < 2:
+            continue
+        frame_grad = _gradient(_grey(fs))
+        for i in range(1, n):
+            comp = labels == i
+            if _ghost_score(comp, frame_grad, bg_grad) < ghost_score:
+                flags[t] |= comp
+    count = flags.sum(axis=0)
+    fix = count >= max(2, min_share * len(fit))
+    if not fix.any():
+        return bg
+    ys, xs = np.nonzero(fix)
+    values = np.stack([smooth(f)[ys, xs] for f in fit])            # (N, P, 3)
+    values[~flags[:, ys, xs]] = np.nan
+    out = bg.copy()
+    out[ys, xs] = np.nanmedian(values, axis=0)
+    return out
+
+
+def pseudo_ground_truth(
+    path: str | Path,
+    fps: float | None,
+    frame_indices,
+    size: tuple[int, int] | None = None,
+    *,
+    max_objects: int = 4,
+    method: Literal["median", "mog2"] = "median",
+    step: int | None = None,
+    max_fit: int = 150,
+    **mask_kwargs,
+) -> np.ndarray:
+    """Pseudo ground-truth segmentation of chosen source frames of a whole clip.
+
+    Reads the whole clip at ``size``, fits the background (:func:`pseudo_masks`, resting
+    objects repaired) on up to ``max_fit`` frames spread evenly over it, makes masks of
+    every ``step``-th frame plus the asked ones, tracks them with :func:`label_objects`
+    (so ids and the ``max_objects`` kept tracks are decided over the whole clip, not per
+    frame) and returns the asked frames. Used to check pseudo masks against hand labels
+    (``tests/test_realvideo_masks.py``).
+
+    Args:
+        path: video file.
+        fps: true frame rate (frames per second) when the container's is wrong; ``None``
+            trusts the container. Frame indices do not depend on it.
+        frame_indices: source frame indices (0-based, as decoded) to return.
+        size: ``(width, height)`` in px (centre crop to its aspect, then resize, as
+            :func:`read_video`); ``None`` keeps the original.
+        max_objects: objects kept by :func:`label_objects`.
+        method: background model of :func:`pseudo_masks`.
+        step: tracking stride in source frames; default so that about 200 frames are
+            tracked.
+        max_fit: most frames to fit the background on.
+        **mask_kwargs: more keyword arguments of :func:`pseudo_masks`
+            (``threshold``, ``kernel``, ``min_area``, ``ghosts``, ``gain``).
+
+    Returns:
+        ``(len(frame_indices), H, W)`` int8: object id per pixel, :data:`BACKGROUND`
+        (-1) elsewhere.
+
+    Raises:
+        VideoError: unreadable video, or a frame index out of range.
+    """
+    clip = read_video(path, fps=fps, size=size)
+    n = len(clip.frames)
+    wanted = [int(i) for i in frame_indices]
+    bad = [i for i in wanted if not 0 <= i < n]
+    if bad:
+        raise VideoError(f"{path}: frame_indices {bad} outside 0..{n - 1}")
+    step = max(1, n // 200) if step is None else max(1, int(step))
+    tracked = sorted(set(range(0, n, step)) | set(wanted))
+    fit = np.unique(np.linspace(0, n - 1, min(n, max_fit)).round().astype(int))
+    masks = pseudo_masks(clip.frames[tracked], method=method, background=clip.frames[fit],
+                         **mask_kwargs)
+    seg = label_objects(masks, max_objects=max_objects)
+    where = {t: k for k, t in enumerate(tracked)}
+    return seg[[where[i] for i in wanted]]
