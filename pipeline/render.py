@@ -406,6 +406,40 @@ class FrameRenderer:
         lut = self._draw_ids(ids, None)
         return self._ids_to_seg(ids[::-1], lut)
 
+    def _render_ids_only(self, qpos: np.ndarray, ids_buf: np.ndarray, depth_buf: np.ndarray | None,
+                         seg_out: np.ndarray | None) -> None:
+        """Segmentation passes of every frame of ``qpos (T, n, 7)`` (no RGB): ``ids_buf (T, H, W,
+        3)`` and ``depth_buf (T, H, W)`` get the raw buffers bottom row first, ``seg_out (T, H,
+        W)`` the object index. Pixel for pixel what :meth:`_draw_ids` per frame gives."""
+        scn, con, rect, model, data = self._scene, self._con_ids, self._rect, self.model, self.data
+        n7 = 7 * self.n_objects
+        flat = qpos.reshape(qpos.shape[0], -1)
+        flags = scn.flags.copy()
+        geom_type = int(mujoco.mjtObj.mjOBJ_GEOM)
+        self._gl.bind(con)
+        try:
+            scn.flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = True
+            scn.flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = True
+            for k in range(qpos.shape[0]):
+                data.qpos[:n7] = flat[k]
+                mujoco.mj_kinematics(model, data)
+                mujoco.mj_camlight(model, data)
+                self._update_scene()
+                mujoco.mjr_render(rect, scn, con)
+                mujoco.mjr_readPixels(ids_buf[k], None if depth_buf is None else depth_buf[k], rect, con)
+                if seg_out is None:
+                    continue
+                lut = np.full(scn.ngeom + 1, BACKGROUND, dtype=np.int8)
+                for g in scn.geoms[: scn.ngeom]:
+                    if g.segid != -1 and g.objtype == geom_type and g.objid >= 0:
+                        lut[g.segid + 1] = self.geom_object[g.objid]
+                if lut.size <= 256:  # id colours fit the red channel (green and blue are 0)
+                    np.take(lut, ids_buf[k, ::-1, :, 0], out=seg_out[k])
+                else:
+                    seg_out[k] = self._ids_to_seg(ids_buf[k, ::-1], lut)
+        finally:
+            np.copyto(scn.flags, flags)
+
     def render(self, qpos: np.ndarray, rgb: bool = True, seg: bool = True, depth: bool = True,
                flow: bool = True, progress: bool = False) -> Frames:
         """Render a pose sequence.
@@ -425,17 +459,25 @@ class FrameRenderer:
         depth_buf = np.empty((T, H, W), dtype=np.float32) if need_depth else None
         seg_out = np.empty((T, H, W), dtype=np.int8) if need_seg else None
         K = R = t = None
-        for k in range(T):
-            self.set_pose(qpos[k])
-            if k == 0 and flow:
+        if not rgb and ids_buf is not None:
+            # segmentation pass only: the same draws as _draw_ids, without its per-frame flag
+            # toggling and rebinding (nothing else draws in between)
+            self._render_ids_only(qpos, ids_buf, depth_buf, seg_out)
+            if flow:
+                self.set_pose(qpos[0])
                 K, R, t = camera_matrices(self.model, self.data, W, H)
-            self._update_scene()
-            if rgb:
-                self._draw_rgb(rgb_buf[k])
-            if ids_buf is not None:
-                lut = self._draw_ids(ids_buf[k], depth_buf[k] if need_depth else None)
-                if need_seg:
-                    seg_out[k] = self._ids_to_seg(ids_buf[k, ::-1], lut)
+        else:
+            for k in range(T):
+                self.set_pose(qpos[k])
+                if k == 0 and flow:
+                    K, R, t = camera_matrices(self.model, self.data, W, H)
+                self._update_scene()
+                if rgb:
+                    self._draw_rgb(rgb_buf[k])
+                if ids_buf is not None:
+                    lut = self._draw_ids(ids_buf[k], depth_buf[k] if need_depth else None)
+                    if need_seg:
+                        seg_out[k] = self._ids_to_seg(ids_buf[k, ::-1], lut)
         frames = Frames(
             rgb=np.ascontiguousarray(rgb_buf[:, ::-1]) if rgb else None,
             seg=seg_out,

@@ -114,6 +114,9 @@ def rollout(
     for k, t in enumerate(times):
         seen: dict[tuple[str, str], Contact] = {}
         target = int(round(t / model.opt.timestep))
+        if not record_contacts and target > step:
+            mujoco.mj_step(model, data, target - step)  # the same steps, one call
+            step = target
         while step < target:
             mujoco.mj_step(model, data)
             step += 1

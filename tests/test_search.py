@@ -117,6 +117,30 @@ def test_evaluator_n_frames_and_no_flow():
     assert seg.shape == (5, H, W) and seg.dtype == np.int8 and flow is None
 
 
+
+def test_structure_key_includes_static_geometry():
+    """A different static layout (``Scene.static``: ramps, walls) is another structure, so it
+    compiles a new model; duck-typed scenes so the test holds with or without ``Scene.static``."""
+    from types import SimpleNamespace
+
+    from pydantic import BaseModel
+
+    from pipeline.search import structure_key
+
+    class Box(BaseModel):
+        kind: str = "box"
+        position: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    base = _scene()
+    plain = SimpleNamespace(objects=base.objects, effects=base.effects)
+    ramp = SimpleNamespace(objects=base.objects, effects=base.effects, static=[Box(position=(0.0, 1.0, 0.0))])
+    wall = SimpleNamespace(objects=base.objects, effects=base.effects, static=[Box(position=(1.0, 0.0, 0.0))])
+    same = SimpleNamespace(objects=base.objects, effects=base.effects, static=[Box(position=(0.0, 1.0, 0.0))])
+    empty = SimpleNamespace(objects=base.objects, effects=base.effects, static=[])
+    assert structure_key(base) == structure_key(plain) == structure_key(empty)
+    assert structure_key(ramp) == structure_key(same)
+    assert len({structure_key(plain), structure_key(ramp), structure_key(wall)}) == 3
+
 # ----------------------------------------------------------------------------- fitness
 def test_fitness_of_the_truth():
     seg, flow = evaluate_scene(_scene(), W, H)
@@ -332,3 +356,46 @@ def test_stages_best_of_k_cmaes_score(tmp_path, monkeypatch):
     assert "| Best@2 + CMA-ES | flow |" in table and "Trivial baseline" in table
     assert "Trivial baseline + CMA-ES" in table
     assert (tmp_path / "reports" / "search.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_parallel_evaluator_equals_the_evaluator():
+    """Two worker processes give the clips of one in-process evaluator, in order."""
+    from pipeline.search import ParallelEvaluator
+
+    base = _scene()
+    cands = [base, *_candidates(base).values()]
+    with SceneEvaluator(base, W, H) as ev:
+        ref = [ev.evaluate(c, 6) for c in cands]
+    for workers in (1, 2):
+        with ParallelEvaluator(W, H, workers=workers) as pe:
+            out = pe.evaluate_many(cands, 6)
+        assert len(out) == len(ref)
+        for (s0, f0), (s1, f1) in zip(ref, out):
+            np.testing.assert_array_equal(s0, s1)
+            np.testing.assert_array_equal(f0, f1)
+
+
+def test_evaluator_with_static_geometry():
+    """Static geometry (``Scene.static``: world geoms ``static_<i>``, not bodies) is part of the
+    structure; the evaluator finds the objects' bodies and equals rebuilding the model."""
+    from pipeline.scene import Scene as _Scene
+    from pipeline.search import structure_key
+
+    if "static" not in _Scene.model_fields:
+        pytest.skip("Scene.static not available")
+    wall = {"shape": "box", "size": {"width": 0.6, "depth": 0.08, "height": 0.12}, "position": [0.0, -0.55, 0.06]}
+    base = _scene(static=[wall])
+    moved = _scene(static=[{**wall, "position": [0.1, -0.55, 0.06]}])
+    assert structure_key(base) != structure_key(moved) != structure_key(_scene())
+    cand = _edit(base, 0, position=[-0.25, -0.85, 0.1], linear_velocity=[0.3, 0.9, 0.0])
+    with SceneEvaluator(base, W, H) as ev:
+        assert list(ev.bodies) == [1, 2, 3]
+        seg, flow = ev.evaluate(cand)
+        for stat in ("meanmass", "meaninertia", "meansize", "extent", "center"):
+            np.testing.assert_allclose(getattr(ev.model.stat, stat), getattr(compile_model(cand).stat, stat),
+                                       rtol=1e-9, err_msg=stat)
+        with pytest.raises(ValueError, match="structure"):
+            ev.evaluate(moved)
+    _, frames = render_scene(cand, W, H, rgb=False, depth=False)
+    np.testing.assert_array_equal(seg, frames.seg)
+    np.testing.assert_allclose(flow, frames.flow, atol=1e-4)
