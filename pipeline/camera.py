@@ -93,3 +93,21 @@ def pixel_grid(width: int, height: int) -> np.ndarray:
     """Pixel centres (H, W, 2) float64 in the convention above."""
     u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
     return np.stack([u, v], axis=-1)
+
+
+def pixel_to_plane(uv: np.ndarray, z: float, cam: Camera, width: int, height: int) -> np.ndarray:
+    """World points at height ``z`` (m) seen at pixels ``uv (..., 2)``: the intersection of
+    each pixel's viewing ray with the horizontal plane ``Z = z``.
+
+    Returns:
+        (..., 3) float64 world points, m; NaN where the ray is parallel to the plane or meets
+        it behind the camera (e.g. above the horizon for a plane below the camera).
+    """
+    uv = np.asarray(uv, dtype=np.float64)
+    eye = np.asarray(cam.eye, dtype=np.float64)
+    ray = unproject(uv, np.ones(uv.shape[:-1]), cam, width, height) - eye
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = (z - eye[2]) / ray[..., 2]
+    s = np.where(np.abs(ray[..., 2]) > 1e-9, s, np.nan)
+    s = np.where(s > 0, s, np.nan)
+    return eye + s[..., None] * ray

@@ -2,15 +2,21 @@
 
 ``dynamics infer VIDEO --out DIR [--fps F] [--start S]`` reads a 1 s window of any
 OpenCV-readable video (``--fps`` overrides a wrong container rate, e.g. 240 for the PhysTrack
-clips), resamples it to the scene frame rate at the model resolution, estimates optical flow,
-samples K scenes from the model, keeps the best by re-simulation (Best@K) and refines it with
-CMA-ES. Outputs in DIR:
+clips; without ``--start`` the window with the most object motion is chosen), cut to the region
+of motion at the video's aspect ratio (:mod:`pipeline.observe`), and proposes scenes from two
+sources: the model's K samples (when a model is available) and the perception proposals
+(:mod:`pipeline.perception`, no training needed). All proposals are re-simulated and scored
+together (Best@K), and the best is refined by staged CMA-ES (:mod:`pipeline.search.staged`).
+Outputs in DIR:
 
 * ``scene.yaml``: the refined scene (scene language v1, canonical form);
-* ``side_by_side.mp4``: observed | re-simulated | masks (pseudo ground truth vs re-simulated);
+* ``side_by_side.mp4``: original frames with pseudo ground-truth masks | with re-simulated
+  masks | the re-simulated render, panels ``realvideo.panel_height`` px high;
+* ``contact_sheet.png``: the same three rows at six instants;
 * ``metrics.json``: IoU against *pseudo* ground-truth masks (background subtraction) and EPE
-  against the observed flow (same estimator), for the model's first sample, Best@K and
-  Best@K + CMA-ES;
+  against the observed flow (same estimator), for the first sample, Best@K and Best@K +
+  CMA-ES, and per source (model, perception) the number of proposals, valid ones and the best
+  IoU;
 * ``recording.rrd``: rerun recording (observed and re-simulated streams, 3D scene, camera).
 """
 
@@ -18,155 +24,224 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from pipeline import shards
 from pipeline.params import load_params, path_of
-from pipeline.scene import Scene, SceneError
+from pipeline.scene import Scene
 
 
-def _observe(video: str | Path, fps: float | None, start: float, width: int, height: int,
-             scene_fps: int, duration: float, flow_method: str, flow_preset: str,
-             mask_method: str, max_objects: int) -> dict:
-    """Frames, pseudo masks and observed flow of a video window at the model resolution."""
-    from pipeline.flow import estimate_flow
-    from pipeline.video import label_objects, pseudo_masks, read_video, resample
-
-    window = read_video(video, fps=fps, start=start, duration=duration + 1.0 / scene_fps, size=(width, height))
-    if window.duration + 0.5 / window.fps < duration:
-        from pipeline.video import VideoError
-
-        raise VideoError(f"{video}: only {window.duration:.3f} s after start={start:g} s, need {duration:g} s")
-    frames = resample(window.frames, window.fps, scene_fps, duration)
-    # background model from a longer stretch of the same video (objects rarely rest there)
-    context = read_video(video, fps=fps, size=(width, height), max_frames=int(20 * window.fps))
-    step = max(1, len(context.frames) // 120)
-    masks = pseudo_masks(frames, method=mask_method, background=context.frames[::step])
-    seg = label_objects(masks, max_objects=max_objects)
-    method = "dis" if flow_method == "gt" else flow_method  # no simulator truth for a real video
-    flow = estimate_flow(frames, method=method, preset=flow_preset)
-    return {"frames": frames, "seg": seg, "flow": flow, "clip": window, "flow_method": method}
-
-
-def default_model_dir(params: dict) -> Path:
+def default_model_dir(params: dict) -> Path | None:
     """``paths.model`` when it holds a trained model (after ``dvc repro``), else the shipped
-    checkpoint (:data:`pipeline.model.SHIPPED_CHECKPOINT`)."""
+    checkpoint (:data:`pipeline.model.SHIPPED_CHECKPOINT`) if present, else None."""
     from pipeline.model import SHIPPED_CHECKPOINT
 
     trained = path_of(params, "model")
-    return trained if (trained / "config.json").exists() else SHIPPED_CHECKPOINT
+    if (trained / "config.json").exists():
+        return trained
+    return SHIPPED_CHECKPOINT if (Path(SHIPPED_CHECKPOINT) / "config.json").exists() else None
+
+
+def model_samples(model_dir: Path, frames: np.ndarray, params: dict, k: int | None, seed: int,
+                  scene_fps: int, duration: float) -> tuple[list[Scene | None], list[str | None]]:
+    """K scenes sampled from a model for a clip (None where a sample is not a valid scene).
+
+    The clip is shown to the model as it was trained: resized to ``render.width x
+    render.height`` with the flow estimated at that size.
+    """
+    import torch
+
+    from pipeline import model as vlm
+    from pipeline.flow import FlowConfig, estimate_flow
+
+    W, H = int(params["render"]["width"]), int(params["render"]["height"])
+    fcfg = FlowConfig(**params["flow"])
+    small = np.stack([cv2.resize(f, (W, H), interpolation=cv2.INTER_AREA) for f in frames])
+    flow = estimate_flow(small, method="dis" if fcfg.method == "gt" else fcfg.method, preset=fcfg.preset)
+    torch.set_num_threads(1)  # as in stages/infer.py: decoding K samples, 1 thread is as fast
+    net, tok = vlm.load_model(model_dir)
+    codec, _ = vlm.load_codec(model_dir)
+    mcfg = vlm.checkpoint_config(model_dir, vlm.ModelConfig.from_params(params))
+    x = vlm.model_input(small, flow, mcfg, fcfg.max_magnitude)
+    samples = vlm.generate(net, tok, x, mcfg, codec, k=k or mcfg.k, seed=seed)
+    scenes, errors = [], []
+    for toks in samples:
+        s, err = vlm.to_scene(toks, codec)
+        scenes.append(s.replace(fps=scene_fps, duration=duration) if s is not None else None)
+        errors.append(err)
+    return scenes, errors
+
+
+def _source_summary(scores: list[dict], sources: list[str], name: str) -> dict:
+    mine = [s for s, src in zip(scores, sources) if src == name]
+    valid = [s for s in mine if s["valid"]]
+    best = max(valid, key=lambda s: s["fitness"]) if valid else None
+    return {"proposals": len(mine), "valid": len(valid),
+            "best_full_iou": None if best is None else round(best["full_iou"], 4),
+            "best_fitness": None if best is None else round(best["fitness"], 4)}
 
 
 def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | None = None,
-                start: float = 0.0, model_dir: str | Path | None = None, k: int | None = None,
-                seed: int = 0) -> dict:
+                start: float | None = None, model_dir: str | Path | None = None, k: int | None = None,
+                seed: int = 0, use_model: bool = True) -> dict:
     """Run the main job on one video and write its outputs (see module docstring).
 
     Args:
         video: video file path.
         out: output folder (created; files inside are replaced atomically).
-        params: parsed params.yaml (sections ``render``, ``flow``, ``model``, ``search``,
+        params: parsed params.yaml (sections ``render``, ``flow``, ``model``, ``search``, ``sim``,
             ``realvideo``, ``paths``).
         fps: true frame rate of the video, overriding the container's.
-        start: start of the 1 s window, s.
+        start: start of the 1 s window, s; None chooses it (:func:`pipeline.observe.choose_start`).
         model_dir: trained model folder (default :func:`default_model_dir`).
         k: samples for Best@K (default ``model.k``).
+        seed: sampling and CMA-ES seed.
+        use_model: False skips the model (perception proposals only).
     Returns:
         the metrics dict written to ``metrics.json``.
     Raises:
-        VideoError: unreadable video or window past its end.
-        ModelError: no trained model at ``model_dir``.
+        VideoError: unreadable video, window past its end, or nothing to reconstruct (no model
+            sample and no moving object found).
     """
-    from pipeline import model as vlm
-    from pipeline import search, viz
+    from pipeline import perception, viz
     from pipeline.flow import FlowConfig
     from pipeline.metrics import flow_epe, sequence_iou
     from pipeline.mjcf import SimOptions
+    from pipeline.observe import observe, original_frames, upscale
     from pipeline.render import render_scene
+    from pipeline.search import EvaluatorPool, SearchConfig, best_of_k
+    from pipeline.search.staged import REFERENCE_WIDTH, staged_refine
+    from pipeline.video import VideoError
     from pipeline.view import camera_dict, scene_objects
 
     t0 = time.time()
     out = Path(out)
-    W, H = int(params["render"]["width"]), int(params["render"]["height"])
     rv = params.get("realvideo", {})
-    mcfg = vlm.ModelConfig.from_params(params)
     fcfg = FlowConfig(**params["flow"])
-    scfg = search.SearchConfig(**params["search"])
+    scfg = SearchConfig(**params["search"])
+    scfg = scfg.model_copy(update={"popsize": int(rv.get("popsize", scfg.popsize)),
+                                   "iterations": int(rv.get("iterations", scfg.iterations)),
+                                   "lambda_epe": float(rv.get("lambda_epe", scfg.lambda_epe))})
     sim = SimOptions(**params["sim"])
     scene_fps, duration = int(rv.get("fps", 30)), float(rv.get("duration", 1.0))
+    max_objects = int(rv.get("max_objects", 4))
 
-    obs = _observe(video, fps, start, W, H, scene_fps, duration, fcfg.method, fcfg.preset,
-                   rv.get("mask_method", "median"), int(rv.get("max_objects", 4)))
-    print(f"[infer] {video}: {len(obs['frames'])} frames at {scene_fps} fps ({W}x{H}), "
-          f"{int((obs['seg'] >= 0).any(axis=0).sum())} px ever foreground")
+    obs = observe(video, fps, start, scene_fps, duration, fcfg.method, fcfg.preset,
+                  rv.get("mask_method", "median"), max_objects)
+    W, H = obs.size
+    print(f"[infer] {video}: window {obs.start:.3f}-{obs.start + duration:.3f} s"
+          f"{' (chosen automatically)' if obs.auto else ''}, {len(obs.frames)} frames at {scene_fps} fps, "
+          f"crop {obs.crop} -> {W}x{H} px")
 
-    import torch
+    candidates: list[Scene | None] = []
+    sources: list[str] = []
+    labels: list[str] = []
+    errors: list[str | None] = []
+    notes: list[str] = []
+    model_note = None
+    if use_model:
+        mdir = Path(model_dir) if model_dir else default_model_dir(params)
+        if mdir is None or not (mdir / "config.json").exists():
+            model_note = (f"no trained model at {mdir or path_of(params, 'model')}: using the perception "
+                          "proposals only (run `dvc repro` or pass --model)")
+            print(f"[infer] {model_note}")
+        else:
+            scenes, errs = model_samples(mdir, obs.frames, params, k, seed, scene_fps, duration)
+            candidates += scenes
+            sources += ["model"] * len(scenes)
+            labels += [f"model sample {i}" for i in range(len(scenes))]
+            errors += errs
+    else:
+        model_note = "model not used (--no-model)"
+    proposals = None
+    try:
+        proposals = perception.propose(obs.seg, obs.flow, scene_fps, duration, max_objects)
+        candidates += proposals.scenes
+        sources += ["perception"] * len(proposals.scenes)
+        labels += [f"perception: {l}" for l in proposals.labels]
+        errors += [None] * len(proposals.scenes)
+        notes = proposals.notes
+    except perception.PerceptionError as exc:
+        notes = [f"perception: {exc}"]
+    if not any(c is not None for c in candidates):
+        raise VideoError(f"{video}: nothing to reconstruct: no valid model sample and {notes[0]}")
+    print(f"[infer] {sum(s == 'model' for s in sources)} model samples, "
+          f"{sum(s == 'perception' for s in sources)} perception proposals")
 
-    torch.set_num_threads(1)  # as in stages/infer.py: decoding K samples, 1 thread is as fast
-    model_dir = Path(model_dir) if model_dir else default_model_dir(params)
-    net, tok = vlm.load_model(model_dir)
-    codec, _ = vlm.load_codec(model_dir)
-    mcfg = vlm.checkpoint_config(model_dir, mcfg)
-    x = vlm.model_input(obs["frames"], obs["flow"], mcfg, fcfg.max_magnitude)
-    samples = vlm.generate(net, tok, x, mcfg, codec, k=k or mcfg.k, seed=seed)
-    texts = [" ".join(t) for t in samples]
-    candidates, errors = [], []
-    for toks in samples:
-        s, err = vlm.to_scene(toks, codec)
-        candidates.append(s.replace(fps=scene_fps, duration=duration) if s is not None else None)
-        errors.append(err)
-    n_valid = sum(c is not None for c in candidates)
-    print(f"[infer] {len(texts)} samples, {n_valid} valid scenes")
-    scores, best = search.best_of_k(candidates, obs["seg"], obs["flow"], scfg, sim) if n_valid else ([], None)
-    fallback = best is None
-    if fallback:  # no sample parsed or simulated: fall back (honestly flagged) to the trivial baseline
-        candidates = [search.baseline_scene(shards.read_table(path_of(params, "configs"))).replace(
-            fps=scene_fps, duration=duration)]
-        scores, best = search.best_of_k(candidates, obs["seg"], obs["flow"], scfg, sim)
-    refined, history = search.cmaes_refine(candidates[best], obs["seg"], obs["flow"], scfg, sim, seed=seed)
+    lam_cfg = scfg.model_copy(update={"lambda_epe": scfg.lambda_epe * REFERENCE_WIDTH / W})
+    with EvaluatorPool(W, H, sim) as pool:
+        scores, best = best_of_k(candidates, obs.seg, obs.flow, lam_cfg, sim, pool=pool)
+        if best is None:
+            raise VideoError(f"{video}: no proposal could be simulated ({scores[0].get('error')})")
+        refined, history = staged_refine(candidates[best], obs.seg, obs.flow, scfg, sim, seed=seed,
+                                         restarts=int(rv.get("restarts", 2)), pool=pool)
 
     def score(scene: Scene) -> tuple[dict, object]:
         trace, fr = render_scene(scene, W, H, options=sim)
-        iou = sequence_iou(obs["seg"], fr.seg)
-        epe = flow_epe(fr.flow, obs["flow"], fr.seg[:-1] >= 0, obs["seg"][:-1] >= 0)
-        return {"initial_iou": iou["initial_iou"], "full_iou": iou["full_iou"],
-                "foreground_iou_full": iou["foreground_iou_full"], "epe": epe}, (trace, fr)
+        iou = sequence_iou(obs.seg, fr.seg)
+        epe = flow_epe(fr.flow, obs.flow, fr.seg[:-1] >= 0, obs.seg[:-1] >= 0)
+        return {"initial_iou": round(iou["initial_iou"], 4), "full_iou": round(iou["full_iou"], 4),
+                "foreground_iou_full": round(iou["foreground_iou_full"], 4), "epe": round(epe, 4)}, (trace, fr)
 
-    first = next((c for c in candidates if c is not None), None)
-    m_first, _ = score(first)
+    first_i = next(i for i, c in enumerate(candidates) if c is not None)
+    m_first, _ = score(candidates[first_i])
     m_best, _ = score(candidates[best])
     m_ref, (trace, fr) = score(refined)
 
     out.mkdir(parents=True, exist_ok=True)
     shards.write_text(out / "scene.yaml", refined.to_yaml())
-    pred_overlay = viz.mask_overlay(obs["frames"], fr.seg)
-    obs_overlay = viz.mask_overlay(obs["frames"], obs["seg"])
-    viz.side_by_side_mp4(out / "side_by_side.mp4", [obs["frames"], fr.rgb, obs_overlay, pred_overlay],
-                         ["observed", "re-simulated", "pseudo-GT masks", "re-sim masks"], fps=scene_fps)
-    clip = obs["clip"]
+    # for people: original frames at panel height, masks drawn over them
+    ph = int(rv.get("panel_height", 320))
+    orig = original_frames(obs, video, fps, height=ph)
+    psize = (orig.shape[2], orig.shape[1])
+    _, big = render_scene(refined, psize[0], psize[1], options=sim)
+    obs_overlay = viz.mask_overlay(orig, upscale(obs.seg, psize))
+    pred_overlay = viz.mask_overlay(orig, big.seg)
+    cols = [obs_overlay, pred_overlay, big.rgb]
+    names = ["observed + pseudo-GT masks", "observed + re-simulated masks", "re-simulated"]
+    viz.side_by_side_mp4(out / "side_by_side.mp4", cols, names, fps=scene_fps)
+    viz.contact_sheet(out / "contact_sheet.png", cols, names,
+                      title=f"{Path(video).name}: full IoU {m_ref['full_iou']:.3f} (pseudo GT), "
+                            f"{len(refined.objects)} objects, window {obs.start:.2f}-{obs.start + duration:.2f} s")
+    clip = obs.clip
+    tracks = proposals.tracks if proposals else []
     metrics = {
-        "video": str(video), "fps_used": clip.fps, "container_fps": clip.container_fps, "start_s": start,
-        "window": {"frames": len(obs["frames"]), "fps": scene_fps, "width": W, "height": H},
+        "video": str(video), "fps_used": clip.fps, "container_fps": clip.container_fps,
+        "window": {"start_s": round(obs.start, 4), "chosen_automatically": obs.auto, "duration_s": duration,
+                   "frames": len(obs.frames), "fps": scene_fps, "crop": list(obs.crop),
+                   "width": W, "height": H, "original_size": list(clip.original_size)},
         "ground_truth": "pseudo: masks from background subtraction, flow from the same estimator "
-                        f"({obs['flow_method']}) as the model input",
-        "samples": len(texts), "valid_samples": n_valid, "fallback_to_baseline": fallback,
+                        f"({obs.flow_method})",
+        "objects_found": len(tracks),
+        "object_pixels": [round(float(np.median(t.area)), 1) for t in tracks],
+        "view": proposals.view if proposals else None,
+        "perception_notes": notes, "model_note": model_note,
+        "sources": {name: _source_summary(scores, sources, name) for name in ("model", "perception")},
+        "proposals": [{"source": src, "label": lab, "valid": s["valid"],
+                       "full_iou": None if not s["valid"] else round(s["full_iou"], 4),
+                       "fitness": None if not s["valid"] else round(s["fitness"], 4)}
+                      for src, lab, s in zip(sources, labels, scores)],
         "sample_errors": [e for e in errors if e][:5],
-        "first_sample": m_first, "best_of_k": m_best, "best_of_k_cmaes": m_ref,
-        "cmaes_evaluations": int(sum(h.get("evaluations", 0) for h in history[-1:])) if history else 0,
+        "first_sample_source": sources[first_i], "first_sample": m_first,
+        "best_of_k_source": sources[best], "best_of_k_label": labels[best], "best_of_k": m_best,
+        "best_of_k_cmaes": m_ref,
+        "cmaes_evaluations": int(history[-1]["evaluations"]) if history else 0,
+        "cmaes_seconds": float(history[-1]["seconds"]) if history else 0.0,
         "seconds": round(time.time() - t0, 1),
     }
     shards.write_json(out / "metrics.json", metrics)
-    n = len(refined.objects)
-    viz.record_clip(out / "recording.rrd", rgb=obs["frames"], seg=fr.seg, flow=obs["flow"],
+    viz.record_clip(out / "recording.rrd", rgb=obs.frames, seg=fr.seg, flow=obs.flow,
                     positions=trace.qpos[..., :3], quaternions=trace.qpos[..., 3:],
                     objects=scene_objects(refined), camera=camera_dict(refined, W, H), fps=scene_fps,
                     app_id="dynamics_infer",
-                    scalars={"iou/frame": sequence_iou(obs["seg"], fr.seg)["per_frame"]})
+                    scalars={"iou/frame": sequence_iou(obs.seg, fr.seg)["per_frame"]})
     print(f"[infer] wrote {out}: full IoU {m_ref['full_iou']:.3f} (pseudo GT), EPE {m_ref['epe']:.2f} px, "
-          f"{n} objects, {metrics['seconds']} s")
+          f"{len(refined.objects)} objects, best proposal: {labels[best]}, {metrics['seconds']} s")
     return metrics
 
 
@@ -174,10 +249,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("video", help="any OpenCV-readable video file")
     p.add_argument("--out", required=True, help="output folder")
     p.add_argument("--fps", type=float, default=None, help="true frame rate (overrides the container's)")
-    p.add_argument("--start", type=float, default=0.0, help="start of the 1 s window, s")
+    p.add_argument("--start", type=float, default=None,
+                   help="start of the 1 s window, s (default: the window with the most object motion)")
     p.add_argument("--model", default=None, help="model folder (default: params paths.model if trained, else the shipped "
                    "checkpoint models/dynamics-tiny); a local "
                    "Qwen2.5-VL folder works when params model.pretrained points at it")
+    p.add_argument("--no-model", action="store_true", help="perception proposals only")
     p.add_argument("-k", type=int, default=None, help="samples for Best@K (default params model.k)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--params", default=None, help="params.yaml (default ./params.yaml)")
@@ -186,6 +263,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def main_cli(args: argparse.Namespace) -> int:
     params = load_params(args.params)
     metrics = reconstruct(args.video, args.out, params, fps=args.fps, start=args.start,
-                          model_dir=args.model, k=args.k, seed=args.seed)
-    print(json.dumps({k: metrics[k] for k in ("first_sample", "best_of_k", "best_of_k_cmaes")}, indent=1))
+                          model_dir=args.model, k=args.k, seed=args.seed, use_model=not args.no_model)
+    print(json.dumps({k: metrics[k] for k in ("sources", "first_sample", "best_of_k", "best_of_k_cmaes")},
+                     indent=1), file=sys.stdout)
     return 0

@@ -166,6 +166,53 @@ def side_by_side_mp4(
     return path
 
 
+def contact_sheet(path: str | Path, rows: Sequence[np.ndarray], labels: Sequence[str],
+                  n_columns: int = 6, title: str = "") -> Path:
+    """A PNG grid: one row per video, ``n_columns`` frames spread evenly over time.
+
+    Args:
+        path: output ``.png``; written atomically.
+        rows: videos ``(T, H, W, 3)`` uint8 RGB of the same T, H and W (e.g. observed frames
+            with masks drawn over them, re-simulated frames).
+        labels: one text per row, drawn on its first tile.
+        n_columns: frames per row; each tile is labelled with its frame index.
+        title: optional line of text above the grid.
+    Returns:
+        ``path``.
+    Raises:
+        ValueError: no rows, or rows of different shapes.
+    """
+    path = Path(path)
+    if not rows:
+        raise ValueError("rows: must hold at least one video, got none")
+    rows = [np.asarray(r) for r in rows]
+    if any(r.shape != rows[0].shape or r.dtype != np.uint8 or r.ndim != 4 for r in rows):
+        raise ValueError(f"rows: must all be (T, H, W, 3) uint8 of one shape, got {[r.shape for r in rows]}")
+    T, H, W = rows[0].shape[:3]
+    idx = np.unique(np.linspace(0, T - 1, min(n_columns, T)).round().astype(int))
+    grid = []
+    for r, label in zip(rows, labels):
+        tiles = []
+        for j, t in enumerate(idx):
+            tile = r[t].copy()
+            _put_label(tile, f"{label}  t={t}" if j == 0 and label else f"t={t}")
+            tiles.append(np.pad(tile, ((2, 2), (2, 2), (0, 0)), constant_values=255))
+        grid.append(np.concatenate(tiles, axis=1))
+    img = np.concatenate(grid, axis=0)
+    if title:
+        bar = np.full((max(24, H // 8), img.shape[1], 3), 255, dtype=np.uint8)
+        scale = max(0.4, bar.shape[0] / 40)
+        cv2.putText(bar, title, (4, bar.shape[0] - 6), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0),
+                    max(1, round(scale)), cv2.LINE_AA)
+        img = np.concatenate([bar, img], axis=0)
+    from pipeline.shards import atomic_path
+
+    with atomic_path(path, suffix=".png") as tmp:
+        if not cv2.imwrite(str(tmp), cv2.cvtColor(img, cv2.COLOR_RGB2BGR)):
+            raise OSError(f"{path}: cannot write PNG")
+    return path
+
+
 # ---------------------------------------------------------------------------------------
 # Rerun
 # ---------------------------------------------------------------------------------------

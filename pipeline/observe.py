@@ -1,0 +1,229 @@
+"""Observe a real video: choose the window, the region of motion and the working size, then
+compute what the search scores against (pseudo masks split into objects, optical flow).
+
+Resolution (issue 9, item 4): the working image keeps the video's own aspect ratio and is a
+**crop to the region of motion**, not a centre crop: a first pass at :data:`DETECT_LONG_SIDE`
+px finds where objects move over the window; that box, padded by two object diameters, is grown
+to the video's aspect ratio and cut out of the original frames, then resized so that the median
+object is at least :data:`MIN_OBJECT_DIAMETER` px across (area >= ~100 px) with the long side
+between :data:`MIN_LONG_SIDE` and :data:`MAX_LONG_SIDE` px. Cropping (rather than only raising
+the working size) keeps the render small, so the search runs at 100+ evaluations/s, and never
+cuts an object out because the box is built from where the objects are.
+
+Window (``start=None``): the 1 s window whose frames show the most *object-sized* motion
+(frame differences at 30 fps on a 160 px wide copy of the whole clip; a frame counts up to 1
+as its moving area grows to :data:`FULL_MOTION_FRACTION` of the image, and -2 when it
+exceeds :data:`MAX_MOVING_FRACTION`, e.g. a hand or a person; the earliest best window wins).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from pipeline.perception import object_tracks
+from pipeline.video import Clip, VideoError, label_objects, pseudo_masks, read_video, resample
+
+DETECT_LONG_SIDE = 320
+"""px, long side of the detection pass (whole frame)."""
+MIN_OBJECT_DIAMETER = 12.0
+"""px, smallest median object diameter in the working image (a disc of 12 px is 113 px)."""
+MIN_LONG_SIDE, MAX_LONG_SIDE = 160, 384
+"""px, bounds of the working image's long side."""
+MAX_MOVING_FRACTION = 0.015
+"""A frame whose moving area is above this fraction of the image is not object motion."""
+FULL_MOTION_FRACTION = 0.005
+"""Moving-area fraction at which a frame counts fully as object motion."""
+
+
+@dataclass
+class Observation:
+    """A window of a real video, ready to be scored against.
+
+    Attributes:
+        frames: ``(T, H, W, 3)`` uint8 RGB at the scene fps, working size (the crop).
+        seg: ``(T, H, W)`` int8 pseudo masks of the objects (background subtraction, Hungarian
+            tracking, only tracks that move: :func:`keep_objects`), -1 background.
+        flow: ``(T-1, H, W, 2)`` float32 observed optical flow, px/frame.
+        clip: the decoded source window (true fps, crop box in original px).
+        start: window start, s; ``auto``: whether it was chosen automatically.
+        crop: ``(x, y, w, h)`` in original px; ``size``: working ``(W, H)`` px.
+        scene_fps: frames per second of ``frames``.
+        flow_method: optical-flow estimator used.
+    """
+
+    frames: np.ndarray
+    seg: np.ndarray
+    flow: np.ndarray
+    clip: Clip
+    start: float
+    auto: bool
+    crop: tuple[int, int, int, int]
+    size: tuple[int, int]
+    scene_fps: int
+    flow_method: str
+
+
+def _detect_size(orig_w: int, orig_h: int) -> tuple[int, int]:
+    s = DETECT_LONG_SIDE / max(orig_w, orig_h)
+    return max(2, round(orig_w * s / 2) * 2), max(2, round(orig_h * s / 2) * 2)
+
+
+def choose_start(video, fps: float | None, scene_fps: int, duration: float) -> float:
+    """Start (s) of the ``duration`` window with the most object-sized motion (module docstring).
+
+    Raises:
+        VideoError: unreadable video, or shorter than ``duration``.
+    """
+    probe = read_video(video, fps=fps, max_frames=1)
+    W0, H0 = probe.original_size
+    small = read_video(video, fps=fps, size=(160, max(2, round(160 * H0 / W0))))
+    frames = small.frames
+    total = len(frames) / small.fps
+    if total + 0.5 / small.fps < duration:
+        raise VideoError(f"{video}: only {total:.3f} s long at {small.fps:g} fps, need {duration:g} s")
+    at = resample(frames, small.fps, scene_fps)
+    grey = at.astype(np.int16).max(axis=-1)
+    moving = np.abs(np.diff(grey, axis=0)) > 25
+    frac = moving.mean(axis=(1, 2))
+    score = np.where(frac > MAX_MOVING_FRACTION, -2.0, np.minimum(frac, FULL_MOTION_FRACTION) / FULL_MOTION_FRACTION)
+    n = max(1, round(duration * scene_fps))
+    if len(score) < n:
+        return 0.0
+    sums = np.convolve(score, np.ones(max(1, n - 1)), mode="valid")  # n frames: n - 1 differences
+    last = max(0, math.floor((total - duration) * scene_fps + 1e-6))
+    sums = sums[: last + 1]
+    return float(np.argmax(sums)) / scene_fps
+
+
+def _masks(frames: np.ndarray, context: np.ndarray, method: str, max_objects: int) -> np.ndarray:
+    masks = pseudo_masks(frames, method=method, background=context)
+    return label_objects(masks, max_objects=max_objects)
+
+
+def keep_objects(seg: np.ndarray, flow: np.ndarray, max_objects: int) -> np.ndarray:
+    """Pseudo masks of the objects only: the tracks :func:`pipeline.perception.object_tracks`
+    accepts (they move, they are not slivers), renumbered 0..n-1 in order of first appearance;
+    everything else becomes background. ``(T, H, W)`` int8."""
+    keep = [t.label for t in object_tracks(seg, flow, max_objects)]
+    lut = np.full(int(seg.max()) + 2, -1, dtype=np.int8)
+    for new, k in enumerate(keep):
+        lut[k] = new
+    return lut[seg.astype(np.int64)]  # index -1 (background) -> lut[-1] = -1
+
+
+def motion_crop(seg: np.ndarray, diameter: float, scale: float, orig_size: tuple[int, int]
+                ) -> tuple[int, int, int, int]:
+    """Crop box of the region of motion, in original px.
+
+    Args:
+        seg: ``(T, h, w)`` int8 labels of the detection pass, objects only (:func:`keep_objects`).
+        diameter: median object diameter in the detection pass, px (the padding is two of them).
+        scale: original px per detection px.
+        orig_size: ``(W, H)`` of the video, px.
+    Returns:
+        ``(x, y, w, h)``: the box of everything the objects cover over the window, padded, grown
+        to the aspect ratio of the video and shifted (then clipped) to lie inside the frame.
+    """
+    W0, H0 = orig_size
+    fg = seg >= 0
+    if not fg.any():
+        return (0, 0, W0, H0)
+    vs, us = np.nonzero(fg.any(axis=0))
+    pad = 2.0 * diameter * scale
+    x0, x1 = us.min() * scale - pad, (us.max() + 1) * scale + pad
+    y0, y1 = vs.min() * scale - pad, (vs.max() + 1) * scale + pad
+    aspect = W0 / H0
+    w, h = x1 - x0, y1 - y0
+    if w / h < aspect:
+        w = h * aspect
+    else:
+        h = w / aspect
+    w, h = min(w, W0), min(h, H0)
+    cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+    x = min(max(cx - w / 2, 0.0), W0 - w)
+    y = min(max(cy - h / 2, 0.0), H0 - h)
+    return (int(round(x)), int(round(y)), int(round(w)), int(round(h)))
+
+
+def working_size(crop: tuple[int, int, int, int], diameter: float) -> tuple[int, int]:
+    """``(W, H)`` px of the working image for a crop (module docstring); even sizes."""
+    _, _, w, h = crop
+    long_side = max(w, h)
+    want = long_side * MIN_OBJECT_DIAMETER / max(diameter, 1e-6)
+    L = int(min(max(want, MIN_LONG_SIDE), MAX_LONG_SIDE))
+    s = L / long_side
+    return max(2, round(w * s / 2) * 2), max(2, round(h * s / 2) * 2)
+
+
+def observe(video, fps: float | None, start: float | None, scene_fps: int, duration: float,
+            flow_method: str = "dis", flow_preset: str = "medium", mask_method: str = "median",
+            max_objects: int = 4) -> Observation:
+    """Read a window of a real video at its working crop and size; pseudo masks and flow.
+
+    Args:
+        video: video file.
+        fps: true frame rate (overrides the container's), or None.
+        start: window start, s; None chooses it (:func:`choose_start`).
+        scene_fps: frame rate of the result (the scene's), frames per second.
+        duration: window length, s.
+        flow_method, flow_preset: optical flow (``pipeline.flow.estimate_flow``); ``gt`` means
+            DIS here (a real video has no simulator truth).
+        mask_method: background model of the pseudo masks (``pipeline.video.pseudo_masks``).
+        max_objects: objects kept by the tracker.
+    Raises:
+        VideoError: unreadable video or window past its end.
+    """
+    from pipeline.flow import estimate_flow
+
+    auto = start is None
+    if auto:
+        start = choose_start(video, fps, scene_fps, duration)
+    probe = read_video(video, fps=fps, max_frames=1)
+    W0, H0 = probe.original_size
+    dsize = _detect_size(W0, H0)
+    span = duration + 1.0 / scene_fps
+
+    def window(size, crop):
+        clip = read_video(video, fps=fps, start=start, duration=span, size=size, crop=crop)
+        if clip.duration + 0.5 / clip.fps < duration:
+            raise VideoError(f"{video}: only {clip.duration:.3f} s after start={start:g} s, need {duration:g} s")
+        ctx = read_video(video, fps=fps, size=size, crop=crop, max_frames=int(20 * clip.fps))
+        step = max(1, len(ctx.frames) // 120)
+        return clip, resample(clip.frames, clip.fps, scene_fps, duration), ctx.frames[::step]
+
+    full = (0, 0, W0, H0)
+    _, det_frames, det_ctx = window(dsize, full)
+    det_seg = _masks(det_frames, det_ctx, mask_method, max_objects)
+    det_flow = estimate_flow(det_frames, method="dis", preset="fast")
+    det_seg = keep_objects(det_seg, det_flow, max_objects)
+    tracks = object_tracks(det_seg, det_flow, max_objects)
+    scale = W0 / dsize[0]
+    diameter = float(np.median([t.diameter for t in tracks])) if tracks else 0.05 * dsize[1]
+    crop = motion_crop(det_seg, diameter, scale, (W0, H0))
+    size = working_size(crop, diameter * scale)
+    clip, frames, ctx = window(size, crop)
+    seg = _masks(frames, ctx, mask_method, max_objects)
+    method = "dis" if flow_method == "gt" else flow_method
+    flow = estimate_flow(frames, method=method, preset=flow_preset)
+    seg = keep_objects(seg, flow, max_objects)
+    return Observation(frames, seg, flow, clip, float(start), auto, clip.crop, size, scene_fps, method)
+
+
+def original_frames(obs: Observation, video, fps: float | None, height: int = 320) -> np.ndarray:
+    """The window's frames cut from the original video at the working crop, ``height`` px high
+    (for people: contact sheets, side-by-side video), at the scene fps. ``(T, height, W', 3)``."""
+    x, y, w, h = obs.crop
+    s = height / h
+    size = (max(2, round(w * s / 2) * 2), height)
+    clip = read_video(video, fps=fps, start=obs.start, duration=len(obs.frames) / obs.scene_fps + 1.0 / obs.scene_fps,
+                      size=size, crop=obs.crop)
+    return resample(clip.frames, clip.fps, obs.scene_fps, len(obs.frames) / obs.scene_fps)
+
+
+def upscale(seg: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Nearest-neighbour resize of ``(T, H, W)`` labels to ``size = (W', H')``."""
+    return np.stack([cv2.resize(s.astype(np.int16), size, interpolation=cv2.INTER_NEAREST) for s in seg]).astype(seg.dtype)

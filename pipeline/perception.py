@@ -1,0 +1,610 @@
+"""Perception proposals: scene-language guesses from a video with no trained model (issue 9).
+
+The classical route from pixels to a scene, used next to the model's samples in Best@K:
+
+1. **Detect and track** (:func:`find_tracks`): background subtraction
+   (:func:`pipeline.video.pseudo_masks`), connected components, frame-to-frame Hungarian
+   assignment (:func:`pipeline.video.label_objects`, ``scipy.optimize.linear_sum_assignment``);
+   a track must move somewhere in the window (optical-flow magnitude inside its mask), so static
+   clutter that the background model missed is dropped, while an object that comes to rest
+   stays a track. Per track: centroid, area, bottom row, rotated bounding box (OpenCV
+   ``minAreaRect``) and a silhouette class (circle or rectangle, from the fill ratio of the
+   rotated box: ``pi / 4`` for a disc, 1 for a rectangle).
+2. **Initial motion** (:func:`initial_motion`): a quadratic fitted in time to the first frames
+   of each track, grown until the fit stops explaining the track (a bounce, a collision), gives
+   position, velocity and acceleration in px at ``t = 0``.
+3. **Camera and ground plane** (:func:`estimate_view`): gravity shows in the image when some
+   track accelerates downwards while speeding up (a fall, a roll down a slope): then the view is
+   a *side* view (camera pitch 0, image up = world up); otherwise objects move in the ground
+   plane (constant velocity, friction decelerates them) and the view is *top-down*
+   (pitch :data:`TOP_DOWN_PITCH`). The field of view is a prior (:data:`FOV_PRIOR`): with one
+   view and unknown intrinsics it trades off with depth.
+4. **Metric scale** (:func:`lift_side`, :func:`lift_top`): where an object falls, the parabola's
+   curvature is g (``a_px = g * f / depth``); where it rolls down a slope of angle theta without
+   slipping, ``a = k g sin(theta)`` with ``k = 5/7`` (sphere) or ``2/3`` (cylinder); otherwise
+   the object's apparent size and a size prior (:data:`SIZE_PRIOR`, objects of 2-10 cm).
+5. **Proposals** (:func:`propose`): one scene per shape hypothesis (a circle is a sphere or a
+   cylinder seen end-on / from above; a rectangle is a box), with a ramp (static box under the
+   path, ``Scene.static``) where an object moves along an inclined straight line, the floor
+   under the lowest contact seen, restitution from a bounce, and friction from the deceleration.
+
+Conventions: pixel coordinates as in :mod:`pipeline.camera` (u right, v down, px); times in s
+from the first frame of the window; world frame z up, SI units.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+import cv2
+import numpy as np
+
+from pipeline.camera import intrinsics, pixel_to_plane
+from pipeline.scene import Camera, Scene
+
+G = 9.81
+"""Standard gravity, m/s^2 (the scene language's default ``gravity``)."""
+SIZE_PRIOR = 0.05
+"""Prior object diameter / longest side, m, when gravity gives no scale (issue 9: objects of 2-10 cm)."""
+FOV_PRIOR = 45.0
+"""Prior vertical field of view, deg (a phone or webcam at its widest is 40-60 deg)."""
+TOP_DOWN_PITCH = 89.0
+"""Camera pitch of a top-down view, deg (the scene language allows at most 89)."""
+DENSITY = 1000.0
+"""Prior density of the objects, kg/m^3 (masses only matter relative to each other here)."""
+COLLISION_RESTITUTION = 0.8
+"""Restitution tried for objects that may collide in a top-down view (a second proposal)."""
+ROLL_FACTOR = {"sphere": 5.0 / 7.0, "cylinder": 2.0 / 3.0}
+"""``a / (g sin theta)`` of a solid sphere / cylinder rolling without slipping down a slope:
+``1 / (1 + I / (m r^2))`` with ``I = 2/5 m r^2`` and ``1/2 m r^2`` (any mechanics text)."""
+
+
+class PerceptionError(ValueError):
+    """Nothing usable was found in the video (no moving object)."""
+
+
+# --------------------------------------------------------------------------------- tracks
+@dataclass
+class Track:
+    """One object followed through the window.
+
+    Attributes:
+        label: its id in the segmentation (0, 1, ...).
+        frames: ``(N,)`` int frame indices where it is visible.
+        centre: ``(N, 2)`` float64 centroid (u, v), px.
+        area: ``(N,)`` float64 px.
+        bottom: ``(N,)`` float64 lowest row of the mask (largest v), px.
+        diameter: median short side of the rotated bounding box over frames not touching the
+            border, px (motion blur stretches the long side only).
+        size: median ``(long, short)`` side of the rotated box, px.
+        angle: rotation of the box's long side from +u towards -v (counter-clockwise as seen),
+            deg in (-90, 90].
+        fill: median area / (long * short); ``pi/4 = 0.785`` for a disc, 1 for a rectangle.
+        shape: ``"circle"`` or ``"rectangle"``.
+        moving: the largest flow magnitude inside the mask over the window, px/frame.
+        travel: largest distance of the centroid from its first position, px.
+    """
+
+    label: int
+    frames: np.ndarray
+    centre: np.ndarray
+    area: np.ndarray
+    bottom: np.ndarray
+    diameter: float
+    size: tuple[float, float]
+    angle: float
+    fill: float
+    shape: Literal["circle", "rectangle"]
+    moving: float
+    travel: float = 0.0
+
+
+def _box_stats(mask: np.ndarray) -> tuple[float, float, float] | None:
+    pts = cv2.findNonZero(mask.astype(np.uint8))
+    if pts is None or len(pts) < 3:
+        return None
+    (_, _), (w, h), ang = cv2.minAreaRect(pts)
+    w, h = w + 1.0, h + 1.0  # pixel extents, not centre-to-centre
+    if w < h:
+        w, h, ang = h, w, ang + 90.0
+    ang = -ang  # OpenCV's angle is clockwise in image coordinates (v down)
+    ang = (ang + 90.0) % 180.0 - 90.0
+    return float(w), float(h), float(ang)
+
+
+def find_tracks(seg: np.ndarray, flow: np.ndarray | None = None, min_frames: int = 2,
+                min_motion: float = 0.5) -> list[Track]:
+    """Per-object statistics of a labelled clip.
+
+    Args:
+        seg: ``(T, H, W)`` int8 object ids, -1 background (``pipeline.video.label_objects``).
+        flow: ``(T-1, H, W, 2)`` float optical flow, px/frame, or None (no motion check).
+        min_frames: drop tracks seen in fewer frames.
+        min_motion: drop tracks whose largest flow magnitude inside the mask (95th percentile
+            per frame) never exceeds this, px/frame: static clutter, not an object.
+    Returns:
+        tracks ordered by label.
+    """
+    seg = np.asarray(seg)
+    T, H, W = seg.shape
+    tracks = []
+    for label in range(int(seg.max()) + 1):
+        frames, centre, area, bottom, boxes, moving = [], [], [], [], [], 0.0
+        for t in range(T):
+            m = seg[t] == label
+            n = int(m.sum())
+            if n == 0:
+                continue
+            vs, us = np.nonzero(m)
+            frames.append(t)
+            centre.append((us.mean() + 0.5, vs.mean() + 0.5))
+            area.append(float(n))
+            bottom.append(float(vs.max()) + 1.0)
+            touches = us.min() == 0 or vs.min() == 0 or us.max() == W - 1 or vs.max() == H - 1
+            box = None if touches else _box_stats(m)
+            if box is not None:
+                boxes.append((*box, n))
+            if flow is not None and t < len(flow):
+                mag = np.hypot(flow[t][m][:, 0], flow[t][m][:, 1])
+                moving = max(moving, float(np.percentile(mag, 95)))
+        if len(frames) < min_frames or (flow is not None and moving < min_motion):
+            continue
+        if boxes:
+            b = np.asarray(boxes)
+            long_, short = float(np.median(b[:, 0])), float(np.median(b[:, 1]))
+            fill = float(np.median(b[:, 3] / (b[:, 0] * b[:, 1])))
+            # angle: circular median over the frames with the largest area (least blur)
+            ang = float(np.median(b[:, 2]))
+        else:
+            a = float(np.median(area))
+            long_ = short = 2.0 * math.sqrt(a / math.pi)
+            fill, ang = math.pi / 4, 0.0
+        shape = "circle" if fill < 0.5 * (CIRCLE_FILL + BOX_FILL) else "rectangle"
+        tracks.append(Track(label, np.asarray(frames), np.asarray(centre, dtype=np.float64),
+                            np.asarray(area), np.asarray(bottom), short, (long_, short), ang, fill,
+                            shape, moving,
+                            float(np.linalg.norm(np.asarray(centre) - centre[0], axis=1).max())))
+    return tracks
+
+
+# --------------------------------------------------------------------------------- motion
+@dataclass
+class Motion:
+    """Quadratic motion of a track's first segment, at the window's ``t = 0``.
+
+    Attributes:
+        p0: ``(2,)`` position (u, v) at t = 0, px (extrapolated if the track starts later).
+        v0: ``(2,)`` velocity, px/s.
+        a: ``(2,)`` acceleration, px/s^2.
+        n: frames used; ``t_end``: time of the last of them, s; ``rms``: fit residual, px.
+    """
+
+    p0: np.ndarray
+    v0: np.ndarray
+    a: np.ndarray
+    n: int
+    t_end: float
+    rms: float
+
+
+def initial_motion(track: Track, fps: float, min_frames: int = 5) -> Motion:
+    """Fit ``p(t) = p0 + v0 t + a t^2 / 2`` to the first stretch of a track that one parabola
+    explains.
+
+    The window starts at the earliest frame (within the first third of the track) from which
+    at least ``min_frames`` frames fit one parabola with an RMS residual below ``max(0.75 px,
+    6 % of the diameter)``, and is the longest such window from there: the fit skips a release
+    by hand at the start and stops at the first bounce or collision. The parabola is then evaluated at the window's ``t = 0``. Fewer than
+    ``min_frames`` frames: a straight line (no acceleration); fewer than 3: at rest.
+    """
+    t = track.frames / fps
+    p = track.centre
+    N = len(t)
+    if N < 3:
+        return Motion(p[0].copy(), np.zeros(2), np.zeros(2), N, float(t[-1]), 0.0)
+    tol = max(0.75, 0.06 * track.diameter)
+
+    def fit(i: int, j: int, degree: int = 2) -> tuple[np.ndarray, float]:
+        tt = t[i:j]
+        cols = [np.ones(j - i), tt] + ([0.5 * tt ** 2] if degree == 2 else [])
+        A = np.stack(cols, axis=1)
+        coef, *_ = np.linalg.lstsq(A, p[i:j], rcond=None)
+        rms = float(np.sqrt(np.mean(np.sum((A @ coef - p[i:j]) ** 2, axis=1))))
+        if degree == 1:
+            coef = np.vstack([coef, np.zeros((1, 2))])
+        return coef, rms
+
+    best = None
+    if N >= min_frames:
+        for i in range(0, max(1, N // 3 + 1)):
+            for j in range(N, i + min_frames - 1, -1):
+                coef, rms = fit(i, j)
+                if rms <= tol:
+                    best = (i, j, coef, rms)
+                    break
+            if best is not None:
+                break
+    if best is None:  # no parabola fits 5 frames: a line through the first ones
+        n = min(N, 4)
+        coef, rms = fit(0, n, degree=1)
+        return Motion(coef[0], coef[1], coef[2], n, float(t[n - 1]), rms)
+    i, j, coef, rms = best
+    return Motion(coef[0], coef[1], coef[2], j - i, float(t[j - 1]), rms)
+
+
+def bounce_restitution(track: Track, fps: float) -> float | None:
+    """Coefficient of restitution at the first bounce of a falling track, or None.
+
+    The bounce frame ``b`` is the first where the vertical image velocity turns from down (+v)
+    to up. A parabola ``v(t)`` is fitted to the frames before it and one to the frames after
+    it (until the next bounce); the bounce instant is where the two meet, and
+    ``e = |v_after'(t_b)| / |v_before'(t_b)|`` (vertical speeds just after and before the
+    impact, Newton's experimental law). Needs 3 frames on each side; clamped to [0.2, 0.95].
+    """
+    if len(track.frames) < 6:
+        return None
+    t = track.frames / fps
+    v = track.centre[:, 1]
+    vv = np.diff(v) / np.diff(t)
+    turns = [i for i in range(1, len(vv)) if vv[i - 1] > 0 and vv[i] < 0]
+    if not turns:
+        return None
+    b = turns[0]  # frame index (into the track) of the lowest point seen
+    after_end = next((j for j in turns[1:]), len(v) - 1)
+    pre = slice(max(0, b - 6), b + 1)
+    post = slice(b + 1, min(after_end + 1, b + 8))
+    if pre.stop - pre.start < 3 or post.stop - post.start < 3:
+        return None
+    c1 = np.polyfit(t[pre], v[pre], 2)
+    c2 = np.polyfit(t[post], v[post], 2)
+    roots = np.roots(c1 - c2)
+    roots = [float(r.real) for r in roots if abs(r.imag) < 1e-9 and t[b] - 1.5 / fps <= r.real <= t[b + 1] + 0.5 / fps]
+    tb = roots[0] if roots else float(0.5 * (t[b] + t[b + 1]))
+    before = np.polyval(np.polyder(c1), tb)
+    after = np.polyval(np.polyder(c2), tb)
+    if before <= 0 or after >= 0:
+        return None
+    return float(np.clip(-after / before, 0.2, 0.95))
+
+
+View = Literal["side", "top"]
+
+
+def _gravity_vote(track: Track, m: Motion) -> bool:
+    a, v = m.a, m.v0
+    na, nv = float(np.linalg.norm(a)), float(np.linalg.norm(v))
+    if m.n < 5 or na < 4.0 * track.diameter:  # |a| / diameter < 4 s^-2: no clear acceleration
+        return False
+    falling = a[1] > 0.8 * na
+    speeding_down = a[1] > 0.05 * na and float(a @ v) > 0.3 * na * nv
+    return bool(falling or speeding_down)
+
+
+def estimate_view(tracks: list[Track], motions: list[Motion]) -> View:
+    """``"side"`` when some track shows gravity (see module docstring), else ``"top"``."""
+    return "side" if any(_gravity_vote(t, m) for t, m in zip(tracks, motions)) else "top"
+
+
+# --------------------------------------------------------------------------------- lifting
+@dataclass
+class Lifted:
+    """One object of a proposal: scene-language fields (world frame, SI)."""
+
+    shape: str
+    size: dict[str, float]
+    position: list[float]
+    orientation: list[float]
+    linear_velocity: list[float]
+    friction: float
+    mass: float
+    kind: str = "floor"                       # fall | ramp | floor (side view) or plane (top)
+    ramp: dict | None = None                  # static box under the path (side view)
+    restitution: float | None = None
+    notes: list[str] = field(default_factory=list)
+
+
+def _quat_axis_angle(axis: tuple[float, float, float], angle: float) -> list[float]:
+    s = math.sin(angle / 2.0)
+    return [math.cos(angle / 2.0), axis[0] * s, axis[1] * s, axis[2] * s]
+
+
+def _mass(shape: str, size: dict[str, float]) -> float:
+    if shape == "sphere":
+        vol = 4.0 / 3.0 * math.pi * size["radius"] ** 3
+    elif shape == "cylinder":
+        vol = math.pi * size["radius"] ** 2 * size["height"]
+    else:
+        vol = size["width"] * size["depth"] * size["height"]
+    return max(DENSITY * vol, 1e-3)
+
+
+def _side_motion_kind(track: Track, m: Motion) -> str:
+    na = float(np.linalg.norm(m.a))
+    if m.n >= 5 and m.a[1] > 0.8 * na and na > 30.0 * track.diameter:
+        return "fall"
+    if _gravity_vote(track, m):
+        return "ramp"
+    return "floor"
+
+
+def side_scale(track: Track, m: Motion, kind: str, shape: str) -> tuple[float, str]:
+    """Pixels per metre at the object's depth for a side view, and where it came from.
+
+    ``fall``: ``a_v / g``; ``ramp`` with a rolling shape: ``|a| / (k g sin theta)``; else (or
+    when the implied size leaves 1-30 cm) the size prior ``diameter / SIZE_PRIOR``.
+    """
+    prior = track.diameter / SIZE_PRIOR if shape != "box" else track.size[0] / SIZE_PRIOR
+    ppm, source = prior, "size prior"
+    na = float(np.linalg.norm(m.a))
+    if kind == "fall":
+        ppm, source = float(m.a[1]) / G, "gravity (parabola)"
+    elif kind == "ramp" and shape in ROLL_FACTOR:
+        sin_t = float(m.a[1]) / na
+        if sin_t > 0.05:
+            ppm, source = na / (ROLL_FACTOR[shape] * G * sin_t), "gravity (rolling down a slope)"
+    extent = (track.diameter if shape != "box" else track.size[0]) / ppm
+    if not 0.01 <= extent <= 0.3:
+        ppm, source = prior, "size prior (gravity scale implied an object of %.3f m)" % extent
+    return ppm, source
+
+
+def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: int, fps: float,
+              shape_of: dict[int, str]) -> tuple[Camera, list[Lifted], list[str]]:
+    """Metric scene of a side view (camera pitch 0, fov :data:`FOV_PRIOR`).
+
+    Each object lies in the vertical plane at its own depth ``D = f / ppm`` (:func:`side_scale`);
+    the camera height puts the floor ``z = 0`` under the lowest contact seen (the bottom of a
+    falling track) or at the image bottom. Returns ``(camera, objects, notes)``.
+    """
+    K = intrinsics(FOV_PRIOR, width, height)
+    f, cu, cv = K[0, 0], K[0, 2], K[1, 2]
+    notes: list[str] = []
+    scales, kinds = [], []
+    for tr, m in zip(tracks, motions):
+        kind = _side_motion_kind(tr, m)
+        ppm, src = side_scale(tr, m, kind, shape_of[tr.label])
+        scales.append(ppm)
+        kinds.append(kind)
+        notes.append(f"object {tr.label}: {kind}, {tr.shape} -> {shape_of[tr.label]}, scale {ppm:.0f} px/m from {src}")
+    # camera height from the floor row of the main (largest) object
+    main = int(np.argmax([np.median(t.area) for t in tracks]))
+    D0 = f / scales[main]
+    lowest = max(float(t.bottom.max()) for t in tracks)
+    v_floor = lowest if kinds[main] == "fall" else max(lowest + 1.0, float(height))
+    v_floor = max(v_floor, cv + 0.05 * height)
+    cam_h = (v_floor - cv) * D0 / f
+    cam = Camera(height=round(max(cam_h, 0.01), 4), pitch=0.0, fov=FOV_PRIOR)
+    objects = []
+    for tr, m, ppm, kind in zip(tracks, motions, scales, kinds):
+        shape = shape_of[tr.label]
+        D = f / ppm
+        px = 1.0 / ppm  # m per px at this depth
+        x = (m.p0[0] - cu) * px
+        z = cam.height - (m.p0[1] - cv) * px
+        y = D - 2.0  # the paper camera sits at y = -2 looking along +y
+        vel = [float(m.v0[0] * px), 0.0, float(-m.v0[1] * px)]
+        if shape == "sphere":
+            size = {"radius": tr.diameter / 2 * px}
+            quat = [1.0, 0.0, 0.0, 0.0]
+            half_h = size["radius"]
+        elif shape == "cylinder":  # a disc seen end-on: axis along the line of sight (y)
+            size = {"radius": tr.diameter / 2 * px, "height": 0.4 * tr.diameter * px}
+            quat = _quat_axis_angle((1.0, 0.0, 0.0), -math.pi / 2)
+            half_h = size["radius"]
+        else:  # box in the image plane, turned by the silhouette's angle about -y
+            long_, short = tr.size
+            size = {"width": long_ * px, "depth": short * px, "height": short * px}
+            quat = _quat_axis_angle((0.0, 1.0, 0.0), -math.radians(tr.angle))
+            half_h = short / 2 * px
+        z = max(z, half_h + 1e-3)
+        friction = 0.5
+        lifted = Lifted(shape, size, [float(x), float(y), float(z)], quat, vel, friction, _mass(shape, size), kind)
+        if kind == "ramp":
+            lifted.ramp, lifted.friction = _ramp_under(tr, m, px, cu, cv, cam.height, y, half_h, shape)
+        elif kind == "fall":
+            e = bounce_restitution(tr, fps)
+            lifted.restitution = e
+        objects.append(lifted)
+    return cam, objects, notes
+
+
+def _ramp_under(tr: Track, m: Motion, px: float, cu: float, cv: float, cam_h: float, y: float,
+                half_h: float, shape: str) -> tuple[dict, float]:
+    """A static box whose top face runs under the track (contact line = path offset by the
+    object's half height along the slope normal), and a friction estimate: 0.5 for a rolling
+    shape, ``tan(theta) - a / (g cos(theta))`` for a sliding box."""
+    d = m.a / max(float(np.linalg.norm(m.a)), 1e-9)            # image direction of the slope (down it)
+    theta = math.asin(min(max(float(d[1]), 0.0), 0.99))       # inclination, rad
+    sgn = 1.0 if d[0] >= 0 else -1.0                           # descends towards +x or -x
+    # world points of the path (first and last visible centres)
+    pts = np.array([[(u - cu) * px, cam_h - (v - cv) * px] for u, v in tr.centre])
+    along = np.array([sgn * math.cos(theta), -math.sin(theta)])  # down the slope, (x, z)
+    normal = np.array([math.sin(theta) * sgn, math.cos(theta)])  # up from the surface, (x, z)
+    s = pts @ along
+    centre_line = pts[np.argmin(s)] - normal * half_h            # contact point at the top of the path
+    length = float(s.max() - s.min()) + 20 * half_h + 0.3
+    thickness = 0.02
+    mid = centre_line + along * (length / 2 - 10 * half_h - 0.15) - normal * thickness / 2
+    angle = sgn * theta  # rotation about +y that tilts +x down by theta for sgn = +1
+    quat = _quat_axis_angle((0.0, 1.0, 0.0), angle)
+    ramp = {"shape": "box", "size": {"width": round(length, 4), "depth": 0.3, "height": thickness},
+            "position": [float(mid[0]), float(y), float(mid[1])], "orientation": quat}
+    if shape == "box":
+        a_m = float(np.linalg.norm(m.a)) * px
+        mu = math.tan(theta) - a_m / (G * math.cos(theta))
+        return ramp, float(np.clip(mu, 0.0, 1.5))
+    return ramp, 0.5
+
+
+def lift_top(tracks: list[Track], motions: list[Motion], width: int, height: int,
+             shape_of: dict[int, str]) -> tuple[Camera, list[Lifted], list[str]]:
+    """Metric scene of a top-down view (pitch :data:`TOP_DOWN_PITCH`, fov :data:`FOV_PRIOR`).
+
+    The scale is the size prior (median object diameter = :data:`SIZE_PRIOR`); positions are
+    the rays through the centroids met with the plane of the object centres; friction from the
+    deceleration along the velocity, ``mu = -a.v_hat / g``.
+    """
+    K = intrinsics(FOV_PRIOR, width, height)
+    f = K[0, 0]
+    d_px = float(np.median([t.diameter for t in tracks]))
+    ppm = d_px / SIZE_PRIOR
+    notes = [f"top-down view: scale {ppm:.0f} px/m from the size prior ({SIZE_PRIOR} m for {d_px:.1f} px)"]
+    dist = f / ppm  # camera to the objects' plane, m
+    objects, specs = [], []
+    for tr in tracks:
+        shape = shape_of[tr.label]
+        px = 1.0 / ppm
+        if shape == "sphere":
+            size, half_h = {"radius": tr.diameter / 2 * px}, tr.diameter / 2 * px
+        elif shape == "cylinder":  # a puck: axis vertical
+            size = {"radius": tr.diameter / 2 * px, "height": 0.3 * tr.diameter * px}
+            half_h = size["height"] / 2
+        else:
+            long_, short = tr.size
+            size = {"width": long_ * px, "depth": short * px, "height": 0.5 * short * px}
+            half_h = size["height"] / 2
+        specs.append((shape, size, half_h))
+    z_c = float(np.median([s[2] for s in specs]))
+    cam = Camera(height=round(dist + z_c, 4), pitch=TOP_DOWN_PITCH, fov=FOV_PRIOR)
+    for tr, m, (shape, size, half_h) in zip(tracks, motions, specs):
+        dt = 0.05
+        p = pixel_to_plane(np.stack([m.p0, m.p0 + m.v0 * dt]), half_h, cam, width, height)
+        vel = (p[1] - p[0]) / dt
+        quat = [1.0, 0.0, 0.0, 0.0]
+        if shape == "box":  # silhouette angle is counter-clockwise as seen from above = yaw
+            quat = _quat_axis_angle((0.0, 0.0, 1.0), math.radians(tr.angle))
+        nv = float(np.linalg.norm(m.v0))
+        decel = -float(m.a @ m.v0) / nv if nv > 1e-6 else 0.0
+        mu = float(np.clip(decel / ppm / G, 0.0, 1.0)) if m.n >= 5 else 0.2
+        objects.append(Lifted(shape, size, [float(p[0][0]), float(p[0][1]), float(half_h)], quat,
+                              [float(vel[0]), float(vel[1]), 0.0], mu, _mass(shape, size), "plane"))
+    return cam, objects, notes
+
+
+# --------------------------------------------------------------------------------- proposals
+CIRCLE_FILL, BOX_FILL = 0.80, 0.93
+"""Fill ratios of the rotated box below which a silhouette is surely a disc, above which surely
+a rectangle; in between (small or blurred silhouettes) both are tried."""
+
+
+def shape_candidates(track: Track, view: View) -> list[str]:
+    """Shapes to try for a silhouette, most likely first: a disc is a sphere or a cylinder
+    (side view: sphere first; top view: a puck, cylinder first); a rectangle is a box."""
+    round_ = ["sphere", "cylinder"] if view == "side" else ["cylinder", "sphere"]
+    if track.fill < CIRCLE_FILL:
+        return round_
+    if track.fill > BOX_FILL:
+        return ["box"]
+    return round_[:1] + ["box"] + round_[1:] if track.fill < 0.5 * (CIRCLE_FILL + BOX_FILL) \
+        else ["box"] + round_
+
+
+def _hypotheses(tracks: list[Track], view: View) -> list[dict[int, str]]:
+    """Shape assignments to try: the j-th proposal gives every track its j-th candidate (or its
+    last one), so a clip yields at most 3 proposals whatever the number of objects."""
+    cands = {t.label: shape_candidates(t, view) for t in tracks}
+    n = max(len(c) for c in cands.values())
+    out = []
+    for j in range(n):
+        h = {k: c[min(j, len(c) - 1)] for k, c in cands.items()}
+        if h not in out:
+            out.append(h)
+    return out
+
+
+@dataclass
+class Proposals:
+    """What perception found and the scenes it proposes.
+
+    Attributes:
+        scenes: proposals, most plausible first.
+        labels: a short name per proposal (e.g. ``side: sphere``).
+        view: ``"side"`` or ``"top"``.
+        tracks, motions: per object.
+        notes: how each quantity was obtained (for metrics.json).
+    """
+
+    scenes: list[Scene]
+    labels: list[str]
+    view: View
+    tracks: list[Track]
+    motions: list[Motion]
+    notes: list[str]
+
+
+def object_tracks(seg: np.ndarray, flow: np.ndarray | None, max_objects: int = 4) -> list[Track]:
+    """The tracks that are objects: seen in at least 30 % of the frames (4 at least), moving
+    somewhere (:func:`find_tracks`; and the centroid travels at least half a diameter: blobs
+    that flicker in place, lighting changes, are not objects), at least 35 % of the largest
+    one's median area (reflections, shadows and flicker are smaller), the ``max_objects``
+    largest; ordered by first appearance, then left to right."""
+    T = len(seg)
+    tracks = [t for t in find_tracks(seg, flow, min_frames=max(4, int(0.3 * T)))
+              if t.travel >= 0.5 * t.diameter]
+    if tracks:
+        big = max(float(np.median(t.area)) for t in tracks)
+        tracks = [t for t in tracks if float(np.median(t.area)) >= 0.35 * big]
+    tracks = sorted(tracks, key=lambda t: -float(np.sum(t.area)))[:max_objects]
+    return sorted(tracks, key=lambda t: (int(t.frames[0]), float(t.centre[0, 0])))
+
+
+def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: float,
+            max_objects: int = 4) -> Proposals:
+    """Scene-language proposals for a labelled clip (see module docstring).
+
+    Args:
+        seg: ``(T, H, W)`` int8 object ids of the observed clip, -1 background.
+        flow: ``(T-1, H, W, 2)`` float32 observed flow, px/frame, or None.
+        fps: frame rate of ``seg``, frames per second (the scene's ``fps``; an int).
+        duration: scene duration, s.
+        max_objects: keep at most this many tracks (largest first).
+    Returns:
+        :class:`Proposals` with at least one valid scene.
+    Raises:
+        PerceptionError: no moving object in the clip.
+    """
+    T, H, W = np.shape(seg)
+    tracks = object_tracks(seg, flow, max_objects)
+    if not tracks:
+        raise PerceptionError("no moving object found (background subtraction + flow)")
+    motions = [initial_motion(t, fps) for t in tracks]
+    view = estimate_view(tracks, motions)
+    scenes, labels, notes = [], [], [f"view: {view} (gravity {'seen' if view == 'side' else 'not seen'} in the tracks)"]
+    for shape_of in _hypotheses(tracks, view):
+        if view == "side":
+            cam, objs, n = lift_side(tracks, motions, W, H, fps, shape_of)
+        else:
+            cam, objs, n = lift_top(tracks, motions, W, H, shape_of)
+        if not scenes:
+            notes += n
+        scene = _to_scene(cam, objs, fps, duration)
+        label = f"{view}: " + ", ".join(o.shape + (" on a ramp" if o.ramp else "") for o in objs)
+        scenes.append(scene)
+        labels.append(label)
+        if view == "top" and len(objs) > 1 and not scene.effects:
+            # objects that may collide: also try elastic-ish contacts (MuJoCo's default contact
+            # is critically damped, e ~ 0; air-table pucks and billiard balls are near 0.9)
+            scenes.append(scene.replace(effects=[{"effect": "restitution",
+                                                  "parameters": {"e": COLLISION_RESTITUTION}}]))
+            labels.append(label + f", restitution {COLLISION_RESTITUTION}")
+    return Proposals(scenes, labels, view, tracks, motions, notes)
+
+
+def _to_scene(cam: Camera, objs: list[Lifted], fps: float, duration: float) -> Scene:
+    objects, static, effects = [], [], []
+    for o in objs:
+        objects.append({"shape": o.shape, "size": o.size, "mass": o.mass, "position": o.position,
+                        "orientation": o.orientation, "linear_velocity": o.linear_velocity,
+                        "material": {"sliding_friction": o.friction}})
+        if o.ramp is not None:
+            static.append(o.ramp)
+    es = [o.restitution for o in objs if o.restitution is not None]
+    if es:
+        effects.append({"effect": "restitution", "parameters": {"e": float(np.median(es))}})
+    data = {"fps": int(round(fps)), "duration": duration, "camera": cam.model_dump(exclude_none=True),
+            "objects": objects, "effects": effects}
+    if static:
+        data["static"] = static
+    return Scene.from_dict(data, source="<perception>")
