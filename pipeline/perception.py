@@ -14,7 +14,7 @@ The classical route from pixels to a scene, used next to the model's samples in 
    of each track, grown until the fit stops explaining the track (a bounce, a collision), gives
    position, velocity and acceleration in px at ``t = 0``.
 3. **Camera and ground plane** (:func:`estimate_view`): gravity shows in the image when some
-   track accelerates downwards while speeding up (a fall, a roll down a slope): then the view is
+   stretch of a track (:func:`gravity_motion`) accelerates downwards while speeding up (a fall, a roll down a slope): then the view is
    a *side* view (camera pitch 0, image up = world up); otherwise objects move in the ground
    plane (constant velocity, friction decelerates them) and the view is *top-down*
    (pitch :data:`TOP_DOWN_PITCH`). The field of view is a prior (:data:`FOV_PRIOR`): with one
@@ -234,6 +234,45 @@ def initial_motion(track: Track, fps: float, min_frames: int = 5) -> Motion:
     return Motion(coef[0], coef[1], coef[2], j - i, float(t[j - 1]), rms)
 
 
+def gravity_motion(track: Track, fps: float, min_frames: int = 6) -> Motion | None:
+    """The stretch of a track that shows gravity best: among all windows of at least
+    ``min_frames`` consecutive visible frames that one parabola fits (RMS below ``max(0.75 px,
+    6 % of the diameter)``), the one whose downward image acceleration is largest at its lower
+    95 % bound (a free fall or a roll down a slope anywhere in the window, not only at its
+    start; long windows win over short noisy ones). ``v0`` is the
+    velocity at the window's middle frame (its direction tells speeding up from slowing down);
+    ``p0`` the parabola at ``t = 0``. None if no window fits.
+    """
+    t = track.frames / fps
+    p = track.centre
+    N = len(t)
+    tol = max(0.75, 0.06 * track.diameter)
+    best = None
+    for i in range(0, N - min_frames + 1):
+        for j in range(i + min_frames, N + 1):
+            if track.frames[j - 1] - track.frames[i] != j - 1 - i:  # a gap: not consecutive
+                break
+            tt = t[i:j]
+            A = np.stack([np.ones(j - i), tt, 0.5 * tt ** 2], axis=1)
+            coef, *_ = np.linalg.lstsq(A, p[i:j], rcond=None)
+            rms = float(np.sqrt(np.mean(np.sum((A @ coef - p[i:j]) ** 2, axis=1))))
+            if rms > tol:
+                break
+            n = j - i
+            # lower confidence bound of the downward acceleration: the curvature of a least-squares
+            # parabola through n equally spaced points has sd ~ sigma * sqrt(720 / (n^5 - 5 n^3 +
+            # 4 n)) / dt^2 (regression on orthogonal polynomials), sigma >= 0.3 px of noise
+            sd = max(rms, 0.3) * math.sqrt(720.0 / (n ** 5 - 5 * n ** 3 + 4 * n)) * fps ** 2
+            score = float(coef[2][1]) - 2.0 * sd
+            if best is None or score > best[4]:
+                best = (i, j, coef, rms, score)
+    if best is None:
+        return None
+    i, j, coef, rms, _ = best
+    tm = t[(i + j - 1) // 2]
+    return Motion(coef[0], coef[1] + coef[2] * tm, coef[2], j - i, float(t[j - 1]), rms)
+
+
 def bounce_restitution(track: Track, fps: float) -> float | None:
     """Coefficient of restitution at the first bounce of a falling track, or None.
 
@@ -273,6 +312,8 @@ View = Literal["side", "top"]
 
 
 def _gravity_vote(track: Track, m: Motion) -> bool:
+    """Does this motion show gravity: a fall (acceleration within ~37 deg of image down and
+    strong) or a speed-up with a downward component (rolling/sliding down a slope)?"""
     a, v = m.a, m.v0
     na, nv = float(np.linalg.norm(a)), float(np.linalg.norm(v))
     if m.n < 5 or na < 4.0 * track.diameter:  # |a| / diameter < 4 s^-2: no clear acceleration
@@ -282,9 +323,11 @@ def _gravity_vote(track: Track, m: Motion) -> bool:
     return bool(falling or speeding_down)
 
 
-def estimate_view(tracks: list[Track], motions: list[Motion]) -> View:
-    """``"side"`` when some track shows gravity (see module docstring), else ``"top"``."""
-    return "side" if any(_gravity_vote(t, m) for t, m in zip(tracks, motions)) else "top"
+def estimate_view(tracks: list[Track], gravity: list[Motion | None]) -> tuple[View, list[bool]]:
+    """``"side"`` when some track shows gravity in its :func:`gravity_motion` window (see
+    :func:`_gravity_vote`), else ``"top"``; and per track whether it shows gravity."""
+    shows = [g is not None and _gravity_vote(t, g) for t, g in zip(tracks, gravity)]
+    return ("side" if any(shows) else "top"), shows
 
 
 # --------------------------------------------------------------------------------- lifting
@@ -570,25 +613,40 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
     if not tracks:
         raise PerceptionError("no moving object found (background subtraction + flow)")
     motions = [initial_motion(t, fps) for t in tracks]
-    view = estimate_view(tracks, motions)
-    scenes, labels, notes = [], [], [f"view: {view} (gravity {'seen' if view == 'side' else 'not seen'} in the tracks)"]
-    for shape_of in _hypotheses(tracks, view):
-        if view == "side":
-            cam, objs, n = lift_side(tracks, motions, W, H, fps, shape_of)
-        else:
-            cam, objs, n = lift_top(tracks, motions, W, H, shape_of)
-        if not scenes:
-            notes += n
-        scene = _to_scene(cam, objs, fps, duration)
-        label = f"{view}: " + ", ".join(o.shape + (" on a ramp" if o.ramp else "") for o in objs)
-        scenes.append(scene)
-        labels.append(label)
-        if view == "top" and len(objs) > 1 and not scene.effects:
-            # objects that may collide: also try elastic-ish contacts (MuJoCo's default contact
-            # is critically damped, e ~ 0; air-table pucks and billiard balls are near 0.9)
-            scenes.append(scene.replace(effects=[{"effect": "restitution",
-                                                  "parameters": {"e": COLLISION_RESTITUTION}}]))
-            labels.append(label + f", restitution {COLLISION_RESTITUTION}")
+    gravity = [gravity_motion(t, fps) for t in tracks]
+    view, shows = estimate_view(tracks, gravity)
+    # a track that shows gravity somewhere takes its acceleration from there (the start of the
+    # window may be a release by hand); position and velocity at t = 0 from its first stretch
+    side_motions = [Motion(m.p0, m.v0, g.a, max(m.n, g.n), m.t_end, m.rms) if ok else m
+                    for m, g, ok in zip(motions, gravity, shows)]
+    falls = any(ok and _side_motion_kind(t, m) == "fall" for t, m, ok in zip(tracks, side_motions, shows))
+    # a clear fall settles it; a speed-up along a line may also be perspective (an object
+    # rolling towards an oblique camera), so the top-down reading is tried as well
+    views: list[View] = ["side"] if falls else (["side", "top"] if view == "side" else ["top"])
+    scenes, labels = [], []
+    notes = [f"view: {view} (gravity {'seen' if view == 'side' else 'not seen'} in the tracks)"
+             + ("" if len(views) == 1 else "; top-down proposals tried too")]
+    for v in views:
+        first = True
+        for shape_of in _hypotheses(tracks, v):
+            if v == "side":
+                cam, objs, n = lift_side(tracks, side_motions, W, H, fps, shape_of)
+            else:
+                cam, objs, n = lift_top(tracks, motions, W, H, shape_of)
+            if first:
+                notes += n
+                first = False
+            scene = _to_scene(cam, objs, fps, duration)
+            label = f"{v}: " + ", ".join(o.shape + (" on a ramp" if o.ramp else "") for o in objs)
+            scenes.append(scene)
+            labels.append(label)
+            if v == "top" and len(objs) > 1 and not scene.effects:
+                # objects that may collide: also try elastic-ish contacts (MuJoCo's default
+                # contact is critically damped, e ~ 0; air-table pucks, billiard balls ~ 0.9)
+                scenes.append(scene.replace(effects=[{"effect": "restitution",
+                                                      "parameters": {"e": COLLISION_RESTITUTION}}]))
+                labels.append(label + f", restitution {COLLISION_RESTITUTION}")
+    motions = side_motions if view == "side" else motions
     return Proposals(scenes, labels, view, tracks, motions, notes)
 
 
