@@ -48,6 +48,8 @@ G = 9.81
 """Standard gravity, m/s^2 (the scene language's default ``gravity``)."""
 SIZE_PRIOR = 0.05
 """Prior object diameter / longest side, m, when gravity gives no scale (issue 9: objects of 2-10 cm)."""
+SIZE_RANGE = (0.01, 0.15)
+"""Plausible object sizes, m: a gravity scale implying a size outside falls back to the prior."""
 FOV_PRIOR = 45.0
 """Prior vertical field of view, deg (a phone or webcam at its widest is 40-60 deg)."""
 TOP_DOWN_PITCH = 89.0
@@ -179,6 +181,7 @@ class Motion:
         v0: ``(2,)`` velocity, px/s.
         a: ``(2,)`` acceleration, px/s^2.
         n: frames used; ``t_end``: time of the last of them, s; ``rms``: fit residual, px.
+        a_sd: standard deviation of ``a`` from the fit residual, px/s^2 (0 when not computed).
     """
 
     p0: np.ndarray
@@ -187,6 +190,7 @@ class Motion:
     n: int
     t_end: float
     rms: float
+    a_sd: float = 0.0
 
 
 def initial_motion(track: Track, fps: float, min_frames: int = 5) -> Motion:
@@ -268,9 +272,40 @@ def gravity_motion(track: Track, fps: float, min_frames: int = 6) -> Motion | No
                 best = (i, j, coef, rms, score)
     if best is None:
         return None
-    i, j, coef, rms, _ = best
+    i, j, coef, rms, score = best
     tm = t[(i + j - 1) // 2]
-    return Motion(coef[0], coef[1] + coef[2] * tm, coef[2], j - i, float(t[j - 1]), rms)
+    return Motion(coef[0], coef[1] + coef[2] * tm, coef[2], j - i, float(t[j - 1]), rms,
+                  a_sd=float(coef[2][1] - score) / 2.0)
+
+
+def initial_state_given(track: Track, fps: float, a: np.ndarray, min_frames: int = 4) -> Motion:
+    """Position and velocity at ``t = 0`` when the acceleration ``a (2,)`` px/s^2 is known
+    (from :func:`gravity_motion`): ``p - a t^2 / 2`` is fitted by a line on the earliest stretch
+    of at least ``min_frames`` frames that it explains within ``max(0.75 px, 6 %`` of the
+    diameter), grown as far as it goes (skips a release by hand, stops at the first bounce).
+    """
+    t = track.frames / fps
+    q = track.centre - 0.5 * np.outer(t ** 2, a)
+    N = len(t)
+    tol = max(0.75, 0.06 * track.diameter)
+
+    def fit(i: int, j: int) -> tuple[np.ndarray, float]:
+        A = np.stack([np.ones(j - i), t[i:j]], axis=1)
+        coef, *_ = np.linalg.lstsq(A, q[i:j], rcond=None)
+        return coef, float(np.sqrt(np.mean(np.sum((A @ coef - q[i:j]) ** 2, axis=1))))
+
+    for i in range(0, max(1, N - min_frames + 1)):
+        best = None
+        for j in range(i + min_frames, N + 1):
+            coef, rms = fit(i, j)
+            if rms > tol:
+                break
+            best = (j, coef, rms)
+        if best is not None:
+            j, coef, rms = best
+            return Motion(coef[0], coef[1], np.asarray(a, dtype=np.float64), j - i, float(t[j - 1]), rms)
+    coef, rms = fit(0, min(N, 2) if N >= 2 else 1) if N >= 2 else (np.stack([track.centre[0], np.zeros(2)]), 0.0)
+    return Motion(coef[0], coef[1], np.asarray(a, dtype=np.float64), min(N, 2), float(t[min(N, 2) - 1]), rms)
 
 
 def bounce_restitution(track: Track, fps: float) -> float | None:
@@ -318,6 +353,8 @@ def _gravity_vote(track: Track, m: Motion) -> bool:
     na, nv = float(np.linalg.norm(a)), float(np.linalg.norm(v))
     if m.n < 5 or na < 4.0 * track.diameter:  # |a| / diameter < 4 s^-2: no clear acceleration
         return False
+    if a[1] - 2.0 * m.a_sd <= 0:  # downward acceleration not significant (95 %)
+        return False
     falling = a[1] > 0.8 * na
     speeding_down = a[1] > 0.05 * na and float(a @ v) > 0.3 * na * nv
     return bool(falling or speeding_down)
@@ -345,6 +382,7 @@ class Lifted:
     kind: str = "floor"                       # fall | ramp | floor (side view) or plane (top)
     ramp: dict | None = None                  # static box under the path (side view)
     restitution: float | None = None
+    angular_velocity: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     notes: list[str] = field(default_factory=list)
 
 
@@ -388,7 +426,7 @@ def side_scale(track: Track, m: Motion, kind: str, shape: str) -> tuple[float, s
         if sin_t > 0.05:
             ppm, source = na / (ROLL_FACTOR[shape] * G * sin_t), "gravity (rolling down a slope)"
     extent = (track.diameter if shape != "box" else track.size[0]) / ppm
-    if not 0.01 <= extent <= 0.3:
+    if not SIZE_RANGE[0] <= extent <= SIZE_RANGE[1]:
         ppm, source = prior, "size prior (gravity scale implied an object of %.3f m)" % extent
     return ppm, source
 
@@ -446,11 +484,27 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
         lifted = Lifted(shape, size, [float(x), float(y), float(z)], quat, vel, friction, _mass(shape, size), kind)
         if kind == "ramp":
             lifted.ramp, lifted.friction = _ramp_under(tr, m, px, cu, cv, cam.height, y, half_h, shape)
+        if kind in ("ramp", "floor") and shape in ROLL_FACTOR:
+            # already rolling, not skidding: a ball launched without spin slides until friction
+            # has spun it up, losing 2/7 of its speed (sphere; 1/3 for a cylinder)
+            normal = np.array([0.0, 0.0, 1.0])
+            if lifted.ramp is not None:
+                q = lifted.ramp["orientation"]
+                normal = np.array([2 * (q[1] * q[3] + q[0] * q[2]), 2 * (q[2] * q[3] - q[0] * q[1]),
+                                   1 - 2 * (q[1] ** 2 + q[2] ** 2)])  # local +z of the ramp box
+            lifted.angular_velocity = rolling_spin(normal, np.asarray(vel), size["radius"]).tolist()
         elif kind == "fall":
             e = bounce_restitution(tr, fps)
             lifted.restitution = e
         objects.append(lifted)
     return cam, objects, notes
+
+
+def rolling_spin(normal: np.ndarray, velocity: np.ndarray, radius: float) -> np.ndarray:
+    """World angular velocity (3,) rad/s of a ball or cylinder rolling without slipping with
+    ``velocity (3,)`` m/s on a surface of unit normal ``normal (3,)``: the contact point is at
+    rest when ``v + w x (-r n) = 0``, i.e. ``w = (n x v) / r``."""
+    return np.cross(normal, velocity) / radius
 
 
 def _ramp_under(tr: Track, m: Motion, px: float, cu: float, cv: float, cam_h: float, y: float,
@@ -521,8 +575,12 @@ def lift_top(tracks: list[Track], motions: list[Motion], width: int, height: int
         nv = float(np.linalg.norm(m.v0))
         decel = -float(m.a @ m.v0) / nv if nv > 1e-6 else 0.0
         mu = float(np.clip(decel / ppm / G, 0.0, 1.0)) if m.n >= 5 else 0.2
-        objects.append(Lifted(shape, size, [float(p[0][0]), float(p[0][1]), float(half_h)], quat,
-                              [float(vel[0]), float(vel[1]), 0.0], mu, _mass(shape, size), "plane"))
+        lifted = Lifted(shape, size, [float(p[0][0]), float(p[0][1]), float(half_h)], quat,
+                        [float(vel[0]), float(vel[1]), 0.0], mu, _mass(shape, size), "plane")
+        if shape == "sphere":  # a ball on a table rolls
+            lifted.angular_velocity = rolling_spin(np.array([0.0, 0.0, 1.0]),
+                                                   np.asarray(lifted.linear_velocity), size["radius"]).tolist()
+        objects.append(lifted)
     return cam, objects, notes
 
 
@@ -616,9 +674,10 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
     gravity = [gravity_motion(t, fps) for t in tracks]
     view, shows = estimate_view(tracks, gravity)
     # a track that shows gravity somewhere takes its acceleration from there (the start of the
-    # window may be a release by hand); position and velocity at t = 0 from its first stretch
-    side_motions = [Motion(m.p0, m.v0, g.a, max(m.n, g.n), m.t_end, m.rms) if ok else m
-                    for m, g, ok in zip(motions, gravity, shows)]
+    # window may be a release by hand), and its state at t = 0 from its first stretch with
+    # that acceleration (initial_state_given)
+    side_motions = [initial_state_given(t, fps, g.a) if ok else m
+                    for t, m, g, ok in zip(tracks, motions, gravity, shows)]
     falls = any(ok and _side_motion_kind(t, m) == "fall" for t, m, ok in zip(tracks, side_motions, shows))
     # a clear fall settles it; a speed-up along a line may also be perspective (an object
     # rolling towards an oblique camera), so the top-down reading is tried as well
@@ -655,6 +714,7 @@ def _to_scene(cam: Camera, objs: list[Lifted], fps: float, duration: float) -> S
     for o in objs:
         objects.append({"shape": o.shape, "size": o.size, "mass": o.mass, "position": o.position,
                         "orientation": o.orientation, "linear_velocity": o.linear_velocity,
+                        "angular_velocity": o.angular_velocity,
                         "material": {"sliding_friction": o.friction}})
         if o.ramp is not None:
             static.append(o.ramp)
