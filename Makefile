@@ -32,8 +32,7 @@ repro: setup
 	dvc repro
 
 realvideo: setup
-	dynamics infer $(REAL)/01_bouncing_green_ball_1080p30.avi --start 2.0 --out outputs/01_bouncing_green_ball
-	dynamics infer $(REAL)/05_phystrack_CaromPuck_HeadOn_240fps.mp4 --fps 240 --start 0.5 --out outputs/05_carom_puck
+	bash scripts/realvideo.sh
 
 demo: repro realvideo
 	@cat reports/table.md

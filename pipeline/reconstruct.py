@@ -180,6 +180,7 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
             raise VideoError(f"{video}: no proposal could be simulated ({scores[0].get('error')})")
         refined, history = staged_refine(candidates[best], obs.seg, obs.flow, scfg, sim, seed=seed,
                                          restarts=int(rv.get("restarts", 2)), pool=pool)
+    refined = refined.rounded()  # what scene.yaml holds is what is scored
 
     def score(scene: Scene) -> tuple[dict, object]:
         trace, fr = render_scene(scene, W, H, options=sim)

@@ -187,6 +187,9 @@ class SceneEvaluator:
             m.body_pos[b] = qpos[7 * i: 7 * i + 3]
             m.body_quat[b] = qpos[7 * i + 3: 7 * i + 7]
             m.geom_friction[g, 0] = obj.material.sliding_friction  # [1] torsional: as compiled
+            # pipeline.mjcf compiles a frictionless object with condim 1 (a zero-friction cone
+            # with condim > 1 is degenerate): follow it when the friction crosses zero
+            m.geom_condim[g] = 6 if obj.material.sliding_friction > 0 else 1
             m.geom_friction[g, 2] = obj.material.rolling_friction
             dof = m.body_dofadr[b]
             m.dof_damping[dof: dof + 6] = obj.material.damping
