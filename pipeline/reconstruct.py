@@ -206,7 +206,10 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     cols = [obs_overlay, pred_overlay, big.rgb]
     names = ["observed + pseudo-GT masks", "observed + re-simulated masks", "re-simulated"]
     viz.side_by_side_mp4(out / "side_by_side.mp4", cols, names, fps=scene_fps)
-    viz.contact_sheet(out / "contact_sheet.png", cols, names,
+    sheet_h = int(rv.get("sheet_height", 180))  # px per tile: six columns of 320 px tiles make a 6 MB PNG
+    small = [np.stack([cv2.resize(f, (max(2, round(f.shape[1] * sheet_h / f.shape[0])), sheet_h),
+                                  interpolation=cv2.INTER_AREA) for f in c]) for c in cols]
+    viz.contact_sheet(out / "contact_sheet.png", small, names,
                       title=f"{Path(video).name}: full IoU {m_ref['full_iou']:.3f} (pseudo GT), "
                             f"{len(refined.objects)} objects, window {obs.start:.2f}-{obs.start + duration:.2f} s")
     clip = obs.clip

@@ -2,7 +2,7 @@
 # The main job on all six shared real clips, as a new user runs it: `dynamics infer VIDEO`
 # with only the true frame rate of the 240 fps PhysTrack clips given (their containers say
 # 29.97); the window, crop, camera and objects are found automatically. Copies metrics.json,
-# scene.yaml and contact_sheet.png to reports/realvideo/<clip>/ and writes
+# scene.yaml, contact_sheet.png and side_by_side.mp4 to reports/realvideo/<clip>/ and writes
 # reports/realvideo/table.md (scripts/realvideo_table.py).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -13,7 +13,8 @@ run() {  # name file [fps]
   local name=$1 file=$2 fps=${3:-}
   dynamics infer "$REAL/$file" ${fps:+--fps $fps} --out "$OUT/$name"
   mkdir -p "reports/realvideo/$name"
-  cp "$OUT/$name/metrics.json" "$OUT/$name/scene.yaml" "$OUT/$name/contact_sheet.png" "reports/realvideo/$name/"
+  cp "$OUT/$name/metrics.json" "$OUT/$name/scene.yaml" "$OUT/$name/contact_sheet.png" \
+     "$OUT/$name/side_by_side.mp4" "reports/realvideo/$name/"
 }
 run 01_bouncing_green_ball 01_bouncing_green_ball_1080p30.avi
 run 02_ball_on_ramp 02_tracker_BallOnRamp_30fps.mp4
