@@ -158,6 +158,61 @@ def match_objects(true_seg: np.ndarray, pred_seg: np.ndarray) -> list[tuple[int,
     return _match(pairwise_iou(true_seg, pred_seg))
 
 
+def _small_labels(seg: np.ndarray, name: str) -> tuple[np.ndarray, int] | None:
+    """``seg + 1`` as int16 (0 = background) and the object count, validated as
+    :func:`as_labels` does; None when a label does not fit int16."""
+    seg = np.asarray(seg)
+    if seg.ndim != 3:
+        raise ValueError(f"{name}: must be (T, H, W), got shape {seg.shape}")
+    if seg.dtype == bool:
+        return seg.astype(np.int16), int(seg.any())
+    if not np.issubdtype(seg.dtype, np.integer):
+        raise ValueError(f"{name}: must be an integer label map or bool, got dtype {seg.dtype}")
+    if not seg.size:
+        return None
+    lo, hi = int(seg.min()), int(seg.max())
+    if lo < BACKGROUND:
+        raise ValueError(f"{name}: labels must be >= -1, got {lo}")
+    if hi >= 2 ** 15 - 1:
+        return None
+    return seg.astype(np.int16) + np.int16(1), hi + 1
+
+
+def _label_counts(true_seg: np.ndarray, pred_seg: np.ndarray) -> np.ndarray | None:
+    """``(T, n_true + 1, n_pred + 1)`` int64 pixel counts of (true label + 1, pred label + 1)
+    per frame, as :func:`pairwise_iou` counts them; None where that general path must run
+    (labels that do not fit a small integer code, empty clips).
+
+    Raises:
+        ValueError: as :func:`pairwise_iou`.
+    """
+    a = _small_labels(true_seg, "true_seg")
+    b = _small_labels(pred_seg, "pred_seg")
+    if np.shape(true_seg) != np.shape(pred_seg):
+        raise ValueError(f"segmentations must have equal shapes, got {np.shape(true_seg)} and {np.shape(pred_seg)}")
+    if a is None or b is None:
+        return None
+    (t, nt), (p, npd) = a, b
+    k = (nt + 1) * (npd + 1)
+    if k >= 2 ** 15:
+        return None
+    T = t.shape[0]
+    if T == 0:
+        return None
+    code = (t * np.int16(npd + 1) + p).reshape(T, -1)
+    return np.stack([np.bincount(code[i], minlength=k) for i in range(T)]).astype(np.int64).reshape(T, nt + 1, npd + 1)
+
+
+def _counts_iou(counts: np.ndarray) -> np.ndarray:
+    """:func:`pairwise_iou` from the label-pair counts of :func:`_label_counts`."""
+    inter = counts[:, 1:, 1:].astype(np.float64)
+    area_t = counts[:, 1:, :].sum(axis=2).astype(np.float64)
+    area_p = counts[:, :, 1:].sum(axis=1).astype(np.float64)
+    union = area_t[:, :, None] + area_p[:, None, :] - inter
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(union > 0, inter / np.maximum(union, 1.0), 1.0)
+
+
 def sequence_iou(true_seg: np.ndarray, pred_seg: np.ndarray) -> dict[str, Any]:
     """Mask IoU of a re-simulated clip against the observed one (DESIGN §7).
 
@@ -181,18 +236,24 @@ def sequence_iou(true_seg: np.ndarray, pred_seg: np.ndarray) -> dict[str, Any]:
     Raises:
         ValueError: shapes differ or a segmentation is malformed.
     """
-    t, p = as_labels(true_seg, "true_seg"), as_labels(pred_seg, "pred_seg")
-    iou = pairwise_iou(t, p)
+    counts = _label_counts(true_seg, pred_seg)
+    if counts is None:  # labels too many for the small-integer path: the general one
+        t, p = as_labels(true_seg, "true_seg"), as_labels(pred_seg, "pred_seg")
+        iou = pairwise_iou(t, p)
+        fg_t, fg_p = t >= 0, p >= 0
+        inter = np.count_nonzero(fg_t & fg_p, axis=(1, 2))
+        union = np.count_nonzero(fg_t | fg_p, axis=(1, 2))
+    else:  # the same integers as above, from one histogram of (true, pred) label pairs per frame
+        iou = _counts_iou(counts)
+        inter = counts[:, 1:, 1:].sum(axis=(1, 2))
+        union = counts[0].sum() - counts[:, 0, 0]
     matches = _match(iou)
     nt = iou.shape[1]
-    fg_t, fg_p = t >= 0, p >= 0
-    inter = np.count_nonzero(fg_t & fg_p, axis=(1, 2))
-    union = np.count_nonzero(fg_t | fg_p, axis=(1, 2))
     fg = np.where(union > 0, inter / np.maximum(union, 1), 1.0)
     if nt == 0:
         per_frame = fg.astype(np.float64)
     else:
-        per_frame = np.zeros(t.shape[0], dtype=np.float64)
+        per_frame = np.zeros(iou.shape[0], dtype=np.float64)
         for i, j in matches:
             per_frame += iou[:, i, j]
         per_frame /= nt
@@ -230,10 +291,10 @@ def flow_epe(flow_pred: np.ndarray, flow_obs: np.ndarray, fg_pred: np.ndarray, f
         raise ValueError(f"flow_epe: flows must both be (T-1, H, W, 2), got {fp.shape} and {fo.shape}")
     if mp.shape != fp.shape[:-1] or mo.shape != fp.shape[:-1]:
         raise ValueError(f"flow_epe: masks must be {fp.shape[:-1]}, got {mp.shape} and {mo.shape}")
-    mask = mp | mo
-    if not mask.any():
+    idx = np.flatnonzero(mp | mo)  # the pixels of fp[mask], in the same order
+    if not idx.size:
         return 0.0
-    d = fp[mask].astype(np.float64) - fo[mask].astype(np.float64)
+    d = fp.reshape(-1, 2)[idx].astype(np.float64) - fo.reshape(-1, 2)[idx].astype(np.float64)
     return float(np.sqrt((d * d).sum(axis=-1)).mean())
 
 

@@ -98,23 +98,33 @@ def rigid_flow(seg: np.ndarray, depth: np.ndarray, qpos0: np.ndarray, qpos1: np.
     Returns:
         (H, W, 2) float32 flow in pixels; 0 on the background.
     """
+    # Per-pixel arithmetic as in the straightforward form (stacks of u + 0.5, back-projection,
+    # ``(xc - t) @ R``, the two einsums, projection), with fewer temporaries: bit-identical.
     H, W = seg.shape
     flow = np.zeros((H, W, 2), dtype=np.float32)
-    fg = seg >= 0
-    if not fg.any():
+    idx = np.flatnonzero(seg >= 0)  # row-major, as np.nonzero
+    if not idx.size:
         return flow
-    v, u = np.nonzero(fg)
-    uv = np.stack([u + 0.5, v + 0.5], -1)
-    d = depth[v, u].astype(np.float64)
-    xc = np.stack([(uv[:, 0] - K[0, 2]) / K[0, 0] * d, (uv[:, 1] - K[1, 2]) / K[1, 1] * d, d], -1)
+    v, u = np.divmod(idx, W)
+    n = idx.size
+    uv = np.empty((n, 2))
+    np.add(u, 0.5, out=uv[:, 0])
+    np.add(v, 0.5, out=uv[:, 1])
+    d = depth.reshape(-1)[idx].astype(np.float64)
+    xc = np.empty((n, 3))
+    np.multiply((uv[:, 0] - K[0, 2]) / K[0, 0], d, out=xc[:, 0])
+    np.multiply((uv[:, 1] - K[1, 2]) / K[1, 1], d, out=xc[:, 1])
+    xc[:, 2] = d
     X = (xc - t) @ R
-    k = seg[v, u].astype(np.int64)
-    R0, R1 = quat_to_mat(qpos0[:, 3:]), quat_to_mat(qpos1[:, 3:])
-    local = np.einsum("nji,nj->ni", R0[k], X - qpos0[k, :3])
-    X1 = np.einsum("nij,nj->ni", R1[k], local) + qpos1[k, :3]
+    k = seg.reshape(-1)[idx].astype(np.intp)
+    Rs = quat_to_mat(np.concatenate([qpos0[:, 3:], qpos1[:, 3:]]))
+    m = qpos0.shape[0]
+    local = np.einsum("nji,nj->ni", Rs[:m][k], X - qpos0[k, :3])
+    X1 = np.einsum("nij,nj->ni", Rs[m:][k], local) + qpos1[k, :3]
     xc1 = X1 @ R.T + t
-    uv1 = np.stack([K[0, 0] * xc1[:, 0] / xc1[:, 2] + K[0, 2], K[1, 1] * xc1[:, 1] / xc1[:, 2] + K[1, 2]], -1)
-    flow[v, u] = (uv1 - uv).astype(np.float32)
+    out = flow.reshape(-1, 2)
+    out[idx, 0] = K[0, 0] * xc1[:, 0] / xc1[:, 2] + K[0, 2] - uv[:, 0]
+    out[idx, 1] = K[1, 1] * xc1[:, 1] / xc1[:, 2] + K[1, 2] - uv[:, 1]
     return flow
 
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 
@@ -19,7 +19,9 @@ from pipeline.search.space import SearchSpace
 def cmaes_refine(scene: Scene, obs_seg: np.ndarray, obs_flow: np.ndarray | None, cfg: SearchConfig,
                  options: SimOptions | None = None, seed: int = 0,
                  callback: Callable[[dict], None] | None = None,
-                 pool: EvaluatorPool | None = None) -> tuple[Scene, list[dict[str, Any]]]:
+                 pool: EvaluatorPool | None = None,
+                 scorer: Callable[[Sequence[Scene], SearchConfig, Sequence[float]], list[dict[str, float]]] | None = None,
+                 ) -> tuple[Scene, list[dict[str, Any]]]:
     """Refine a scene by CMA-ES on :func:`fitness`, object types fixed (paper).
 
     Searches the free fields of ``cfg.free`` in the normalised box of :class:`SearchSpace`
@@ -36,6 +38,12 @@ def cmaes_refine(scene: Scene, obs_seg: np.ndarray, obs_flow: np.ndarray | None,
         seed: random seed (any int; mapped to ``cma``'s positive seeds).
         callback: called with each history entry (progress display).
         pool: evaluators to reuse across scenes (same render size); default: a private one.
+        scorer: scores the start and each generation instead of this process's evaluator:
+            ``scorer(scenes, cfg, priors) -> [fitness dict, ...]`` in order, as
+            :func:`fitness` of each scene's clip against this observation with ``prior``
+            (e.g. a :class:`pipeline.search.parallel.ParallelFitness` opened on ``obs_seg``,
+            ``obs_flow``: the generation over worker processes). With a scorer that equals
+            :func:`fitness` the result is the same as without (``pool`` is then unused).
     Returns:
         ``(best_scene, history)``; history has one dict per iteration (0 = the start):
         ``iteration``, ``best_fitness`` (best so far), ``mean_fitness`` (of the iteration's
@@ -49,15 +57,22 @@ def cmaes_refine(scene: Scene, obs_seg: np.ndarray, obs_flow: np.ndarray | None,
     need_flow = obs_flow is not None and cfg.lambda_epe > 0
     t0 = time.perf_counter()
     history: list[dict[str, Any]] = []
-    ev = SceneEvaluator(scene, W, H, options) if pool is None else pool.get(scene)
+    own = scorer is None and pool is None
+    ev = None if scorer is not None else SceneEvaluator(scene, W, H, options) if pool is None else pool.get(scene)
     try:
-        def score(x: np.ndarray) -> dict[str, float]:
-            cand = space.decode(x) if space.dim else scene
-            seg, flow = ev.evaluate(cand, T, flow=need_flow)
-            return fitness(seg, flow, obs_seg, obs_flow, cfg, prior=space.prior(x))
+        def score_all(xs: list[np.ndarray]) -> list[dict[str, float]]:
+            cands = [space.decode(x) if space.dim else scene for x in xs]
+            priors = [space.prior(x) for x in xs]
+            if scorer is not None:
+                return list(scorer(cands, cfg, priors))
+            out = []
+            for cand, prior in zip(cands, priors):
+                seg, flow = ev.evaluate(cand, T, flow=need_flow)
+                out.append(fitness(seg, flow, obs_seg, obs_flow, cfg, prior=prior))
+            return out
 
         best_x = space.x0.copy()
-        best = score(best_x)
+        best = score_all([best_x])[0]
         evaluations = 1
 
         def log(it: int, mean: float) -> None:
@@ -76,16 +91,16 @@ def cmaes_refine(scene: Scene, obs_seg: np.ndarray, obs_flow: np.ndarray | None,
             es = cma.CMAEvolutionStrategy(space.x0.tolist(), cfg.sigma, opts)
             for it in range(1, cfg.iterations + 1):
                 xs = es.ask()
-                results = [score(np.asarray(x)) for x in xs]
+                results = score_all([np.asarray(x) for x in xs])
                 evaluations += len(xs)
                 losses = [-r["fitness"] if math.isfinite(r["fitness"]) else 1e6 for r in results]
                 es.tell(xs, losses)
                 i = int(np.argmin(losses))
                 if results[i]["fitness"] > best["fitness"]:
-                    best, best_x = results[i], np.asarray(xs[i], dtype=np.float64)
+                    best, best_x = results[i], np.array(xs[i], dtype=np.float64)  # a copy: cma repairs its solutions in place in tell()
                 finite = [r["fitness"] for r in results if math.isfinite(r["fitness"])]
                 log(it, float(np.mean(finite)) if finite else -math.inf)
     finally:
-        if pool is None:
+        if own:
             ev.close()
     return (space.decode(best_x) if space.dim else scene), history

@@ -1,4 +1,5 @@
-"""Evaluate many candidate scenes over a process pool (one :class:`EvaluatorPool` per worker).
+"""Evaluate or score many candidate scenes over a process pool (one :class:`EvaluatorPool` per
+worker).
 
 A CMA-ES generation (``popsize`` candidates) or the K samples of Best@K are independent, so
 they can be split over the cores: each worker process keeps its own compiled models and
@@ -8,10 +9,20 @@ the rendered clips. Results equal :meth:`SceneEvaluator.evaluate` in this proces
 test_search.py``). Workers are ``spawn``-started with one thread per library
 (:func:`pipeline.parallel.make_pool`).
 
+Shipping the clips back costs: at 192x144 a candidate's seg and flow are ~6.5 MB (~13 MB
+through the pipe and the unpickling), as long as rendering them. :class:`ParallelFitness` sends
+the observation to each worker once (pool initializer) and gets back only the fitness dicts of
+:func:`pipeline.search.fitness.fitness`, equal to scoring in this process float for float
+(same clips bit for bit, same arithmetic).
+
 Example::
 
     with ParallelEvaluator(W, H, sim, workers=2) as pe:
         clips = pe.evaluate_many(candidates, T, flow=False)   # [(seg, flow), ...] in order
+
+    with ParallelFitness(obs_seg, obs_flow, cfg, sim, workers=2) as pf:
+        scores = pf.score(candidates)                          # [fitness dict, ...] in order
+        best, history = cmaes_refine(scene, obs_seg, obs_flow, cfg, sim, scorer=pf)
 """
 
 from __future__ import annotations
@@ -22,6 +33,7 @@ import numpy as np
 
 from pipeline.mjcf import SimOptions
 from pipeline.scene import Scene
+from pipeline.search.config import SearchConfig
 
 _POOLS: dict = {}
 """Worker-side evaluator pools, by (width, height, options)."""
@@ -91,6 +103,139 @@ class ParallelEvaluator:
             self._pool = None
 
     def __enter__(self) -> "ParallelEvaluator":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+# ------------------------------------------------------------------------ parallel fitness
+_FITNESS: dict = {}
+"""Worker-side state of :class:`ParallelFitness`: ``token``, ``obs_seg``, ``obs_flow``,
+``pool`` (the worker's evaluators)."""
+
+
+def _init_fitness_worker(token: str, width: int, height: int, options: SimOptions | None,
+                         obs_seg: np.ndarray, obs_flow: np.ndarray | None) -> None:
+    """Worker set-up (pool initializer): :func:`pipeline.parallel._init_worker`'s thread limits,
+    then keep the observation and an evaluator pool for every later job."""
+    from pipeline.parallel import _init_worker
+    from pipeline.search.evaluator import EvaluatorPool
+
+    _init_worker()
+    _FITNESS.clear()
+    _FITNESS.update(token=token, obs_seg=obs_seg, obs_flow=obs_flow,
+                    pool=EvaluatorPool(width, height, options))
+
+
+def _score_scenes(scenes: Sequence[Scene], priors: Sequence[float], cfg: SearchConfig, pool,
+                  obs_seg: np.ndarray, obs_flow: np.ndarray | None) -> list[dict[str, float]]:
+    """:func:`fitness` of each scene (evaluated with ``pool``) against the observation."""
+    from pipeline.search.fitness import fitness
+
+    T = int(np.shape(obs_seg)[0])
+    need_flow = obs_flow is not None and cfg.lambda_epe > 0
+    out = []
+    for scene, prior in zip(scenes, priors):
+        seg, flow = pool.evaluate(scene, T, need_flow)
+        out.append(fitness(seg, flow, obs_seg, obs_flow, cfg, prior=prior))
+    return out
+
+
+def _score_chunk(job: tuple) -> list[dict[str, float]]:
+    """Worker: score a chunk of scenes against the observation this worker was started with."""
+    token, scenes, priors, cfg = job
+    if _FITNESS.get("token") != token:
+        raise RuntimeError("ParallelFitness worker holds another observation")
+    return _score_scenes(scenes, priors, cfg, _FITNESS["pool"], _FITNESS["obs_seg"], _FITNESS["obs_flow"])
+
+
+class ParallelFitness:
+    """Score lists of candidate scenes against one observation over ``workers`` processes.
+
+    Each worker gets the observation once, when it starts, and keeps its own compiled models
+    and renderers; a call sends the scenes (and the config) and gets back one small fitness
+    dict per scene (:func:`pipeline.search.fitness.fitness`), never the clips. The scores equal
+    scoring in this process float for float (``tests/test_search.py``). The flow is rendered
+    only when it is scored (``obs_flow`` given and ``cfg.lambda_epe > 0``).
+
+    Args:
+        obs_seg: ``(T, H, W)`` observed labels (int8, -1 background) or bool foreground; fixes
+            T and the render size.
+        obs_flow: ``(T-1, H, W, 2)`` observed flow, px, or None.
+        cfg: default fitness weights (a call may pass its own, e.g. a stage's).
+        options: simulation options (params ``sim``).
+        workers: processes (1 scores in this process, no pool).
+
+    Use as a context manager or call :meth:`close`. The object is itself a ``scorer`` for
+    :func:`pipeline.search.cmaes.cmaes_refine`: ``pf(scenes, cfg, priors)``.
+    """
+
+    def __init__(self, obs_seg: np.ndarray, obs_flow: np.ndarray | None, cfg: SearchConfig | None = None,
+                 options: SimOptions | None = None, workers: int = 2):
+        import uuid
+
+        from pipeline.search.fitness import _check_obs
+
+        T, H, W = _check_obs(obs_seg, obs_flow)
+        self.n_frames, self.height, self.width = T, H, W
+        self.obs_seg, self.obs_flow = np.asarray(obs_seg), (None if obs_flow is None else np.asarray(obs_flow))
+        self.cfg, self.options = cfg or SearchConfig(), options
+        self.workers = max(1, int(workers))
+        self._token = uuid.uuid4().hex
+        self._pool = self._local = None
+        if self.workers == 1:
+            from pipeline.search.evaluator import EvaluatorPool
+
+            self._local = EvaluatorPool(W, H, options)
+        else:
+            import multiprocessing
+            from concurrent.futures import ProcessPoolExecutor
+
+            self._pool = ProcessPoolExecutor(
+                max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"),
+                initializer=_init_fitness_worker,
+                initargs=(self._token, W, H, options, self.obs_seg, self.obs_flow))
+
+    def score(self, scenes: Sequence[Scene], cfg: SearchConfig | None = None,
+              priors: Sequence[float] | None = None) -> list[dict[str, float]]:
+        """``fitness(...)`` of each scene, in order: dicts ``fitness``, ``initial_iou``,
+        ``full_iou``, ``epe``, ``prior``.
+
+        Args:
+            scenes: candidates (any structures; each worker compiles a structure once).
+            cfg: fitness weights (default: the constructor's).
+            priors: the ``prior`` value of each scene (default 0).
+        Raises:
+            SceneError, ValueError: a scene does not compile (see :class:`SceneEvaluator`).
+        """
+        scenes = list(scenes)
+        cfg = cfg or self.cfg
+        priors = [0.0] * len(scenes) if priors is None else [float(p) for p in priors]
+        if len(priors) != len(scenes):
+            raise ValueError(f"{len(priors)} priors for {len(scenes)} scenes")
+        if self._local is not None:
+            return _score_scenes(scenes, priors, cfg, self._local, self.obs_seg, self.obs_flow)
+        if self._pool is None:
+            raise RuntimeError("ParallelFitness used after close")
+        if not scenes:
+            return []
+        n = min(self.workers, len(scenes))
+        bounds = np.linspace(0, len(scenes), n + 1).round().astype(int)
+        jobs = [(self._token, scenes[a:b], priors[a:b], cfg) for a, b in zip(bounds[:-1], bounds[1:])]
+        return [r for part in self._pool.map(_score_chunk, jobs) for r in part]
+
+    __call__ = score
+
+    def close(self) -> None:
+        if self._local is not None:
+            self._local.close()
+            self._local = None
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+
+    def __enter__(self) -> "ParallelFitness":
         return self
 
     def __exit__(self, *exc) -> None:

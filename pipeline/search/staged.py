@@ -26,6 +26,7 @@ from pipeline.search.cmaes import cmaes_refine
 from pipeline.search.config import SearchConfig, SearchRanges
 from pipeline.search.evaluator import EvaluatorPool
 from pipeline.search.fitness import best_of_k
+from pipeline.search.parallel import ParallelFitness
 
 STAGES: tuple[tuple[str, ...], ...] = (
     ("camera", "position", "yaw"),
@@ -67,7 +68,8 @@ def scaled_ranges(scene: Scene) -> SearchRanges:
 def staged_refine(scene: Scene, obs_seg: np.ndarray, obs_flow: np.ndarray | None, cfg: SearchConfig,
                   options: SimOptions | None = None, seed: int = 0, restarts: int = 2,
                   stages: tuple[tuple[str, ...], ...] = STAGES, pool: EvaluatorPool | None = None,
-                  callback: Callable[[dict], None] | None = None) -> tuple[Scene, list[dict[str, Any]]]:
+                  callback: Callable[[dict], None] | None = None, workers: int = 1,
+                  ) -> tuple[Scene, list[dict[str, Any]]]:
     """Refine a scene stage by stage (module docstring).
 
     Args:
@@ -83,6 +85,9 @@ def staged_refine(scene: Scene, obs_seg: np.ndarray, obs_flow: np.ndarray | None
         stages: field groups per stage.
         pool: evaluators to reuse (same render size).
         callback: called with each history entry.
+        workers: processes scoring each CMA-ES generation; above 1, one
+            :class:`pipeline.search.parallel.ParallelFitness` (the observation sent to each
+            worker once) serves every stage and restart, with the same result as 1.
     Returns:
         ``(best_scene, history)``: history entries as :func:`cmaes_refine`'s, with ``stage``
         and ``restart`` added and ``evaluations`` / ``seconds`` cumulative over all stages.
@@ -91,6 +96,7 @@ def staged_refine(scene: Scene, obs_seg: np.ndarray, obs_flow: np.ndarray | None
     lam = cfg.lambda_epe * REFERENCE_WIDTH / W
     own = pool is None
     pool = pool or EvaluatorPool(W, H, options)
+    scorer = ParallelFitness(obs_seg, obs_flow, cfg, options, workers) if workers > 1 else None
     history: list[dict[str, Any]] = []
     evals, secs = 0, 0.0
     best = scene
@@ -101,7 +107,7 @@ def staged_refine(scene: Scene, obs_seg: np.ndarray, obs_flow: np.ndarray | None
             runs = []
             for r in range(restarts if s == 0 else 1):
                 refined, hist = cmaes_refine(best, obs_seg, obs_flow, stage_cfg, options,
-                                             seed=seed + 1000 * s + r, pool=pool)
+                                             seed=seed + 1000 * s + r, pool=pool, scorer=scorer)
                 for h in hist:
                     entry = {**h, "stage": s, "restart": r, "evaluations": evals + h["evaluations"],
                              "seconds": round(secs + h["seconds"], 3)}
@@ -113,6 +119,8 @@ def staged_refine(scene: Scene, obs_seg: np.ndarray, obs_flow: np.ndarray | None
                 runs.append((hist[-1]["best_fitness"], refined))
             best = max(runs, key=lambda fr: fr[0])[1]
     finally:
+        if scorer is not None:
+            scorer.close()
         if own:
             pool.close()
     return best, history
