@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
 from pathlib import Path
@@ -119,6 +120,9 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     from pipeline.video import VideoError
     from pipeline.view import camera_dict, scene_objects
 
+    # llvmpipe rasterizing in the calling thread is 5-10 % faster for these small renders
+    # (benchmarks/search_eval.py --compare-lp); pixels do not depend on it
+    os.environ.setdefault("LP_NUM_THREADS", "0")
     t0 = time.time()
     out = Path(out)
     rv = params.get("realvideo", {})
@@ -179,7 +183,8 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
         if best is None:
             raise VideoError(f"{video}: no proposal could be simulated ({scores[0].get('error')})")
         refined, history = staged_refine(candidates[best], obs.seg, obs.flow, scfg, sim, seed=seed,
-                                         restarts=int(rv.get("restarts", 2)), pool=pool)
+                                         restarts=int(rv.get("restarts", 2)), pool=pool,
+                                         workers=int(rv.get("workers", 1)))
     refined = refined.rounded()  # what scene.yaml holds is what is scored
 
     def score(scene: Scene) -> tuple[dict, object]:
