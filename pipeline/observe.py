@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from pipeline.perception import object_tracks
-from pipeline.video import Clip, VideoError, label_objects, pseudo_masks, read_video, resample
+from pipeline.video import Clip, VideoError, hold_resting, label_objects, pseudo_masks, read_video, resample
 
 DETECT_LONG_SIDE = 320
 """px, long side of the detection pass (whole frame)."""
@@ -46,7 +46,8 @@ class Observation:
     Attributes:
         frames: ``(T, H, W, 3)`` uint8 RGB at the scene fps, working size (the crop).
         seg: ``(T, H, W)`` int8 pseudo masks of the objects (background subtraction, Hungarian
-            tracking, only tracks that move: :func:`keep_objects`), -1 background.
+            tracking, only tracks that move: :func:`keep_objects`; objects that come to rest
+            held: :func:`pipeline.video.hold_resting`), -1 background.
         flow: ``(T-1, H, W, 2)`` float32 observed optical flow, px/frame.
         clip: the decoded source window (true fps, crop box in original px).
         start: window start, s; ``auto``: whether it was chosen automatically.
@@ -209,7 +210,7 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     seg = _masks(frames, ctx, mask_method, max_objects)
     method = "dis" if flow_method == "gt" else flow_method
     flow = estimate_flow(frames, method=method, preset=flow_preset)
-    seg = keep_objects(seg, flow, max_objects)
+    seg = hold_resting(keep_objects(seg, flow, max_objects))
     return Observation(frames, seg, flow, clip, float(start), auto, clip.crop, size, scene_fps, method)
 
 

@@ -457,6 +457,33 @@ def label_objects(
 # -- helpers of pseudo_masks / label_objects, and pseudo ground truth of a whole clip --
 
 
+def hold_resting(seg: np.ndarray, border: int = 1) -> np.ndarray:
+    """Keep objects that come to rest visible: background subtraction loses an object as soon
+    as it stops where it then stays (the background model learns it there), so a track that
+    vanishes for good away from the image border is held at its last mask until the end.
+
+    Args:
+        seg: ``(T, H, W)`` int8 object ids, -1 background (:func:`label_objects`).
+        border: a last mask within this many px of the border means the object left the frame
+            (not held).
+    Returns:
+        ``(T, H, W)`` int8, a copy; held pixels never overwrite another object.
+    """
+    seg = np.array(seg, copy=True)
+    T, H, W = seg.shape
+    for k in range(int(seg.max()) + 1):
+        seen = np.flatnonzero((seg == k).reshape(T, -1).any(axis=1))
+        if not len(seen) or seen[-1] >= T - 1:
+            continue
+        last = seg[seen[-1]] == k
+        vs, us = np.nonzero(last)
+        if vs.min() < border or us.min() < border or vs.max() >= H - border or us.max() >= W - border:
+            continue
+        for t in range(seen[-1] + 1, T):
+            seg[t][last & (seg[t] < 0)] = k
+    return seg
+
+
 def _clean(raw: np.ndarray, element: np.ndarray, min_area: int) -> np.ndarray:
     """Opening, closing, then the 8-connected components of >= ``min_area`` px (bool)."""
     m = cv2.morphologyEx(raw.astype(np.uint8), cv2.MORPH_OPEN, element)
@@ -568,6 +595,7 @@ def pseudo_ground_truth(
     step: int | None = None,
     max_fit: int = 150,
     crop: tuple[int, int, int, int] | None = None,
+    hold_rest: bool = True,
     **mask_kwargs,
 ) -> np.ndarray:
     """Pseudo ground-truth segmentation of chosen source frames of a whole clip.
@@ -583,9 +611,9 @@ def pseudo_ground_truth(
     pseudo ground truth of a window.
 
     Resting objects: an object that rests in one place for more than half of the clip is
-    part of the median background, so it is background (-1) in the frames where it rests
-    (e.g. the struck puck of the PhysTrack carom clip after it stops); while it moves it
-    is found.
+    part of the median background, so it vanishes from the masks where it stops (e.g. the
+    struck puck of the PhysTrack carom clip); with ``hold_rest`` a track that vanishes for
+    good away from the image border is held at its last mask (:func:`hold_resting`).
 
     Args:
         path: video file.
@@ -601,6 +629,7 @@ def pseudo_ground_truth(
         step: tracking stride in source frames; default so that about 200 frames are
             tracked.
         max_fit: most frames to fit the background on.
+        hold_rest: hold objects that come to rest (:func:`hold_resting`).
         **mask_kwargs: more keyword arguments of :func:`pseudo_masks`
             (``threshold``, ``kernel``, ``min_area``, ``ghosts``, ``gain``, ``shadows``,
             ``edge``).
@@ -626,6 +655,8 @@ def pseudo_ground_truth(
     masks = pseudo_masks(clip.frames[tracked], method=method, background=clip.frames[fit],
                          **mask_kwargs)
     seg = label_objects(masks, max_objects=max_objects)
+    if hold_rest:
+        seg = hold_resting(seg)
     where = {t: k for k, t in enumerate(tracked)}
     out = seg[[where[i] for i in wanted]]
     return _renumber(out)

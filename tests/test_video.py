@@ -182,3 +182,18 @@ def test_pseudo_ground_truth_crop_and_ids():
     assert seg.min() == BACKGROUND
     with pytest.raises(VideoError, match="frame_indices"):
         pseudo_ground_truth(PUCKS, 240, [10_000], size=(96, 64))
+
+
+def test_hold_resting_keeps_an_object_that_stops_inside_the_frame():
+    """Background subtraction loses an object where it comes to rest; hold_resting keeps its
+    last mask until the end, but not for an object that left through the border."""
+    from pipeline.video import hold_resting
+
+    seg = np.full((6, 20, 30), -1, dtype=np.int8)
+    seg[:3, 8:12, 5:9] = 0      # object 0 seen in frames 0-2, inside the frame, then lost
+    seg[:2, 0:4, 26:30] = 1     # object 1 leaves through the top-right border
+    held = hold_resting(seg)
+    for t in range(3, 6):
+        assert (held[t] == 0).sum() == (seg[2] == 0).sum()
+        assert (held[t] == 1).sum() == 0
+    np.testing.assert_array_equal(held[:3], seg[:3])
