@@ -13,7 +13,9 @@ cuts an object out because the box is built from where the objects are.
 Window (``start=None``): the 1 s window whose frames show the most *object-sized* motion
 (frame differences at 30 fps on a 160 px wide copy of the whole clip; a frame counts up to 1
 as its moving area grows to :data:`FULL_MOTION_FRACTION` of the image, and -2 when it
-exceeds :data:`MAX_MOVING_FRACTION`, e.g. a hand or a person; the earliest best window wins).
+exceeds :data:`MAX_MOVING_FRACTION`, e.g. a hand or a person; frames weigh from 1 at the
+window's start down to 0.5 at its end, so that the window starts where the motion starts; the
+earliest best window wins).
 """
 
 from __future__ import annotations
@@ -94,7 +96,10 @@ def choose_start(video, fps: float | None, scene_fps: int, duration: float) -> f
     n = max(1, round(duration * scene_fps))
     if len(score) < n:
         return 0.0
-    sums = np.convolve(score, np.ones(max(1, n - 1)), mode="valid")  # n frames: n - 1 differences
+    # n frames: n - 1 differences, weighted from 1 at the window's start down to 0.5 at its
+    # end, so that the window starts where the motion starts: the scene's state at t = 0 has
+    # to explain the rest (a push in the middle of the window cannot be explained)
+    sums = np.correlate(score, np.linspace(1.0, 0.5, max(1, n - 1)), mode="valid")
     last = max(0, math.floor((total - duration) * scene_fps + 1e-6))
     sums = sums[: last + 1]
     return float(np.argmax(sums)) / scene_fps
@@ -105,10 +110,57 @@ def _masks(frames: np.ndarray, context: np.ndarray, method: str, max_objects: in
     return label_objects(masks, max_objects=max_objects)
 
 
+def merge_touching(seg: np.ndarray, fraction: float = 0.8) -> np.ndarray:
+    """Merge tracks that touch (masks within 1 px) in at least ``fraction`` of the frames where
+    both are seen: one object split in two by the background subtraction (two faces of a box
+    lit differently, a highlight), not two objects, which touch only when they collide.
+    ``(T, H, W)`` int8 in and out (merged ids take the lower id)."""
+    seg = np.array(seg, copy=True)
+    n = int(seg.max()) + 1
+    kernel = np.ones((3, 3), np.uint8)
+    for i in range(n):
+        for j in range(i + 1, n):
+            both = touching = 0
+            for t in range(len(seg)):
+                mi, mj = seg[t] == i, seg[t] == j
+                if mi.any() and mj.any():
+                    both += 1
+                    touching += bool((cv2.dilate(mi.astype(np.uint8), kernel) & mj).any())
+            if both and touching >= fraction * both:
+                seg[seg == j] = i
+    return seg
+
+
+def drop_ghosts(seg: np.ndarray, overlap: float = 0.3) -> np.ndarray:
+    """Drop the ghosts of objects that come to rest: where an object stops for good, the median
+    background learns it, so before it arrives the empty floor there differs from the
+    background and shows up as a blob that does not move. A track that travels less than its
+    diameter and covers at least ``overlap`` of the last mask of a track that moved (at least
+    its diameter) is such a ghost. ``(T, H, W)`` int8 in and out (ghost pixels -> -1)."""
+    from pipeline.perception import find_tracks
+
+    seg = np.array(seg, copy=True)
+    tracks = find_tracks(seg, None, min_frames=1)
+    movers = [t for t in tracks if t.travel >= t.diameter]
+    for g in tracks:
+        if g.travel >= g.diameter:
+            continue
+        covered = (seg == g.label).any(axis=0)
+        for o in movers:
+            last = seg[int(o.frames[-1])] == o.label
+            if o.label != g.label and (covered & last).sum() >= overlap * max(last.sum(), 1):
+                seg[seg == g.label] = -1
+                break
+    return seg
+
+
 def keep_objects(seg: np.ndarray, flow: np.ndarray, max_objects: int) -> np.ndarray:
-    """Pseudo masks of the objects only: the tracks :func:`pipeline.perception.object_tracks`
-    accepts (they move, they are not slivers), renumbered 0..n-1 in order of first appearance;
+    """Pseudo masks of the objects only: tracks that touch all along are merged
+    (:func:`merge_touching`), ghosts of resting objects dropped (:func:`drop_ghosts`), then the
+    tracks :func:`pipeline.perception.object_tracks` accepts
+    (they move, they are not slivers) are kept, renumbered 0..n-1 in order of first appearance;
     everything else becomes background. ``(T, H, W)`` int8."""
+    seg = drop_ghosts(merge_touching(seg))
     keep = [t.label for t in object_tracks(seg, flow, max_objects)]
     lut = np.full(int(seg.max()) + 2, -1, dtype=np.int8)
     for new, k in enumerate(keep):
@@ -200,7 +252,7 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     _, det_frames, det_ctx = window(dsize, full)
     det_seg = _masks(det_frames, det_ctx, mask_method, max_objects)
     det_flow = estimate_flow(det_frames, method="dis", preset="fast")
-    det_seg = keep_objects(det_seg, det_flow, max_objects)
+    det_seg = keep_objects(hold_resting(det_seg), det_flow, max_objects)
     tracks = object_tracks(det_seg, det_flow, max_objects)
     scale = W0 / dsize[0]
     diameter = float(np.median([t.diameter for t in tracks])) if tracks else 0.05 * dsize[1]
@@ -210,7 +262,7 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     seg = _masks(frames, ctx, mask_method, max_objects)
     method = "dis" if flow_method == "gt" else flow_method
     flow = estimate_flow(frames, method=method, preset=flow_preset)
-    seg = hold_resting(keep_objects(seg, flow, max_objects))
+    seg = keep_objects(hold_resting(seg), flow, max_objects)
     return Observation(frames, seg, flow, clip, float(start), auto, clip.crop, size, scene_fps, method)
 
 

@@ -221,8 +221,23 @@ def initial_motion(track: Track, fps: float, min_frames: int = 5) -> Motion:
         return coef, rms
 
     best = None
+    if N >= min_frames:  # a parabola through the very first frames
+        for j in range(N, min_frames - 1, -1):
+            coef, rms = fit(0, j)
+            if rms <= tol:
+                return Motion(coef[0], coef[1], coef[2], j, float(t[j - 1]), rms)
+    if N >= 3 and track.frames[min(N, 4) - 1] - track.frames[0] == min(N, 4) - 1:
+        # too few frames before the first event (a hit, a bounce) for a curvature: a line
+        # through the first 3-4 frames (at rest, or moving steadily) if it explains them
+        n = min(N, 4)
+        coef, rms = fit(0, n, degree=1)
+        if rms > tol and n == 4:
+            n = 3
+            coef, rms = fit(0, n, degree=1)
+        if rms <= tol:
+            return Motion(coef[0], coef[1], coef[2], n, float(t[n - 1]), rms)
     if N >= min_frames:
-        for i in range(0, max(1, N // 3 + 1)):
+        for i in range(1, max(2, N // 3 + 1)):
             for j in range(N, i + min_frames - 1, -1):
                 coef, rms = fit(i, j)
                 if rms <= tol:

@@ -460,7 +460,10 @@ def label_objects(
 def hold_resting(seg: np.ndarray, border: int = 1) -> np.ndarray:
     """Keep objects that come to rest visible: background subtraction loses an object as soon
     as it stops where it then stays (the background model learns it there), so a track that
-    vanishes for good away from the image border is held at its last mask until the end.
+    vanishes for good away from the image border is held at its last mask until the end,
+    unless an object that was not in the frame where it vanished appears within two of its
+    sizes in the next 3 frames (a track the tracker split: the object moved on under another
+    id; an object it hit was there together with it).
 
     Args:
         seg: ``(T, H, W)`` int8 object ids, -1 background (:func:`label_objects`).
@@ -471,6 +474,7 @@ def hold_resting(seg: np.ndarray, border: int = 1) -> np.ndarray:
     """
     seg = np.array(seg, copy=True)
     T, H, W = seg.shape
+    present = (seg.reshape(T, -1)[:, :, None] == np.arange(int(seg.max()) + 1)).any(axis=1)  # (T, n)
     for k in range(int(seg.max()) + 1):
         seen = np.flatnonzero((seg == k).reshape(T, -1).any(axis=1))
         if not len(seen) or seen[-1] >= T - 1:
@@ -478,6 +482,15 @@ def hold_resting(seg: np.ndarray, border: int = 1) -> np.ndarray:
         last = seg[seen[-1]] == k
         vs, us = np.nonzero(last)
         if vs.min() < border or us.min() < border or vs.max() >= H - border or us.max() >= W - border:
+            continue
+        # a track the tracker split: another object shows up next to where this one vanished
+        # within a few frames (the same object under a new id), so this one did not stop
+        centre, reach = np.array([vs.mean(), us.mean()]), 2.0 * max(np.ptp(vs), np.ptp(us), 1) + 2.0
+        newcomers = [j for j in range(present.shape[1]) if j != k and not present[seen[-1], j]
+                     and present[seen[-1] + 1: seen[-1] + 4, j].any()]
+        after = seg[seen[-1] + 1: seen[-1] + 4]
+        others = np.argwhere(np.isin(after, newcomers))
+        if len(others) and np.min(np.hypot(*(others[:, 1:] - centre).T)) <= reach:
             continue
         for t in range(seen[-1] + 1, T):
             seg[t][last & (seg[t] < 0)] = k
