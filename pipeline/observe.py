@@ -27,7 +27,8 @@ import cv2
 import numpy as np
 
 from pipeline.perception import object_tracks
-from pipeline.video import Clip, VideoError, hold_resting, label_objects, pseudo_masks, read_video, resample
+from pipeline.video import (Clip, VideoError, drop_ghosts, hold_resting, label_objects, merge_touching,
+                            pseudo_masks, read_video, resample)
 
 DETECT_LONG_SIDE = 320
 """px, long side of the detection pass (whole frame)."""
@@ -108,50 +109,6 @@ def choose_start(video, fps: float | None, scene_fps: int, duration: float) -> f
 def _masks(frames: np.ndarray, context: np.ndarray, method: str, max_objects: int) -> np.ndarray:
     masks = pseudo_masks(frames, method=method, background=context)
     return label_objects(masks, max_objects=max_objects)
-
-
-def merge_touching(seg: np.ndarray, fraction: float = 0.8) -> np.ndarray:
-    """Merge tracks that touch (masks within 1 px) in at least ``fraction`` of the frames where
-    both are seen: one object split in two by the background subtraction (two faces of a box
-    lit differently, a highlight), not two objects, which touch only when they collide.
-    ``(T, H, W)`` int8 in and out (merged ids take the lower id)."""
-    seg = np.array(seg, copy=True)
-    n = int(seg.max()) + 1
-    kernel = np.ones((3, 3), np.uint8)
-    for i in range(n):
-        for j in range(i + 1, n):
-            both = touching = 0
-            for t in range(len(seg)):
-                mi, mj = seg[t] == i, seg[t] == j
-                if mi.any() and mj.any():
-                    both += 1
-                    touching += bool((cv2.dilate(mi.astype(np.uint8), kernel) & mj).any())
-            if both and touching >= fraction * both:
-                seg[seg == j] = i
-    return seg
-
-
-def drop_ghosts(seg: np.ndarray, overlap: float = 0.3) -> np.ndarray:
-    """Drop the ghosts of objects that come to rest: where an object stops for good, the median
-    background learns it, so before it arrives the empty floor there differs from the
-    background and shows up as a blob that does not move. A track that travels less than its
-    diameter and covers at least ``overlap`` of the last mask of a track that moved (at least
-    its diameter) is such a ghost. ``(T, H, W)`` int8 in and out (ghost pixels -> -1)."""
-    from pipeline.perception import find_tracks
-
-    seg = np.array(seg, copy=True)
-    tracks = find_tracks(seg, None, min_frames=1)
-    movers = [t for t in tracks if t.travel >= t.diameter]
-    for g in tracks:
-        if g.travel >= g.diameter:
-            continue
-        covered = (seg == g.label).any(axis=0)
-        for o in movers:
-            last = seg[int(o.frames[-1])] == o.label
-            if o.label != g.label and (covered & last).sum() >= overlap * max(last.sum(), 1):
-                seg[seg == g.label] = -1
-                break
-    return seg
 
 
 def keep_objects(seg: np.ndarray, flow: np.ndarray, max_objects: int) -> np.ndarray:

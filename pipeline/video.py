@@ -497,6 +497,63 @@ def hold_resting(seg: np.ndarray, border: int = 1) -> np.ndarray:
     return seg
 
 
+def merge_touching(seg: np.ndarray, fraction: float = 0.8) -> np.ndarray:
+    """Merge tracks that touch (masks within 1 px) in at least ``fraction`` of the frames where
+    both are seen: one object split in two by the background subtraction (two faces of a box
+    lit differently, a highlight), not two objects, which touch only when they collide.
+    ``(T, H, W)`` int8 in and out (merged ids take the lower id)."""
+    seg = np.array(seg, copy=True)
+    n = int(seg.max()) + 1
+    kernel = np.ones((3, 3), np.uint8)
+    for i in range(n):
+        for j in range(i + 1, n):
+            both = touching = 0
+            for t in range(len(seg)):
+                mi, mj = seg[t] == i, seg[t] == j
+                if mi.any() and mj.any():
+                    both += 1
+                    touching += bool((cv2.dilate(mi.astype(np.uint8), kernel) & mj).any())
+            if both and touching >= fraction * both:
+                seg[seg == j] = i
+    return seg
+
+
+def drop_ghosts(seg: np.ndarray, overlap: float = 0.3) -> np.ndarray:
+    """Drop the ghosts of objects that come to rest: where an object stops for good, the median
+    background learns it, so before it arrives the empty floor there differs from the
+    background and shows up as a blob that does not move. A track whose centroid travels less
+    than its diameter (``2 sqrt(median area / pi)``) and covers at least ``overlap`` of the last
+    mask of a track that moved at least its diameter is such a ghost.
+
+    Args:
+        seg: ``(T, H, W)`` int8 object ids, -1 background.
+        overlap: fraction of the mover's last mask the ghost must cover.
+    Returns:
+        ``(T, H, W)`` int8, a copy with ghost pixels set to -1.
+    """
+    seg = np.array(seg, copy=True)
+    stats = {}
+    for k in range(int(seg.max()) + 1):
+        frames = [t for t in range(len(seg)) if (seg[t] == k).any()]
+        if not frames:
+            continue
+        centres = np.array([np.argwhere(seg[t] == k).mean(axis=0) for t in frames])
+        areas = [np.count_nonzero(seg[t] == k) for t in frames]
+        diameter = 2.0 * math.sqrt(float(np.median(areas)) / math.pi)
+        travel = float(np.linalg.norm(centres - centres[0], axis=1).max())
+        stats[k] = (frames[-1], travel >= diameter)
+    for g, (_, moved) in stats.items():
+        if moved:
+            continue
+        covered = (seg == g).any(axis=0)
+        for o, (last_t, o_moved) in stats.items():
+            last = seg[last_t] == o
+            if o != g and o_moved and (covered & last).sum() >= overlap * max(last.sum(), 1):
+                seg[seg == g] = BACKGROUND
+                break
+    return seg
+
+
 def _clean(raw: np.ndarray, element: np.ndarray, min_area: int) -> np.ndarray:
     """Opening, closing, then the 8-connected components of >= ``min_area`` px (bool)."""
     m = cv2.morphologyEx(raw.astype(np.uint8), cv2.MORPH_OPEN, element)
@@ -626,7 +683,9 @@ def pseudo_ground_truth(
     Resting objects: an object that rests in one place for more than half of the clip is
     part of the median background, so it vanishes from the masks where it stops (e.g. the
     struck puck of the PhysTrack carom clip); with ``hold_rest`` a track that vanishes for
-    good away from the image border is held at its last mask (:func:`hold_resting`).
+    good away from the image border is held at its last mask (:func:`hold_resting`), tracks
+    that touch all along are merged (:func:`merge_touching`) and the ghosts a resting object
+    leaves in the background are dropped (:func:`drop_ghosts`).
 
     Args:
         path: video file.
@@ -642,7 +701,8 @@ def pseudo_ground_truth(
         step: tracking stride in source frames; default so that about 200 frames are
             tracked.
         max_fit: most frames to fit the background on.
-        hold_rest: hold objects that come to rest (:func:`hold_resting`).
+        hold_rest: hold objects that come to rest, merge split tracks, drop ghosts (the same
+            post-processing as the main job's pseudo masks, ``pipeline.observe.keep_objects``).
         **mask_kwargs: more keyword arguments of :func:`pseudo_masks`
             (``threshold``, ``kernel``, ``min_area``, ``ghosts``, ``gain``, ``shadows``,
             ``edge``).
@@ -669,7 +729,7 @@ def pseudo_ground_truth(
                          **mask_kwargs)
     seg = label_objects(masks, max_objects=max_objects)
     if hold_rest:
-        seg = hold_resting(seg)
+        seg = drop_ghosts(merge_touching(hold_resting(seg)))
     where = {t: k for k, t in enumerate(tracked)}
     out = seg[[where[i] for i in wanted]]
     return _renumber(out)
