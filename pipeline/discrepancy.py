@@ -136,6 +136,9 @@ class DiscrepancyConfig(_Strict):
         rescreen_all: after the first step, try every remaining candidate again (default:
             only those whose profile improved the base model by ``heldout_threshold``).
         horizons: fractions of each clip fitted in turn by the base fit (continuation).
+        forward_split: with a single clip (nothing to hold out) the shown gap is a forecast:
+            base and base + named effects are fitted on the clip's first ``forward_split``
+            of its duration and scored on the samples after it (:func:`forward_gap`).
         diff_step: finite-difference step, in units of each parameter's scale.
         ci_level: confidence level of the coefficient intervals.
         default_object: size and mass assumed when the input has none.
@@ -157,6 +160,7 @@ class DiscrepancyConfig(_Strict):
     threads: int = Field(2, ge=1)
     rescreen_all: bool = False
     horizons: tuple[float, ...] = (0.5, 1.0)
+    forward_split: float = Field(0.6, gt=0, lt=1)
     diff_step: float = Field(1e-2, gt=0)
     ci_level: float = Field(0.95, gt=0, lt=1)
     default_object: DefaultObject = DefaultObject()
@@ -1768,20 +1772,110 @@ class Result:
     final_qpos: list[np.ndarray]
     config: DiscrepancyConfig
     runtime_s: float = 0.0
+    forward: dict[str, Any] | None = None
+    """Single clip: the forward split (:func:`forward_gap`), or ``None``."""
 
     @property
-    def gap(self) -> dict[str, float]:
-        """Held-out position RMSE (m) before (base) and after (named effects), its relative
-        shrink, and the same for the part beyond the measurement noise
+    def gap(self) -> dict[str, Any]:
+        """The shown gap: position RMSE (m) before (base) and after (named effects), its
+        relative shrink, and the same for the part beyond the measurement noise
         (``excess = sqrt(max(RMSE^2 - sigma^2, 0))``, sigma = pooled noise estimate): the RMSE
         cannot fall below sigma, so an effect that starts near the noise floor (e.g.
-        torsional friction, which shows mostly in orientation) shrinks the raw RMSE little."""
-        before, after = self.base_heldout.rmse, self.final_heldout.rmse
+        torsional friction, which shows mostly in orientation) shrinks the raw RMSE little.
+
+        Which gap (``kind``, ``label``, ``why``): with >= 2 clips the leave-one-clip-out
+        held-out RMSE; with one clip the forward gap (fitted on the clip's first part, scored
+        on the rest, :func:`forward_gap`); with one clip too short to split, in sample."""
         sigma = float(np.sqrt(np.mean([n.position ** 2 for n in self.noise])))
+        extra: dict[str, Any] = {}
+        if len(self.clips) >= 2:
+            before, after = self.base_heldout.rmse, self.final_heldout.rmse
+            extra = {"kind": "leave_one_clip_out", "label": "held-out gap (leave one clip out)",
+                     "why": f"{len(self.clips)} clips (>= 2): leave one clip out"}
+        elif self.forward is not None:
+            before, after = self.forward["before"], self.forward["after"]
+            extra = {"kind": "forward", "why": "1 clip: nothing to hold out, so a forward split in time",
+                     **{k: v for k, v in self.forward.items() if k not in ("before", "after")}}
+        else:
+            before, after = self.base.rmse, self.final.rmse
+            extra = {"kind": "in_sample", "label": "in-sample gap",
+                     "why": "1 clip too short to split in time (fewer than "
+                            f"{MIN_SAMPLES} samples before the split or none after it): in sample"}
         eb, ea = math.sqrt(max(before ** 2 - sigma ** 2, 0.0)), math.sqrt(max(after ** 2 - sigma ** 2, 0.0))
         return {"before": before, "after": after, "shrink": 1.0 - after / before if before > 0 else 0.0,
                 "noise": sigma, "excess_before": eb, "excess_after": ea,
-                "excess_shrink": 1.0 - ea / eb if eb > 0 else 0.0}
+                "excess_shrink": 1.0 - ea / eb if eb > 0 else 0.0, **extra}
+
+    @property
+    def in_sample(self) -> dict[str, Any]:
+        """In-sample position RMSE (m) of the base and the final model over all clips, with
+        the number of fitted parameters ``k`` of each."""
+        return {"before": self.base.rmse, "k_before": int(self.base.k),
+                "after": self.final.rmse, "k_after": int(self.final.k),
+                "effects": [n["effect"] for n in self.named]}
+
+
+def _late_sq(clip: Clip, qpos: np.ndarray, t_split: float) -> tuple[float, int]:
+    """Sum of squared position residuals (m^2) and their count over the observed coordinates
+    of the samples after ``t_split`` (s); ``qpos (T, n, 7)`` at ``clip.times``."""
+    sq, n = 0.0, 0
+    for i, tr in enumerate(clip.tracks):
+        late = tr.t > t_split + 1e-9
+        idx = np.searchsorted(clip.times, tr.t[late])
+        d = (qpos[idx, i, :3] - tr.pos[late])[:, tr.axes]
+        sq += float(np.sum(d * d))
+        n += int(d.size)
+    return sq, n
+
+
+def forward_gap(ws: "Workspace", c: int, effects: Sequence[str], log=None) -> dict[str, Any] | None:
+    """Forward gap of clip ``c``: fit on its first part, forecast the rest.
+
+    The clip is cut at ``cfg.forward_split`` of its duration (:func:`_truncate`). On the first
+    part the base model is fitted (:meth:`Workspace.fit_each`, per-clip continuation from the
+    data), then each of ``effects`` is added in the order named, with its coefficients
+    fitted on the first part alone (:func:`_profile_candidate` from the effect's grid, then
+    :func:`_refit_from_data`), so nothing of the later part enters. The prediction simulates
+    the *whole* clip from the fitted initial state with the fitted parameters (one
+    :class:`ClipModel` rollout of the full clip); the samples after the split are a true
+    forecast (the same as simulating from the model's own state at the split) and only they
+    are scored. The noise weights are those of the whole clip (:func:`estimate_noise`).
+
+    Returns:
+        ``{before, after, k_before, k_after, t_split, fit_s, predict_s, n_fit, n_predicted,
+        effects, label}`` (RMSE in m over the predicted samples' observed coordinates), or
+        ``None`` if the first part keeps fewer than :data:`MIN_SAMPLES` samples of an object or
+        nothing is left after it.
+    """
+    clip = ws.clips[c]
+    duration = float(clip.times[-1])
+    t_split = ws.cfg.forward_split * duration
+    first = _truncate(clip, t_split)
+    if first is None or not np.any(clip.times > t_split + 1e-9):
+        return None
+    part = Workspace([first], ws.cfg, ws.options, ws.gravity)
+    part.noise, part.weights = [ws.noise[c]], [ws.weights[c]]
+    base = part.fit_each([0], [initial_nuisance(first)], {})
+    current = base
+    for e in effects:
+        joint, _, _ = _profile_candidate(part, [0], current, e)
+        current = _refit_from_data(part, [0], joint)
+    out = {}
+    for key, fit in (("before", base), ("after", current)):
+        qpos = ws.model(c, fit.effects).simulate(fit.nuisance[0], fit.effects)
+        sq, n = _late_sq(clip, qpos, t_split)
+        out[key] = math.sqrt(sq / max(n, 1))
+        out[f"k_{key}"] = int(fit.k)            # free per-clip parameters + effect coefficients
+    t_last_fit = float(first.times[-1])
+    n_pred = int(np.sum(clip.times > t_split + 1e-9))
+    out.update(t_split=t_split, fit_s=t_last_fit, predict_s=duration - t_last_fit, n_fit=int(len(first.times)),
+               n_predicted=n_pred, effects={k: dict(v) for k, v in current.effects.items()},
+               label=f"forward gap (fit on the first {t_last_fit:.3g} s, predict the last "
+                     f"{duration - t_last_fit:.3g} s)")
+    if log:
+        log(f"forward gap: fit on {t_last_fit:.3f} s, predict {n_pred} samples: "
+            f"{out['before'] * 1e3:.2f} -> {out['after'] * 1e3:.2f} mm")
+    return out
 
 
 def run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None = None,
@@ -1897,8 +1991,9 @@ def _run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None, options:
         phases.append(ph)
         segs += residual_segments(ws.clips[c], q0, ws.noise[c], ph, cfg)
         segs_after += residual_segments(ws.clips[c], q1, ws.noise[c], ph, cfg)
+    forward = forward_gap(ws, 0, named_order, say) if n == 1 else None
     return Result(ws.clips, ws.noise, base, base_ho, final, cur_ho, steps, named, segs, segs_after, phases,
-                  base_qpos, final_qpos, cfg, time.perf_counter() - t_start)
+                  base_qpos, final_qpos, cfg, time.perf_counter() - t_start, forward)
 
 
 # =========================================================================== hidden-effect data
@@ -2091,8 +2186,10 @@ def _fmt(x: float | None, scale: float = 1.0, nd: int = 2) -> str:
 
 def report_dict(result: Result, files: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The JSON report (see ``docs/discrepancy.md`` for the fields). Lengths in m, angles in
-    deg; ``gap`` is the held-out position RMSE before (base model) and after (named
-    effects)."""
+    deg; ``gap`` is the shown gap, position RMSE before (base model) and after (named
+    effects): leave-one-clip-out held-out with >= 2 clips, forward in time with one
+    (``gap.kind``, ``gap.label``, ``gap.why``, :attr:`Result.gap`); ``in_sample`` is the
+    in-sample RMSE before/after with the number of fitted parameters ``k`` of each."""
     clips = []
     for c, clip in enumerate(result.clips):
         nz = result.noise[c]
@@ -2106,8 +2203,9 @@ def report_dict(result: Result, files: Mapping[str, Any] | None = None) -> dict[
             "noise": {"position": nz.position, "angle_deg": None if nz.angle is None else math.degrees(nz.angle)},
             "rmse_base": math.sqrt(result.base.sq_pos[c] / max(result.base.n_pos[c], 1)),
             "rmse_final": math.sqrt(result.final.sq_pos[c] / max(result.final.n_pos[c], 1)),
-            "heldout_rmse_before": result.base_heldout.clip_rmse(c),
-            "heldout_rmse_after": result.final_heldout.clip_rmse(c),
+            # one clip: nothing held out (the shown gap is the forward gap, ``gap``)
+            "heldout_rmse_before": result.base_heldout.clip_rmse(c) if len(result.clips) >= 2 else None,
+            "heldout_rmse_after": result.final_heldout.clip_rmse(c) if len(result.clips) >= 2 else None,
         })
     noise_floor = float(np.sqrt(np.mean([n.position ** 2 for n in result.noise])))
     return {
@@ -2122,6 +2220,7 @@ def report_dict(result: Result, files: Mapping[str, Any] | None = None) -> dict[
         "named": [{"effect": n["effect"], "parameters": n["parameters"], "ci": n["ci"], "units": n["units"],
                    "fitted": n["fitted"], "mechanism": n["mechanism"]} for n in result.named],
         "gap": result.gap,
+        "in_sample": result.in_sample,
         "final": {"rmse": result.final.rmse, "bic": result.final.bic,
                   "chi2_per_residual": result.final.rss / result.final.n},
         "config": json.loads(result.config.model_dump_json()),
@@ -2130,24 +2229,50 @@ def report_dict(result: Result, files: Mapping[str, Any] | None = None) -> dict[
     }
 
 
+def _gap_lines(rep: Mapping[str, Any]) -> list[str]:
+    """Markdown lines of the shown gap (which one and why) and the in-sample fit."""
+    mm, g = 1e3, rep["gap"]
+    kind = g.get("kind", "leave_one_clip_out")
+    label = g.get("label", "held-out gap (leave one clip out)")
+    after = ", ".join(n["effect"] for n in rep["named"]) or "nothing named"
+    how = {"leave_one_clip_out": "Held-out: the effects' coefficients are fitted on the other clips (leave one clip "
+                                 "out, from the effect's profile); only the clip's own initial state, damping and "
+                                 "friction are refitted.",
+           "forward": f"Forward: the base model and the base model + {after} are fitted (initial state, damping, "
+                      f"friction and the effects' coefficients) on the samples up to {g.get('fit_s', 0):.3g} s "
+                      f"({g.get('n_fit', 0)} samples, {100 * rep['config'].get('forward_split', 0.6):.0f} % of the "
+                      f"clip), the whole clip is simulated from the fitted initial state, and only the "
+                      f"{g.get('n_predicted', 0)} samples after the split are scored (a forecast).",
+           "in_sample": "In sample: the models are fitted to the whole clip (no data left to forecast)."}[kind]
+    lines = [f"## Gap: {label}", "", f"Which gap and why: {g.get('why', '>= 2 clips: leave one clip out')}.", "",
+             "| | RMSE (mm) |", "|---|---|",
+             f"| before (base model) | {_fmt(g['before'], mm)} |",
+             f"| after ({after}) | {_fmt(g['after'], mm)} |",
+             f"| noise floor (measurement sigma) | {_fmt(rep['noise_floor'], mm)} |", "",
+             f"Shrink: {100 * g['shrink']:.1f} % (of the part above the noise, "
+             f"sqrt(RMSE² − σ²): {mm * g['excess_before']:.2f} → {mm * g['excess_after']:.2f} mm, "
+             f"{100 * g['excess_shrink']:.1f} %). {how}", ""]
+    ins = rep.get("in_sample")
+    if ins:
+        lines += ["In-sample fit (all samples, every clip), for comparison: it always improves with more "
+                  "parameters, so it is not the evidence.", "",
+                  "| model | in-sample RMSE (mm) | fitted parameters k |", "|---|---|---|",
+                  f"| base | {_fmt(ins['before'], mm)} | {ins['k_before']} |",
+                  f"| base + {after} | {_fmt(ins['after'], mm)} | {ins['k_after']} |", ""]
+        if kind == "forward":
+            lines += [f"Forward fits: k = {g['k_before']} (base) and {g['k_after']} (with the effects).", ""]
+    return lines
+
+
 def report_markdown(rep: Mapping[str, Any]) -> str:
     """Human-readable report (Markdown) from :func:`report_dict`."""
     mm = 1e3
     lines = ["# Discrepancy report", "",
              "Workflow of DESIGN.md §8: fit the base model (scene language v1 in MuJoCo) per clip, find where it "
              "disagrees with the measurements beyond their noise, name the missing effect(s) from the library, add "
-             "them and show the held-out gap shrink.", "",
+             "them and show the gap shrink (held-out with >= 2 clips, forward in time with one).", "",
              f"Inputs: {', '.join(rep['inputs'])}", "",
-             "## Gap (held-out position RMSE)", "",
-             "| | RMSE (mm) |", "|---|---|",
-             f"| before (base model) | {_fmt(rep['gap']['before'], mm)} |",
-             f"| after ({', '.join(n['effect'] for n in rep['named']) or 'nothing named'}) | {_fmt(rep['gap']['after'], mm)} |",
-             f"| noise floor (measurement sigma) | {_fmt(rep['noise_floor'], mm)} |", "",
-             f"Shrink: {100 * rep['gap']['shrink']:.1f} % (of the part above the noise, "
-             f"sqrt(RMSE² − σ²): {1e3 * rep['gap']['excess_before']:.2f} → {1e3 * rep['gap']['excess_after']:.2f} mm, "
-             f"{100 * rep['gap']['excess_shrink']:.1f} %). Held-out: the effects' coefficients are fitted on the other "
-             "clips (leave one clip out, from the effect's profile); only the clip's own initial state, damping and "
-             "friction are refitted.", "",
+             *_gap_lines(rep),
              "## Named effects", ""]
     if rep["named"]:
         lines += ["| effect | mechanism | parameter | value | 95 % CI | unit |", "|---|---|---|---|---|---|"]
@@ -2573,8 +2698,13 @@ def main_cli(args: argparse.Namespace) -> int:
     named = ", ".join(f"{n['effect']} ({', '.join(f'{k}={v:.4g}' for k, v in n['parameters'].items())})"
                       for n in rep["named"]) or "none"
     print(f"named: {named}")
-    print(f"held-out gap: {rep['gap']['before'] * 1e3:.2f} mm -> {rep['gap']['after'] * 1e3:.2f} mm "
-          f"(noise floor {rep['noise_floor'] * 1e3:.2f} mm)")
+    g = rep["gap"]
+    print(f"{g.get('label', 'held-out gap')}: {g['before'] * 1e3:.2f} mm -> {g['after'] * 1e3:.2f} mm "
+          f"(noise floor {rep['noise_floor'] * 1e3:.2f} mm; above the noise {g['excess_before'] * 1e3:.2f} -> "
+          f"{g['excess_after'] * 1e3:.2f} mm, shrink {100 * g['excess_shrink']:.0f} %; {g.get('why', '')})")
+    ins = rep["in_sample"]
+    print(f"in-sample RMSE: {ins['before'] * 1e3:.2f} mm (k={ins['k_before']}) -> {ins['after'] * 1e3:.2f} mm "
+          f"(k={ins['k_after']})")
     print(f"report: {Path(args.out) / 'discrepancy.md'}")
     return 0
 
