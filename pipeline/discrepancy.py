@@ -22,7 +22,11 @@ extended scenes (``effects:`` block) and a report showing the held-out gap shrin
    Jacobian at the optimum (``mujoco.sysid.calculate_intervals``: ``s^2 (J^T J)^-1``,
    Student-t quantile), and one extended scene per clip.
 4. **Show.** ``discrepancy.md`` / ``discrepancy.json``, residual plots before/after (PNG),
-   a rerun recording (measured vs base vs extended).
+   a rerun recording (measured vs base vs extended). The shown gap (:attr:`Result.gap`) is
+   the leave-one-clip-out held-out RMSE with >= 2 clips; with one clip there is nothing to
+   hold out, so it is a forward split in time (:func:`forward_gap`: fitted on the clip's
+   first part, the rest forecast). The in-sample RMSE with the number of fitted parameters
+   of each model is always reported beside it (:attr:`Result.in_sample`).
 
 Input: tables with columns ``clip, object, t, x, y, z`` (m, s, z up; CSV or Parquet), optional
 ``qw, qx, qy, qz`` (measured orientation, e.g. motion capture) and optional object columns

@@ -269,3 +269,26 @@ def test_forward_split_is_a_forecast():
     ws2.noise, ws2.weights = ws.noise, ws.weights
     b = D.forward_gap(ws2, 0, ["quadratic_drag"])
     assert b["effects"] == a["effects"] and b["before"] != a["before"]
+
+
+@pytest.mark.skipif(not REAL.exists(), reason="shared real data not present")
+@pytest.mark.xfail(strict=False, reason=(
+    "measured (forward_split 0.6: fit on the first 0.268 s = 9 samples, forecast the last 6): the "
+    "workflow names floor_tilt (tilt_y -22 deg, an effectively smaller g) and the forward gap goes "
+    "18.11 -> 13.27 mm, above the 2.86 mm noise 17.88 -> 12.96 mm = 27.5 % shrink (< 70 %); "
+    "with drag alone the first part fits density 3.8 (whole clip 0.72) and the forecast worsens to "
+    "48.6 mm. Not a convergence limit: the first-part fits end the same at max_nfev 15 and 200 "
+    "(chi2 11.5 at density 3.8 vs 23.6 at 0.72). Below 2.6 m/s, drag moves the 2.8 g ball by ~5 mm "
+    "over the first part, and the base model's free linear damping and initial velocity absorb most "
+    "of it, so the first part cannot fix the coefficient"))
+def test_single_clip_forward_gap_pingpong_drop():
+    """The shared ping-pong drop alone: the shown (forward) gap above the noise should shrink by
+    >= 70 % (issue 10); measured numbers in the xfail reason."""
+    clips = D.read_trajectories([REAL / "kseuro_balldrop_white_pingpong.txt"],
+                                "{kseuro_balldrop_white_pingpong: {sphere_0: {radius: 0.0201, mass: 0.0028}}}")
+    result = D.run_workflow(clips, D.DiscrepancyConfig(threads=1), OPTS)
+    rep = D.report_dict(result)
+    gap = rep["gap"]
+    assert gap["kind"] == "forward" and rep["in_sample"]["k_before"] > 0
+    assert result.named, gap
+    assert gap["excess_shrink"] >= 0.7, gap
