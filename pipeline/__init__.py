@@ -6,5 +6,9 @@ import os
 # mujoco / dm_control are imported anywhere (DESIGN.md §3).
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
+# FFmpeg's own log lines ("moov atom not found", "error while decoding MB ...") would follow our
+# one-line errors on stderr; OpenCV passes this level to av_log_set_level (-8 = quiet). Problems
+# still surface as pipeline.video.VideoError.
+os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
 
 __version__ = "0.1.0"

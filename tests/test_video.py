@@ -197,3 +197,31 @@ def test_hold_resting_keeps_an_object_that_stops_inside_the_frame():
         assert (held[t] == 0).sum() == (seg[2] == 0).sum()
         assert (held[t] == 1).sum() == 0
     np.testing.assert_array_equal(held[:3], seg[:3])
+
+
+def test_unreadable_and_truncated_videos(tmp_path):
+    """A file that is not a video ends in exactly one stderr line and exit 2 (FFmpeg's own log
+    is silenced); a video cut in half is read up to where it breaks (../shared/repro/video)."""
+    import subprocess
+    import sys
+
+    text = tmp_path / "text.mp4"
+    text.write_text("not a video\n" * 100)
+    proc = subprocess.run([sys.executable, "-m", "pipeline.cli", "infer", str(text), "--out", str(tmp_path / "o")],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [f"error: {text}: cannot open as a video"]
+    assert not (tmp_path / "o").exists()
+
+    full = tmp_path / "full.avi"
+    writer = cv2.VideoWriter(str(full), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (64, 48))
+    for k in range(60):
+        frame = np.zeros((48, 64, 3), np.uint8)
+        cv2.circle(frame, (5 + k, 24), 4, (255, 255, 255), -1)
+        writer.write(frame)
+    writer.release()
+    cut = tmp_path / "cut.avi"
+    data = full.read_bytes()
+    cut.write_bytes(data[: len(data) // 2])
+    clip = read_video(cut)
+    assert 10 <= len(clip.frames) < 60
