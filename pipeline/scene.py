@@ -16,6 +16,7 @@ Example::
 from __future__ import annotations
 
 import math
+import reprlib
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
@@ -23,6 +24,15 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 _LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml when available: ~10x faster
+
+MAX_SCENE_BYTES = 1_000_000
+"""Largest scene file accepted, bytes (a scene of 128 objects is ~60 kB)."""
+MAX_YAML_ALIASES = 64
+"""Most YAML aliases (``*name``) in a scene file: each can expand a whole subtree (an 8-level
+"billion laughs" document of 931 bytes took 44 s and 1.45 GB)."""
+MIN_MASS = 1e-6
+"""Smallest object mass, kg (1 mg): MuJoCo rejects bodies with mass or inertia below
+``mjMINVAL`` = 1e-15 at compile time (a 1e-20 kg sphere was a compile-error traceback)."""
 
 SHAPES = ("sphere", "cylinder", "box")
 """Primitive shapes of scene language v1, in canonical order."""
@@ -119,7 +129,7 @@ def _check_unit_quaternion(q: tuple[float, ...]) -> tuple[float, ...]:
 
 
 class _ObjectBase(_Strict):
-    mass: PositiveFloat
+    mass: Annotated[float, Field(ge=MIN_MASS, allow_inf_nan=False)]
     position: Vec3
     orientation: tuple[FiniteFloat, FiniteFloat, FiniteFloat, FiniteFloat] = (1.0, 0.0, 0.0, 0.0)
     linear_velocity: Vec3 = (0.0, 0.0, 0.0)
@@ -263,14 +273,31 @@ class Scene(_Strict):
         Raises:
             SceneError: malformed YAML or a field that fails validation (one line).
         """
+        if len(text) > MAX_SCENE_BYTES:
+            raise SceneError(f"{source}: <file>: must be at most {MAX_SCENE_BYTES} bytes, got {len(text)}")
         try:
+            if "*" in text:  # aliases expand before validation: a few bytes can mean gigabytes
+                n_alias = sum(isinstance(tok, yaml.AliasToken) for tok in yaml.scan(text, Loader=yaml.SafeLoader))
+                if n_alias > MAX_YAML_ALIASES:
+                    raise SceneError(f"{source}: <yaml>: must use at most {MAX_YAML_ALIASES} aliases (*name), "
+                                     f"got {n_alias}")
             data = yaml.load(text, Loader=_LOADER)
         except yaml.YAMLError as exc:
             mark = getattr(exc, "problem_mark", None)
             where = f"line {mark.line + 1}" if mark is not None else "<yaml>"
             problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
             raise SceneError(f"{source}: {where}: malformed YAML: {problem}") from None
-        return cls.from_dict(data, source)
+        except SceneError:
+            raise
+        except (ValueError, RecursionError) as exc:  # e.g. a 4,301-digit integer; nesting too deep
+            first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            if "integer string conversion" in first:
+                first = "numbers must have at most 4300 digits"
+            raise SceneError(f"{source}: <yaml>: cannot be read: {first[:160]}") from None
+        try:
+            return cls.from_dict(data, source)
+        except RecursionError:
+            raise SceneError(f"{source}: <root>: nested too deeply") from None
 
     def to_yaml(self, decimals: "Decimals | None" = None) -> str:
         """Canonical YAML text: keys in schema order, floats rounded per field.
@@ -330,9 +357,16 @@ def load_scene(path: str | Path) -> Scene:
     """
     path = Path(path)
     try:
-        text = path.read_text()
+        raw = path.read_bytes()
     except OSError as exc:
         raise SceneError(f"{path}: cannot read: {exc.strerror or exc}") from None
+    if len(raw) > MAX_SCENE_BYTES:
+        raise SceneError(f"{path}: <file>: must be at most {MAX_SCENE_BYTES} bytes, got {len(raw)}")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise SceneError(f"{path}: <file>: must be UTF-8 text, got byte 0x{raw[exc.start]:02x} at offset "
+                         f"{exc.start}") from None
     return Scene.from_yaml(text, source=str(path))
 
 
@@ -382,16 +416,36 @@ def _format_error(exc: ValidationError) -> str:
         inp = err["input"]
         if kind == "union_tag_invalid":
             inp = ctx.get("tag", inp)
-        msg += f", got {inp!r}"
+        msg += f", got {_short_repr(inp)}"
     return f"{path}: {msg}"
 
 
-def _num(x: float, nd: int) -> str:
-    v = round(float(x), nd)
+_REPR = reprlib.Repr()
+_REPR.maxlevel, _REPR.maxstring, _REPR.maxother = 2, 60, 60
+_REPR.maxlist = _REPR.maxtuple = _REPR.maxdict = 4
+
+
+def _short_repr(value: Any) -> str:
+    """``repr`` of a user's value cut to ~60 characters and 2 levels of nesting (a repr of a
+    996-deep list recursed past Python's limit; a 72 MB error line is no help)."""
+    try:
+        return _REPR.repr(value)
+    except (RecursionError, ValueError):
+        return f"<{type(value).__name__}>"
+
+
+def _num(x: float, nd: int, positive: bool = False) -> str:
+    """``x`` rounded to ``nd`` decimals. ``positive`` (fields that must be > 0: masses, sizes):
+    a value that would round to 0 keeps 3 significant digits instead, so that 0.0004 kg does
+    not print as 0.0 and then fail validation on re-reading; other fields round as always
+    (their canonical text, e.g. the model's targets, stays as it was)."""
+    x = float(x)
+    v = round(x, nd)
+    if positive and v == 0 and x != 0:
+        return repr(float(f"{x:.3g}"))
     if v == 0:
         v = 0.0  # no "-0.0"
-    s = repr(v)
-    return s
+    return repr(v)
 
 
 def _vec(xs: Any, nd: int) -> str:
@@ -419,12 +473,12 @@ def _dump(scene: Scene, d: Decimals) -> str:
     lines.append(f"  fov: {_num(cam.fov, d.camera)}")
     lines.append("objects:")
     for o in scene.objects:
-        size = ", ".join(f"{k}: {_num(v, d.size)}" for k, v in o.size.model_dump().items())
+        size = ", ".join(f"{k}: {_num(v, d.size, positive=True)}" for k, v in o.size.model_dump().items())
         m = o.material
         lines += [
             f"  - shape: {o.shape}",
             f"    size: {{{size}}}",
-            f"    mass: {_num(o.mass, d.mass)}",
+            f"    mass: {_num(o.mass, d.mass, positive=True)}",
             f"    position: {_vec(o.position, d.position)}",
             f"    orientation: {_vec(o.orientation, d.orientation)}",
             f"    linear_velocity: {_vec(o.linear_velocity, d.velocity)}",
@@ -436,7 +490,7 @@ def _dump(scene: Scene, d: Decimals) -> str:
     if scene.static:  # omitted when empty: scenes without static geometry print as before
         lines.append("static:")
         for g in scene.static:
-            size = ", ".join(f"{k}: {_num(v, d.size)}" for k, v in g.size.model_dump().items())
+            size = ", ".join(f"{k}: {_num(v, d.size, positive=True)}" for k, v in g.size.model_dump().items())
             lines += [
                 f"  - shape: {g.shape}",
                 f"    size: {{{size}}}",

@@ -1,5 +1,7 @@
 """Scene language v1: canonical YAML round trip and one-line errors naming the field path."""
 
+from pathlib import Path
+
 import pytest
 
 from pipeline.scene import Scene, SceneError, load_scene
@@ -71,7 +73,7 @@ camera: {fov: 45, pitch: 35, height: 1.2}
 @pytest.mark.parametrize("text,message", [
     (_edit("size: {radius: 0.08, height: 0.2}", "size: {radius: -1.0, height: 0.2}"),
      "<scene>: objects[2].size.radius: must be > 0"),
-    (_edit("mass: 0.2", "mass: -0.2"), "<scene>: objects[1].mass: must be > 0"),
+    (_edit("mass: 0.2", "mass: -0.2"), "<scene>: objects[1].mass: must be >= 1e-06"),
     (_edit("  - shape: sphere", "  - shape: cone"), "<scene>: objects[1].shape: unknown shape"),
     (_edit("    mass: 0.8", "    mass: 0.8\n    colour: red"), "<scene>: objects[0].colour: unknown key"),
     (_edit("fps: 30", "fps: 30\nwind: 3"), "<scene>: wind: unknown key"),
@@ -100,7 +102,7 @@ def test_error_quotes_the_bad_value():
 def test_load_scene_names_the_file(tmp_path):
     path = tmp_path / "bad.yaml"
     path.write_text(_edit("mass: 0.2", "mass: -0.2"))
-    with pytest.raises(SceneError, match=rf"^{path}: objects\[1\]\.mass: must be > 0"):
+    with pytest.raises(SceneError, match=rf"^{path}: objects\[1\]\.mass: must be >= 1e-06"):
         load_scene(path)
     with pytest.raises(SceneError, match="cannot read"):
         load_scene(tmp_path / "missing.yaml")
@@ -108,3 +110,47 @@ def test_load_scene_names_the_file(tmp_path):
     malformed.write_text("camera: {height: 1.2\nobjects: [")
     with pytest.raises(SceneError, match=rf"^{malformed}: line \d+: malformed YAML"):
         load_scene(malformed)
+
+
+# ------------------------------------------------------------- hostile input (issue 12)
+REPRO = Path(__file__).resolve().parents[1].parent / "shared" / "repro"
+
+
+def _valid_text(mass: float = 1.0) -> str:
+    return ("camera: {height: 1.2}\nobjects:\n  - shape: sphere\n    size: {radius: 0.1}\n"
+            f"    mass: {mass:.1e}\n    position: [0, 0, 0.1]\n")
+
+
+@pytest.mark.parametrize("content, needle", [
+    (b"\xff" + _valid_text().encode(), "must be UTF-8 text, got byte 0xff at offset 0"),
+    (("duration: " + "[" * 996 + "]" * 996 + "\n" + _valid_text()).encode(), "duration:"),
+    (("duration: " + "9" * 4301 + "\n" + _valid_text()).encode(), "numbers must have at most 4300 digits"),
+    (("a: &a [1, 1, 1, 1, 1, 1, 1, 1, 1]\n" + "".join(
+        f"{chr(98 + i)}: &{chr(98 + i)} [{', '.join(['*' + chr(97 + i)] * 9)}]\n" for i in range(8))
+      + _valid_text()).encode(), "aliases"),
+    (_valid_text(1e-20).encode(), "objects[0].mass: must be >= 1e-06, got 1e-20"),
+])
+def test_hostile_scene_files_get_one_short_line(tmp_path, content, needle):
+    path = tmp_path / "bad.yaml"
+    path.write_bytes(content)
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    msg = str(info.value)
+    assert needle in msg and "\n" not in msg and len(msg) < 300, msg
+
+
+def test_tiny_mass_round_trips():
+    """0.0004 kg used to print as 0.0 in the canonical text and then fail validation."""
+    scene = Scene.from_yaml(_valid_text(0.0004))
+    text = scene.to_yaml()
+    assert "mass: 0.0004" in text
+    assert Scene.from_yaml(text) == scene.rounded()
+
+
+@pytest.mark.skipif(not REPRO.exists(), reason="../shared/repro not present")
+@pytest.mark.parametrize("name", ["scene_nonutf8", "scene_deep_list", "scene_bigint", "scene_billion_laughs_8",
+                                  "scene_mass_1e-20_compile_traceback"])
+def test_repro_scene_files(name):
+    with pytest.raises(SceneError) as info:
+        load_scene(REPRO / f"{name}.yaml")
+    assert "\n" not in str(info.value) and len(str(info.value)) < 300
