@@ -159,6 +159,10 @@ def write_simulation(scene: Scene, out_dir: str | Path, width: int = 480, height
     return paths
 
 
+MIN_SIZE, MAX_SIZE = 2, 4096
+"""Render sizes ``dynamics simulate`` accepts, px (the mp4 encoder needs >= 2)."""
+
+
 def add_simulate_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Arguments of ``dynamics simulate``."""
     parser.add_argument("scene", type=Path, help="scene language YAML file")
@@ -172,21 +176,41 @@ def add_simulate_arguments(parser: argparse.ArgumentParser) -> argparse.Argument
 
 def simulate_cli(args: argparse.Namespace) -> int:
     """Run ``dynamics simulate``. Returns the exit status (2: invalid scene, nothing written)."""
+    def fail(msg: str) -> int:
+        print(msg, file=sys.stderr)
+        return 2
+
+    for name, value in (("width", args.width), ("height", args.height)):
+        if not MIN_SIZE <= value <= MAX_SIZE:
+            return fail(f"--{name}: must be in {MIN_SIZE}..{MAX_SIZE} px, got {value}")
+    if Path(args.out).exists() and not Path(args.out).is_dir():
+        return fail(f"{args.out}: --out: must be a folder (or not exist yet), got an existing file")
     try:
         scene = load_scene(args.scene)
         options, events = SimOptions(), EventConfig()
         if args.params is not None:
+            from pydantic import ValidationError
+
             from pipeline.params import load_params
 
             p = load_params(args.params)
+            for section, cls in (("sim", SimOptions), ("events", EventConfig)):
+                try:
+                    cls(**(p.get(section) or {}))
+                except ValidationError as exc:
+                    err = exc.errors()[0]
+                    where = ".".join(str(x) for x in (section, *err["loc"]))
+                    what = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
+                    return fail(f"{args.params}: {where}: {what}")
             options, events = SimOptions(**(p.get("sim") or {})), EventConfig(**(p.get("events") or {}))
+        # the offscreen buffer must hold the image (MuJoCo's default here is 640 px)
+        options = options.model_copy(update={"offscreen_size": max(options.offscreen_size, args.width, args.height)})
         paths = write_simulation(scene, args.out, args.width, args.height, options, events)
     except SceneError as exc:
         msg = str(exc)
         if msg.startswith("<scene>: "):  # raised while building the MJCF (effects)
             msg = f"{args.scene}: {msg.removeprefix('<scene>: ')}"
-        print(msg, file=sys.stderr)
-        return 2
+        return fail(msg)
     for name, path in paths.items():
         print(f"{name}: {path}")
     return 0

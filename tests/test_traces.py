@@ -96,3 +96,33 @@ def test_simulate_command_rejects_bad_scenes_with_one_line(tmp_path, capsys, edi
     assert err.startswith(f"{scene_file}: {message}"), err
     assert err.count("\n") == 1
     assert not out.exists()
+
+
+@pytest.mark.parametrize("case", ["width0", "out_is_file", "unknown_sim_key"])
+def test_simulate_command_rejects_bad_options_with_one_line(tmp_path, capsys, case):
+    """Issue 12 reproducers: `--width 0` left a partial trace.parquet, `--out` naming a file and a
+    params file with an unknown `sim` key printed tracebacks."""
+    scene_file = tmp_path / "ball.yaml"
+    scene_file.write_text(SCENE)
+    out = tmp_path / "out"
+    args, needle = {
+        "width0": (["--out", str(out), "--width", "0"], "--width: must be in 2..4096 px, got 0"),
+        "out_is_file": (["--out", str(tmp_path / "file")], "--out: must be a folder"),
+        "unknown_sim_key": (["--out", str(out), "--params", str(tmp_path / "p.yaml")], "sim.foo: unknown key"),
+    }[case]
+    (tmp_path / "file").write_text("keep me")
+    (tmp_path / "p.yaml").write_text("sim: {timestep: 0.002, foo: 1}\n")
+    assert _run([str(scene_file), *args]) == 2
+    err = capsys.readouterr().err
+    assert needle in err and err.count("\n") == 1, err
+    assert not out.exists()
+    assert (tmp_path / "file").read_text() == "keep me"
+
+
+def test_simulate_command_renders_wider_than_the_default_buffer(tmp_path):
+    """`--width 1000` exceeded MuJoCo's 640 px offscreen buffer (traceback); the buffer grows."""
+    scene_file = tmp_path / "ball.yaml"
+    scene_file.write_text(SCENE.replace("duration: 1.0", "duration: 0.2") if "duration: 1.0" in SCENE else SCENE)
+    out = tmp_path / "out"
+    assert _run([str(scene_file), "--out", str(out), "--width", "1000", "--height", "100"]) == 0
+    assert np.load(out / "masks.npz")["seg"].shape[1:] == (100, 1000)
