@@ -30,6 +30,12 @@ MAX_SCENE_BYTES = 1_000_000
 MAX_YAML_ALIASES = 64
 """Most YAML aliases (``*name``) in a scene file: each can expand a whole subtree (an 8-level
 "billion laughs" document of 931 bytes took 44 s and 1.45 GB)."""
+MAX_OBJECTS = 127
+"""Most objects in a scene: segmentation masks are int8 object ids (-1 = background), so
+objects 128 and up would wrap around and never be seen."""
+MAX_FRAMES = 10_000
+"""Most video frames (``duration * fps``) of a scene: every frame is simulated and rendered
+(2 s at 10,000 fps ran for minutes)."""
 MIN_MASS = 1e-6
 """Smallest object mass, kg (1 mg): MuJoCo rejects bodies with mass or inertia below
 ``mjMINVAL`` = 1e-15 at compile time (a 1e-20 kg sphere was a compile-error traceback)."""
@@ -225,9 +231,16 @@ class Scene(_Strict):
     fps: Annotated[int, Field(gt=0, le=10000)] = 30
     gravity: NonNegFloat = 9.81
     camera: Camera
-    objects: Annotated[list[SceneObject], Field(min_length=1)]
+    objects: Annotated[list[SceneObject], Field(min_length=1, max_length=MAX_OBJECTS)]
     static: list[StaticGeom] = []
     effects: list[Effect] = []
+
+    @model_validator(mode="after")
+    def _frame_budget(self) -> "Scene":
+        n = int(round(self.duration * self.fps))
+        if n > MAX_FRAMES:
+            raise ValueError(f"duration * fps: must be at most {MAX_FRAMES} frames, got {n}")
+        return self
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -398,6 +411,11 @@ def _format_error(exc: ValidationError) -> str:
         msg = f"must be < {ctx.get('lt')}"
     elif kind == "less_than_equal":
         msg = f"must be <= {ctx.get('le')}"
+    elif kind in ("too_long", "too_short"):
+        bound = "at most" if kind == "too_long" else "at least"
+        limit = ctx.get("max_length") if kind == "too_long" else ctx.get("min_length")
+        msg = f"must have {bound} {limit} items, got {ctx.get('actual_length')}"
+        return f"{path}: {msg}"
     elif kind == "extra_forbidden":
         msg = "unknown key"
     elif kind == "missing":

@@ -154,3 +154,15 @@ def test_repro_scene_files(name):
     with pytest.raises(SceneError) as info:
         load_scene(REPRO / f"{name}.yaml")
     assert "\n" not in str(info.value) and len(str(info.value)) < 300
+
+
+def test_object_count_and_frame_budget():
+    """Issue 12: objects 128+ wrapped around in the int8 segmentation; 2 s at 10,000 fps ran for
+    minutes. Both are rejected up front with one line."""
+    ball = {"shape": "sphere", "size": {"radius": 0.01}, "mass": 0.1}
+    many = {"camera": {"height": 1.0}, "objects": [{**ball, "position": [0.03 * i, 0, 0.01]} for i in range(128)]}
+    with pytest.raises(SceneError, match=r"^<scene>: objects: must have at most 127 items, got 128$"):
+        Scene.from_dict(many)
+    long = {"camera": {"height": 1.0}, "fps": 10000, "duration": 2.0, "objects": [{**ball, "position": [0, 0, 0.01]}]}
+    with pytest.raises(SceneError, match=r"duration \* fps: must be at most 10000 frames, got 20000"):
+        Scene.from_dict(long)
