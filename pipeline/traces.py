@@ -108,6 +108,30 @@ def object_frame_table(trace: Trace) -> pa.Table:
 
 
 # --------------------------------------------------------------------------- dynamics simulate
+def check_stable(trace, data) -> None:
+    """Raise when the simulation is not to be trusted: a non-finite state, or one of MuJoCo's
+    own warnings (``mjData.warning``: bad qacc, which makes MuJoCo reset the state silently,
+    contact or constraint buffer overflow, ...; MuJoCo docs, "mjtWarning").
+
+    Raises:
+        SceneError: ``<scene>: simulation: must stay stable, got ...`` (one line).
+    """
+    import mujoco
+
+    problems = []
+    bad = ~np.isfinite(trace.qpos).all(axis=(1, 2))
+    if bad.any():
+        problems.append(f"a non-finite state from frame {int(np.argmax(bad))}")
+    for name, w in mujoco.mjtWarning.__members__.items():
+        if name == "mjNWARNING":
+            continue
+        info = data.warning[int(w)]
+        if info.number > 0:
+            problems.append(f"MuJoCo warning {name.removeprefix('mjWARN_')} x{info.number}")
+    if problems:
+        raise SceneError("<scene>: simulation: must stay stable (MuJoCo), got " + "; ".join(problems))
+
+
 def write_simulation(scene: Scene, out_dir: str | Path, width: int = 480, height: int = 320,
                      options: SimOptions | None = None, events: EventConfig | None = None) -> dict[str, Path]:
     """Simulate and render a scene and write what ``dynamics simulate`` promises.
@@ -130,9 +154,13 @@ def write_simulation(scene: Scene, out_dir: str | Path, width: int = 480, height
     from pipeline.simulate import rollout
     from pipeline.viz import mask_overlay, side_by_side_mp4
 
+    import mujoco
+
     options = options or SimOptions()
     model = compile_model(scene, options)
-    trace = rollout(model, len(scene.objects), scene.n_frames, scene.fps)
+    data = mujoco.MjData(model)
+    trace = rollout(model, len(scene.objects), scene.n_frames, scene.fps, data=data)
+    check_stable(trace, data)
     with FrameRenderer(model, width, height) as renderer:
         frames = renderer.render(trace.qpos, rgb=True, seg=True, depth=False, flow=False)
     visible = frames.visible_pixels(len(scene.objects))
@@ -179,6 +207,13 @@ def simulate_cli(args: argparse.Namespace) -> int:
     def fail(msg: str) -> int:
         print(msg, file=sys.stderr)
         return 2
+
+    try:  # MuJoCo's per-step "simulation is unstable" log lines (via absl): check_stable reports
+        from absl import logging as absl_logging
+
+        absl_logging.set_verbosity(absl_logging.ERROR)
+    except ImportError:  # pragma: no cover
+        pass
 
     for name, value in (("width", args.width), ("height", args.height)):
         if not MIN_SIZE <= value <= MAX_SIZE:

@@ -126,3 +126,20 @@ def test_simulate_command_renders_wider_than_the_default_buffer(tmp_path):
     out = tmp_path / "out"
     assert _run([str(scene_file), "--out", str(out), "--width", "1000", "--height", "100"]) == 0
     assert np.load(out / "masks.npz")["seg"].shape[1:] == (100, 1000)
+
+
+@pytest.mark.parametrize("edit", [("position: [0.0, 0.0, 0.6]", "position: [1.0e+308, 0.0, 0.6]"),
+                                  ("linear_velocity: [0.5, 0.0, 0.0]",
+                                   "linear_velocity: [0.5, 0.0, 0.0]\n    angular_velocity: [1.0e+30, 0.0, 0.0]")])
+def test_simulate_command_refuses_unstable_simulations(tmp_path, capsys, edit):
+    """Issue 12: a trace 84 % NaN and MuJoCo's silent resets (bad qacc / qvel) came back with exit
+    0; now one line naming the problem, exit 2, nothing written."""
+    text = SCENE.replace(*edit, 1)
+    assert text != SCENE
+    scene_file = tmp_path / "bad.yaml"
+    scene_file.write_text(text)
+    out = tmp_path / "out"
+    assert _run([str(scene_file), "--out", str(out), "--width", "32", "--height", "32"]) == 2
+    err = capsys.readouterr().err
+    assert "simulation: must stay stable" in err and err.count("\n") == 1, err
+    assert not out.exists()
