@@ -55,7 +55,8 @@ def list_shards(path: str | Path, ext: str, prefix: str = "shard") -> list[Path]
     """Sorted shards of a stage directory, or ``[path]`` if ``path`` is itself a shard.
 
     Raises:
-        ShardError: the path does not exist or holds no shard of that kind.
+        ShardError: the path does not exist, holds no shard of that kind, has no ``meta.json``
+            (the stage was interrupted) or fewer/more shards than its ``meta.json`` lists.
     """
     path = Path(path)
     if path.suffix == f".{ext}":
@@ -67,6 +68,11 @@ def list_shards(path: str | Path, ext: str, prefix: str = "shard") -> list[Path]
     shards = sorted(path.glob(f"{prefix}-*.{ext}"))
     if not shards:
         raise ShardError(f"{path}: no {prefix}-*.{ext} shards")
+    if not (path / META_FILE).exists():
+        # a stage writes meta.json last: without it the stage was interrupted (killed) and the
+        # shards here may be a part of its output
+        raise ShardError(f"{path / META_FILE}: missing: the stage that writes {path} did not finish "
+                         f"({len(shards)} {prefix} shards found); rerun `dvc repro`")
     meta = read_meta(path, required=False)
     expected = meta.get("shards", {}).get(prefix) if meta else None
     if expected is not None and len(shards) != int(expected):

@@ -355,6 +355,8 @@ def test_stages_tokenize_finetune_infer(tmp_path, monkeypatch):
                             scene_ids=ids[part])
     shards.write_table(shards.shard_path(tmp_path / "events", 0, "parquet", prefix="think"),
                        [{"scene_id": i, "think": THINK} for i in ids])
+    for name in ("configs", "flow", "video", "events"):  # finished stages leave a meta.json
+        shards.write_meta(tmp_path / name, {})
     model = TINY.model_dump(exclude={"pretrained", "seed"}) | {"max_steps": 4, "eval_interval": 2, "k": 2,
                                                                "input": "flow+rgb"}
     paths = {name: str(tmp_path / name) for name in

@@ -342,6 +342,8 @@ def test_stages_best_of_k_cmaes_score(tmp_path, monkeypatch):
               "scene": scenes[i].to_yaml() if j == 1 else None, "error": "no answer" if j == 0 else None}
              for i in (3, 4) for j in (0, 1)]
     shards.write_table(shards.shard_path(paths["predictions"], 0, "parquet"), preds, schema=schema)
+    for key in ("configs", "video", "flow", "predictions"):  # finished stages leave a meta.json
+        shards.write_meta(paths[key], {"shards": {"shard": 1}})
 
     for stage in ("best_of_k", "cmaes", "score"):
         _run_stage(stage)
