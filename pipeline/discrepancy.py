@@ -18,9 +18,10 @@ extended scenes (``effects:`` block) and a report showing the held-out gap shrin
    parameters refitted). An effect is named only if it clears both gates (BIC drop and
    held-out chi-square drop above thresholds, i.e. above what the noise floor explains);
    greedy forward selection repeats with the named effects in the model.
-3. **Add.** The final joint fit gives the coefficients, with confidence intervals from the
-   Jacobian at the optimum (``mujoco.sysid.calculate_intervals``: ``s^2 (J^T J)^-1``,
-   Student-t quantile), and one extended scene per clip.
+3. **Add.** The final joint fit (converged) gives the coefficients, with confidence intervals
+   from the profile likelihood (:func:`profile_intervals`; the Gauss-Newton interval
+   ``s^2 (J^T J)^-1`` of ``mujoco.sysid.calculate_intervals`` where the profile confirms it,
+   open where the data cannot bound a side), and one extended scene per clip.
 4. **Show.** ``discrepancy.md`` / ``discrepancy.json``, residual plots before/after (PNG),
    a rerun recording (measured vs base vs extended). The shown gap (:attr:`Result.gap`) is
    the leave-one-clip-out held-out RMSE with >= 2 clips; with one clip there is nothing to
@@ -135,7 +136,14 @@ class DiscrepancyConfig(_Strict):
         contact_tolerance: m; an object is on the floor when its lowest point is closer.
         rest_speed: m/s; below it an object on the floor is at rest.
         max_nfev: function evaluations per least-squares fit of the base model.
-        max_nfev_warm: ... per warm-started fit (joint fits of candidates, held-out refits).
+        max_nfev_warm: ... per warm-started fit (profile refits, held-out refits). These two
+            caps are for the cheap screening fits (profile points, continuation horizons).
+        ftol: relative cost tolerance of the *converged* fits (scipy ``ftol``; ``xtol`` and
+            ``gtol`` are set 100x smaller): the base model's last horizon, every candidate's
+            joint fit, the final fit and the profile-likelihood points stop on it.
+        max_nfev_converged: safety cap (function evaluations) of a converged fit; a fit that
+            reaches it reports ``status`` 0 in the report (``optimizer``).
+        screen_ftol: relative cost tolerance of the screening fits.
         threads: MuJoCo rollout threads.
         rescreen_all: after the first step, try every remaining candidate again (default:
             only those whose profile improved the base model by ``heldout_threshold``).
@@ -161,6 +169,9 @@ class DiscrepancyConfig(_Strict):
     rest_speed: float = Field(0.05, gt=0)
     max_nfev: int = Field(15, ge=2)
     max_nfev_warm: int = Field(10, ge=2)
+    ftol: float = Field(1e-6, gt=0, lt=1)
+    max_nfev_converged: int = Field(100, ge=2)
+    screen_ftol: float = Field(1e-4, gt=0, lt=1)
     threads: int = Field(2, ge=1)
     rescreen_all: bool = False
     horizons: tuple[float, ...] = (0.5, 1.0)
@@ -1059,6 +1070,13 @@ class Fit:
         theta_keys: ``(effect, parameter)`` of the fitted effect coefficients.
         ci: ``{effect: {parameter: [low, high]}}`` confidence intervals (joint fits only).
         nfev: function evaluations (each = one rollout per clip).
+        status: scipy ``least_squares`` status of the last optimiser run (0: the evaluation
+            cap was reached; 1-4: a tolerance was met; -2: no free parameter / not run).
+        iterations: the optimiser's function evaluations (``sol.nfev``; Jacobians not counted).
+        converged: fitted with the converged settings (``cfg.ftol``) and stopped on a tolerance.
+        start: which start the fit came from (candidates: ``profile`` or ``base optimum``).
+        ci_gn: Gauss-Newton intervals (unclipped, may pass the search bounds).
+        ci_method: ``{effect: {parameter: how its interval was found}}``.
     """
 
     effects: dict[str, dict[str, float]]
@@ -1071,6 +1089,17 @@ class Fit:
     theta_keys: list[tuple[str, str]] = field(default_factory=list)
     ci: dict[str, dict[str, list[float]]] = field(default_factory=dict)
     nfev: int = 0
+    status: int = -2
+    iterations: int = 0
+    converged: bool = False
+    start: str = ""
+    ci_gn: dict[str, dict[str, list[float | None]]] = field(default_factory=dict)
+    ci_method: dict[str, dict[str, str]] = field(default_factory=dict)
+
+    def optimizer(self) -> dict[str, Any]:
+        """``{status, iterations, rollouts, converged, start}`` of the fit (report)."""
+        return {"status": int(self.status), "iterations": int(self.iterations), "rollouts": int(self.nfev),
+                "converged": bool(self.converged), "start": self.start}
 
     @property
     def n(self) -> int:
@@ -1108,7 +1137,8 @@ def _effect_values(start: Mapping[str, Mapping[str, float]], keys: Sequence[tupl
 def fit_clips(clips: Sequence[Clip], models: Sequence[ClipModel], weights: Sequence[Weights],
               start_nuisance: Sequence[np.ndarray], start_effects: Mapping[str, Mapping[str, float]],
               cfg: DiscrepancyConfig, fit_effects: bool = True, with_ci: bool = False,
-              max_nfev: int | None = None) -> Fit:
+              max_nfev: int | None = None, converge: bool = False,
+              fixed: Sequence[tuple[str, str]] = ()) -> Fit:
     """Least-squares fit of the clips' base parameters, and (``fit_effects``) the effects'
     shared coefficients, to the measured trajectories.
 
@@ -1124,7 +1154,12 @@ def fit_clips(clips: Sequence[Clip], models: Sequence[ClipModel], weights: Seque
         cfg: settings (``max_nfev``, ``diff_step``, ``ci_level``).
         fit_effects: fit the effects' coefficients (else they stay at ``start_effects``).
         with_ci: compute confidence intervals of the coefficients.
-        max_nfev: overrides ``cfg.max_nfev``.
+        max_nfev: overrides ``cfg.max_nfev`` (``cfg.max_nfev_converged`` if ``converge``).
+        converge: stop on the tolerance ``cfg.ftol`` (``xtol``, ``gtol`` 100x smaller) with
+            ``cfg.max_nfev_converged`` as a safety cap only; else the screening settings
+            (``cfg.screen_ftol``, ``max_nfev``).
+        fixed: ``(effect, parameter)`` coefficients held at ``start_effects`` (profile
+            likelihood).
 
     Returns:
         :class:`Fit`.
@@ -1132,7 +1167,7 @@ def fit_clips(clips: Sequence[Clip], models: Sequence[ClipModel], weights: Seque
     from scipy.optimize import least_squares
 
     effects = list(start_effects)
-    keys = _theta_keys(effects) if fit_effects else []
+    keys = [k for k in _theta_keys(effects) if k not in set(fixed)] if fit_effects else []
     masks = [free_mask(c, effects, cfg) for c in clips]
     scales = [_nuisance_scales(c) for c in clips]
     bounds = [_nuisance_bounds(c) for c in clips]
@@ -1224,10 +1259,15 @@ def fit_clips(clips: Sequence[Clip], models: Sequence[ClipModel], weights: Seque
                 J[rows[c]:rows[c + 1], col] = (clip_residuals(clips[c], q, weights[c])[0] - base[c]) / step
         return J
 
+    status, iterations = -2, 0
     if len(u0):
+        if converge:
+            cap, ftol = max_nfev or cfg.max_nfev_converged, cfg.ftol
+        else:
+            cap, ftol = max_nfev or cfg.max_nfev, cfg.screen_ftol
         sol = least_squares(fun, u0, jac=jac, bounds=(lo, hi), method="trf", x_scale=1.0,
-                            max_nfev=max_nfev or cfg.max_nfev, ftol=1e-4, xtol=1e-8, gtol=1e-8)
-        u = sol.x
+                            max_nfev=cap, ftol=ftol, xtol=min(1e-8, ftol * 1e-2), gtol=min(1e-8, ftol * 1e-2))
+        u, status, iterations = sol.x, int(sol.status), int(sol.nfev)
     else:
         u = u0
     nuis, theta = unpack(u)
@@ -1240,9 +1280,12 @@ def fit_clips(clips: Sequence[Clip], models: Sequence[ClipModel], weights: Seque
         sq.append(float(d @ d))
         n_res.append(int(r.size))
         n_pos.append(int(d.size))
-    fit = Fit(values, nuis, chi2, sq, n_res, n_pos, k=len(u), theta_keys=keys, nfev=counter["nfev"])
+    fit = Fit(values, nuis, chi2, sq, n_res, n_pos, k=len(u), theta_keys=keys, nfev=counter["nfev"],
+              status=status, iterations=iterations, converged=bool(converge and status > 0))
     if with_ci and n_theta:
-        fit.ci = _intervals(jac(u), fun(u), keys, th_scale, theta, offs[-1], cfg.ci_level)
+        fit.ci_gn = _intervals(jac(u), fun(u), keys, th_scale, theta, offs[-1], cfg.ci_level)
+        fit.ci = {e: {p: list(v) for p, v in d.items()} for e, d in fit.ci_gn.items()}
+        fit.ci_method = {e: {p: "gauss-newton" for p in d} for e, d in fit.ci_gn.items()}
     return fit
 
 
@@ -1251,26 +1294,31 @@ def _intervals(J: np.ndarray, r: np.ndarray, keys: Sequence[tuple[str, str]], th
     """Confidence intervals of the coefficients from the Jacobian at the optimum:
     covariance ``s^2 (J^T J)^-1`` with ``s^2 = RSS / (n - p)`` (nuisance parameters
     marginalised by the full inverse), half-width ``t_{n-p}(1 - alpha/2) sqrt(diag)``;
-    computed by ``mujoco.sysid.calculate_intervals`` (falls back to the same formula)."""
+    computed by ``mujoco.sysid.calculate_intervals`` (falls back to the same formula with a
+    pseudo-inverse where that is not finite). Not clipped to the search bounds (``None`` where
+    not finite); :func:`profile_intervals` checks them against the profile."""
     alpha = 1.0 - level
     Jp = J.copy()
     Jp[:, first:] = Jp[:, first:] / th_scale  # normalised -> physical units
+    half = np.full(len(keys), np.nan)
     try:
         from mujoco import sysid
 
         _, half = sysid.calculate_intervals([r], Jp, alpha=alpha)
         half = np.asarray(half)[first:]
     except (ImportError, AttributeError):  # pragma: no cover - sysid is an optional extra
+        pass
+    if not np.all(np.isfinite(half)):
+        # e.g. a parameter without effect on the data (spin of a sphere in free flight) makes
+        # J^T J singular and sysid's inverse non-finite: pseudo-inverse (the same formula)
         from scipy import stats
 
-        s2 = float(r @ r) / max(len(r) - J.shape[1], 1)
-        cov = s2 * np.linalg.pinv(Jp.T @ Jp)
-        half = np.sqrt(np.maximum(np.diag(cov)[first:], 0)) * stats.t.ppf(1 - alpha / 2, max(len(r) - J.shape[1], 1))
-    out: dict[str, dict[str, list[float]]] = {}
-    for (e, p), v, hw in zip(keys, theta, half):
-        spec = fx.REGISTRY[e].parameters[p]
-        out.setdefault(e, {})[p] = [float(max(v - hw, spec.low)) if np.isfinite(hw) else spec.low,
-                                    float(min(v + hw, spec.high)) if np.isfinite(hw) else spec.high]
+        dof = max(len(r) - J.shape[1], 1)
+        cov = float(r @ r) / dof * np.linalg.pinv(Jp.T @ Jp)
+        half = np.sqrt(np.maximum(np.diag(cov)[first:], 0)) * stats.t.ppf(1 - alpha / 2, dof)
+    out: dict[str, dict[str, list[float | None]]] = {}
+    for (e, p), v, hw in zip(keys, theta, half):   # not clipped to the search bounds
+        out.setdefault(e, {})[p] = [float(v - hw), float(v + hw)] if np.isfinite(hw) else [None, None]
     return out
 
 
@@ -1494,19 +1542,23 @@ class Workspace:
         return self._models[key]
 
     def fit(self, idx: Sequence[int], starts: Sequence[np.ndarray], effects: Mapping[str, Mapping[str, float]],
-            fit_effects: bool = True, with_ci: bool = False, max_nfev: int | None = None) -> Fit:
+            fit_effects: bool = True, with_ci: bool = False, max_nfev: int | None = None,
+            converge: bool = False, fixed: Sequence[tuple[str, str]] = ()) -> Fit:
         """:func:`fit_clips` on the clips ``idx``."""
         return fit_clips([self.clips[c] for c in idx], [self.model(c, effects) for c in idx],
-                         [self.weights[c] for c in idx], starts, effects, self.cfg, fit_effects, with_ci, max_nfev)
+                         [self.weights[c] for c in idx], starts, effects, self.cfg, fit_effects, with_ci, max_nfev,
+                         converge, fixed)
 
     def fit_each(self, idx: Sequence[int], starts: Sequence[np.ndarray],
-                 effects: Mapping[str, Mapping[str, float]], max_nfev: int | None = None) -> Fit:
+                 effects: Mapping[str, Mapping[str, float]], max_nfev: int | None = None,
+                 converge: bool = False) -> Fit:
         """Fit every clip on its own with the effects' values held (no shared parameters),
         merged into one :class:`Fit` (k counts every clip's parameters).
 
         Each clip is fitted by continuation over the time horizon (``cfg.horizons``: first
         the opening fraction of the clip, then longer, warm-starting each from the last), so
-        that late contacts do not pull the initial state into a wrong basin."""
+        that late contacts do not pull the initial state into a wrong basin. With ``converge``
+        the last horizon (the whole clip) runs to the tolerance ``cfg.ftol``."""
         parts = []
         for c, start in zip(idx, starts):
             clip = self.clips[c]
@@ -1517,13 +1569,18 @@ class Workspace:
                 model = ClipModel(sub, tuple(effects), self.options, self.gravity, self.cfg.threads) if frac < 1.0 \
                     else self.model(c, effects)
                 start = _scan_friction(sub, model, self.weights[c], start, effects, self.cfg)
+                last = frac >= self.cfg.horizons[-1]
                 part = fit_clips([sub], [model], [self.weights[c]], [start], effects, self.cfg,
-                                 fit_effects=False, max_nfev=max_nfev)
+                                 fit_effects=False, max_nfev=None if (converge and last) else max_nfev,
+                                 converge=converge and last)
                 start = part.nuisance[0]
             parts.append(part)
         return Fit({e: dict(p) for e, p in effects.items()}, [p.nuisance[0] for p in parts],
                    [p.chi2[0] for p in parts], [p.sq_pos[0] for p in parts], [p.n_res[0] for p in parts],
-                   [p.n_pos[0] for p in parts], k=sum(p.k for p in parts), nfev=sum(p.nfev for p in parts))
+                   [p.n_pos[0] for p in parts], k=sum(p.k for p in parts), nfev=sum(p.nfev for p in parts),
+                   status=min((p.status for p in parts), default=-2),
+                   iterations=sum(p.iterations for p in parts),
+                   converged=bool(parts) and all(p.converged or p.status == -2 for p in parts))
 
 
 def _scan_effect(ws: "Workspace", idx: Sequence[int], nuisance: Sequence[np.ndarray],
@@ -1653,8 +1710,8 @@ def _profile_axis(ws: "Workspace", idx: Sequence[int], current: Fit, name: str
     return mags, lambda v: {**defaults, **{k: float(v * dk) for k, dk in zip(keys, d)}}
 
 
-def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: str
-                       ) -> tuple[Fit, HeldOut, Profile]:
+def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: str,
+                       baseline: Fit | None = None) -> tuple[Fit, HeldOut, Profile]:
     """Fit the current model plus effect ``name`` and score it out of sample.
 
     1. Profile: at each point of :func:`_profile_axis` (the first is where the effect
@@ -1670,9 +1727,15 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
        (clips that carry no information on the effect do not set it); the left-out clip
        refitted there.
 
+    ``current`` is the converged current model (start of the joint fit, :func:`_joint_fit`);
+    ``baseline`` (default ``current``) the current model fitted like the profile points (per
+    clip from the data, screening budget), used as the profile's first point where the effect
+    vanishes, so that the profile compares like with like.
+
     Returns:
         ``(joint fit, held-out scores, profile)``.
     """
+    baseline = baseline or current
     s_pts, to_params = _profile_axis(ws, idx, current, name)
     prof = Profile([], [], [], [], [])
     others = {k: dict(v) for k, v in current.effects.items()}
@@ -1684,8 +1747,9 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
     # The first point is the current model itself (the effect vanishes there); then outwards
     # until the summed chi-square has risen at two points in a row (the profile is taken as
     # unimodal), so an effect the data do not want costs two or three points.
-    if _vanishes(ws, idx[0], current, name, to_params(s_pts[0])):
-        prof.add(s_pts[0], to_params(s_pts[0]), current)
+    at_current = _vanishes(ws, idx[0], current, name, to_params(s_pts[0]))
+    if at_current:
+        prof.add(s_pts[0], to_params(s_pts[0]), baseline)
     else:
         evaluate(s_pts[0])
     rises = 0
@@ -1698,8 +1762,8 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
     if all(abs(star - v) > 1e-9 for v in prof.s):
         evaluate(star)
     b = int(np.argmin(prof.total()))
-    effects = {**others, name: prof.params[b]}
-    joint = ws.fit(idx, prof.nuis[b], effects, max_nfev=2 * ws.cfg.max_nfev_warm)
+    joint = _joint_fit(ws, idx, current, name, others, prof.nuis[b], prof.params[b],
+                       prof.params[0] if at_current else None, b == 0)
 
     keys = [p for p, sp in fx.REGISTRY[name].parameters.items() if sp.fit]
     theta = np.array([joint.effects[name][k] for k in keys])
@@ -1739,6 +1803,171 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
             ho.chi2[c], ho.sq_pos[c] = min(part.chi2[0], prof.chi2[near][c]), part.sq_pos[0]
         ho.theta[c] = eff
     return joint, ho, prof
+
+
+def _joint_fit(ws: "Workspace", idx: Sequence[int], current: Fit, name: str,
+               others: Mapping[str, Mapping[str, float]], nuis: Sequence[np.ndarray], params: Mapping[str, float],
+               null: Mapping[str, float] | None, best_is_null: bool) -> Fit:
+    """Converged joint fit of the current model + effect ``name`` (coefficients shared, every
+    clip's parameters free), the best of several starts:
+
+    - ``profile``: the profile's best point (``nuis``, ``params``; per-clip fits from the data);
+    - ``base optimum``: for a nested effect (``null`` = its parameters where it vanishes, the
+      model then being the current one), the current model's optimum with the effect at
+      ``null``; the start point itself is kept as a candidate too (a trust-region method only
+      accepts decreasing steps, but the fit must start 1e-3 scale off a bound), so the extended
+      fit is never worse than the current model (nested models).
+
+    Each start runs to the tolerance ``cfg.ftol`` (:func:`fit_clips` ``converge``). The fits'
+    ``start`` attribute says which start won."""
+    fits = []
+    f = ws.fit(idx, nuis, {**others, name: dict(params)}, converge=True)
+    f.start = "profile"
+    fits.append(f)
+    if null is not None:
+        eff = {**others, name: dict(null)}
+        if not best_is_null:   # else the profile start already is the base optimum
+            f = ws.fit(idx, current.nuisance, eff, converge=True)
+            f.start = "base optimum"
+            fits.append(f)
+        n_theta = len(_theta_keys([name]))
+        fits.append(Fit({k: dict(v) for k, v in eff.items()}, list(current.nuisance), list(current.chi2),
+                        list(current.sq_pos), list(current.n_res), list(current.n_pos), current.k + n_theta,
+                        _theta_keys(list(eff)), nfev=0, status=current.status, iterations=0,
+                        converged=current.converged, start="base optimum (effect at its null value, not moved)"))
+    best = min(fits, key=lambda g: g.rss)
+    best.nfev = sum(g.nfev for g in fits)
+    best.iterations = sum(g.iterations for g in fits)
+    return best
+
+
+PROFILE_ACCEPT_GN = 0.25
+"""The Gauss-Newton end of an interval is accepted when the profile's rise there is within
+this fraction of the threshold (the profile is quadratic enough)."""
+PROFILE_GROW = 3.0
+"""Outward step factor when the profile has not yet risen to the threshold."""
+PROFILE_BISECT = 6
+"""Most interpolation steps (Illinois regula falsi on the square root of the rise) to locate
+a crossing (stops earlier when the rise is within 5 % of the threshold)."""
+
+
+def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None
+                      ) -> tuple[dict[str, dict[str, list[float | None]]], dict[str, dict[str, str]]]:
+    """Profile-likelihood intervals of the fitted coefficients of ``fit`` (a converged joint fit
+    with Gauss-Newton intervals ``fit.ci_gn``).
+
+    The threshold is ``Δχ² = q s²``: ``q`` the chi-square(1) quantile at ``cfg.ci_level``
+    (3.84 for 95 %), ``s² = χ²/dof`` of the fit (the residual variance factor; 1 when the
+    noise model is right). A profile point fixes the coefficient, refits every other parameter
+    (all clips' parameters and the other coefficients) from the optimum to the tolerance, and
+    its rise is ``χ²(point) − χ²(optimum)`` (with one coefficient the clips separate and are
+    refitted one by one: small, well-conditioned fits). Each side of each coefficient:
+
+    1. the Gauss-Newton end is checked with one profile point: a rise within
+       :data:`PROFILE_ACCEPT_GN` of the threshold accepts it (``gauss-newton``);
+    2. else the crossing is bracketed (outwards by :data:`PROFILE_GROW` up to the search
+       bound) and located by Illinois regula falsi on the square root of the rise (exact for a
+       quadratic profile; at most :data:`PROFILE_BISECT` steps) (``profile``);
+    3. where the profile has not risen by the threshold at the search bound, the data cannot
+       bound the coefficient on that side: it is ``None`` (open), never the bound (``open``).
+
+    Returns:
+        ``(ci, method)``: ``{effect: {parameter: [low|None, high|None]}}`` and
+        ``{effect: {parameter: "low method / high method"}}``.
+    """
+    from scipy.stats import chi2 as chi2_dist
+
+    cfg = ws.cfg
+    dof = max(fit.n - fit.k, 1)
+    s2 = fit.rss / dof
+    thr = float(chi2_dist.ppf(cfg.ci_level, 1)) * s2
+    ci: dict[str, dict[str, list[float | None]]] = {}
+    method: dict[str, dict[str, str]] = {}
+    for e, p in fit.theta_keys:
+        spec = fx.REGISTRY[e].parameters[p]
+        v = float(fit.effects[e][p])
+        gn = (fit.ci_gn.get(e) or {}).get(p) or [None, None]
+        cache: dict[float, float] = {}
+
+        def rise(x: float) -> float:
+            x = float(x)
+            if x not in cache:
+                eff = {k: dict(d) for k, d in fit.effects.items()}
+                eff[e][p] = x
+                if len(fit.theta_keys) == 1:   # nothing else shared: the clips separate
+                    total = 0.0
+                    for j, c in enumerate(idx):
+                        f = ws.fit([c], [fit.nuisance[j]], eff, fit_effects=False, converge=True)
+                        total += f.rss
+                else:
+                    total = ws.fit(idx, fit.nuisance, eff, converge=True, fixed=[(e, p)]).rss
+                cache[x] = max(total - fit.rss, 0.0)
+            return cache[x]
+
+        ends, how = [], []
+        for sign, bound, g in ((-1.0, spec.low, gn[0]), (1.0, spec.high, gn[1])):
+            room = sign * (bound - v)
+            if room <= 1e-9 * spec.scale:        # at the search bound: nothing beyond it to test
+                ends.append(None)
+                how.append("open (at the search bound)")
+                continue
+            step = abs(g - v) if g is not None and np.isfinite(g) and abs(g - v) > 0 else spec.scale
+            x = v + sign * min(step, room)
+            r = rise(x)
+            if abs(x - bound) > 1e-12 and abs(r - thr) <= PROFILE_ACCEPT_GN * thr and g is not None:
+                ends.append(float(x))
+                how.append("gauss-newton (profile-checked)")
+                continue
+            inner, r_in = v, 0.0
+            while r < thr and abs(x - bound) > 1e-12:
+                inner, r_in = x, r
+                x = v + sign * min(PROFILE_GROW * abs(x - v), room)
+                r = rise(x)
+            if r < thr:                           # never rose by the threshold before the bound
+                ends.append(None)
+                how.append(f"open (profile rise {r:.3g} < {thr:.3g} at the search bound {bound:g})")
+                continue
+            outer, r_out = x, r
+            # Illinois regula falsi on g = sqrt(rise) - sqrt(threshold) (linear for a quadratic
+            # profile); the end kept twice in a row has its g halved, so a steep far end (a
+            # bound of another parameter becoming active) cannot stall it.
+            g_in, g_out, kept = math.sqrt(r_in) - math.sqrt(thr), math.sqrt(r_out) - math.sqrt(thr), 0
+            for _ in range(PROFILE_BISECT):
+                xm = inner + (outer - inner) * (-g_in) / (g_out - g_in) if g_out > g_in else 0.5 * (inner + outer)
+                rm = rise(xm)
+                gm = math.sqrt(rm) - math.sqrt(thr)
+                if abs(rm - thr) <= 0.05 * thr:
+                    inner = outer = xm
+                    break
+                if gm < 0:
+                    inner, g_in = xm, gm
+                    kept = kept + 1 if kept > 0 else 1
+                    if kept >= 2:
+                        g_out *= 0.5
+                else:
+                    outer, g_out = xm, gm
+                    kept = kept - 1 if kept < 0 else -1
+                    if kept <= -2:
+                        g_in *= 0.5
+            t = (-g_in) / (g_out - g_in) if g_out > g_in else 0.5
+            ends.append(float(inner + min(max(t, 0.0), 1.0) * (outer - inner)))
+            how.append("profile")
+        ci.setdefault(e, {})[p] = ends
+        method.setdefault(e, {})[p] = " / ".join(how)
+        if log:
+            log(f"interval {e}.{p} = {v:.4g}: {_fmt_interval(ends)} (Gauss-Newton {_fmt_interval(gn)}; "
+                f"{len(cache)} profile fits; {method[e][p]})")
+    return ci, method
+
+
+def _fmt_interval(ci: Sequence[float | None] | None, nd: int = 4) -> str:
+    """``[lo, hi]`` with an open side shown as ``(open`` / ``open)``."""
+    if not ci:
+        return "fixed"
+    lo, hi = ci
+    left = "(open" if lo is None else f"[{lo:.{nd}g}"
+    right = "open)" if hi is None else f"{hi:.{nd}g}]"
+    return f"{left}, {right}"
 
 
 def _gate(cand: dict[str, Any], cfg: DiscrepancyConfig) -> tuple[bool, str]:
@@ -1859,7 +2088,7 @@ def forward_gap(ws: "Workspace", c: int, effects: Sequence[str], log=None) -> di
         return None
     part = Workspace([first], ws.cfg, ws.options, ws.gravity)
     part.noise, part.weights = [ws.noise[c]], [ws.weights[c]]
-    base = part.fit_each([0], [initial_nuisance(first)], {})
+    base = part.fit_each([0], [initial_nuisance(first)], {}, converge=True)
     current = base
     for e in effects:
         joint, _, _ = _profile_candidate(part, [0], current, e)
@@ -1918,12 +2147,15 @@ def _run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None, options:
     ws = Workspace(clips, cfg, options, gravity)
     n = len(ws.clips)
     idx = list(range(n))
-    base = ws.fit_each(idx, [initial_nuisance(c) for c in ws.clips], {})
+    base = ws.fit_each(idx, [initial_nuisance(c) for c in ws.clips], {}, converge=True)
+    base.start = "data (per-clip continuation)"
     base_ho = HeldOut(list(base.chi2), list(base.sq_pos), list(base.n_res), list(base.n_pos))
     say(f"base model: RMSE {base.rmse * 1e3:.2f} mm over {n} clips "
         f"(noise {np.median([z.position for z in ws.noise]) * 1e3:.2f} mm)")
 
     current, cur_ho, steps = base, base_ho, []
+    screen = ws.fit_each(idx, [initial_nuisance(c) for c in ws.clips], {})
+    base_ho = cur_ho = HeldOut(list(screen.chi2), list(screen.sq_pos), list(screen.n_res), list(screen.n_pos))
     named_order: list[str] = []
     for step in range(1, cfg.max_effects + 1):
         remaining = [e for e in cfg.candidates if e not in named_order]
@@ -1934,21 +2166,25 @@ def _run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None, options:
         if not remaining:
             break
         scored = []
+        if step > 1:   # the current model fitted like the profile points (screening, from the data)
+            screen = ws.fit_each(idx, [initial_nuisance(c) for c in ws.clips], current.effects)
         for e in remaining:
-            f, ho, prof = _profile_candidate(ws, idx, current, e)
+            f, ho, prof = _profile_candidate(ws, idx, current, e, screen)
             # Out-of-sample comparison at equal footing: the current model's per-clip fits (its
             # own coefficients fitted on all clips, like the candidate's profile rows) against
             # the candidate with its strength taken from the other clips.
-            before = HeldOut(list(current.chi2), list(current.sq_pos), list(current.n_res), list(current.n_pos))
+            before = HeldOut(list(screen.chi2), list(screen.sq_pos), list(screen.n_res), list(screen.n_pos))
             chi = np.array(prof.chi2)
             cand = {"effect": e, "parameters": {p: f.effects[e][p] for _, p in _theta_keys([e])},
                     "rmse": f.rmse, "fit_gain": current.rmse - f.rmse,
+                    "chi2": f.rss, "chi2_before": current.rss, "fit_gain_chi2": current.rss - f.rss,
+                    "optimizer": f.optimizer(), "nested": bool(fx.REGISTRY[e].nested),
                     "fit_gain_pct": 100.0 * (current.rmse - f.rmse) / current.rmse if current.rmse else 0.0,
-                    "delta_bic": f.bic - current.bic, "profile_gain": float(current.rss - chi.sum(1).min()),
+                    "delta_bic": f.bic - current.bic, "profile_gain": float(screen.rss - chi.sum(1).min()),
                     "heldout_rmse_before": before.rmse, "heldout_rmse": None, "heldout_delta_chi2": None,
                     "heldout_gain": None,
                     "profile": {"s": prof.s, "chi2": [float(x) for x in prof.total()]},
-                    "per_clip_gain": {ws.clips[c].name: float(current.chi2[c] - chi[:, c].min()) for c in idx}}
+                    "per_clip_gain": {ws.clips[c].name: float(screen.chi2[c] - chi[:, c].min()) for c in idx}}
             if n >= 2:
                 cand.update(heldout_rmse=ho.rmse, heldout_gain=before.rmse - ho.rmse,
                             heldout_delta_chi2=before.total_chi2 - ho.total_chi2)
@@ -1976,11 +2212,23 @@ def _run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None, options:
 
     final = current
     if named_order:
-        final = ws.fit(idx, current.nuisance, current.effects, with_ci=True, max_nfev=cfg.max_nfev_warm)
+        final = ws.fit(idx, current.nuisance, current.effects, with_ci=True, converge=True)
+        if final.rss > current.rss:   # the converged refit never loses the model it starts from
+            kept = final
+            final = Fit({k: dict(v) for k, v in current.effects.items()}, list(current.nuisance), list(current.chi2),
+                        list(current.sq_pos), list(current.n_res), list(current.n_pos), current.k,
+                        list(kept.theta_keys), ci=kept.ci, nfev=kept.nfev, status=kept.status,
+                        iterations=kept.iterations, converged=kept.converged, start="selection fit (kept)",
+                        ci_gn=kept.ci_gn, ci_method=kept.ci_method)
+        else:
+            final.start = "selection fit"
+        say(f"final fit: chi2 {final.rss:.1f}, optimiser status {final.status}, {final.iterations} evaluations")
+        final.ci, final.ci_method = profile_intervals(ws, idx, final, log=say)
     named = []
     for e in named_order:
         cls = fx.REGISTRY[e]
         named.append({"effect": e, "parameters": dict(final.effects[e]), "ci": final.ci.get(e, {}),
+                      "ci_gauss_newton": final.ci_gn.get(e, {}), "ci_method": final.ci_method.get(e, {}),
                       "units": {p: s.unit for p, s in cls.parameters.items()},
                       "fitted": [p for p, s in cls.parameters.items() if s.fit], "mechanism": cls.mechanism})
 
@@ -2217,16 +2465,19 @@ def report_dict(result: Result, files: Mapping[str, Any] | None = None) -> dict[
         "inputs": sorted({c.source for c in result.clips}),
         "clips": clips,
         "noise_floor": noise_floor,
-        "base": {"rmse": result.base.rmse, "bic": result.base.bic, "chi2_per_residual": result.base.rss / result.base.n},
+        "base": {"rmse": result.base.rmse, "bic": result.base.bic, "chi2": result.base.rss,
+                 "chi2_per_residual": result.base.rss / result.base.n, "optimizer": result.base.optimizer()},
         "segments": result.segments,
         "segments_after": result.segments_after,
         "steps": result.steps,
-        "named": [{"effect": n["effect"], "parameters": n["parameters"], "ci": n["ci"], "units": n["units"],
+        "named": [{"effect": n["effect"], "parameters": n["parameters"], "ci": n["ci"],
+                   "ci_gauss_newton": n.get("ci_gauss_newton", {}), "ci_method": n.get("ci_method", {}),
+                   "units": n["units"],
                    "fitted": n["fitted"], "mechanism": n["mechanism"]} for n in result.named],
         "gap": result.gap,
         "in_sample": result.in_sample,
-        "final": {"rmse": result.final.rmse, "bic": result.final.bic,
-                  "chi2_per_residual": result.final.rss / result.final.n},
+        "final": {"rmse": result.final.rmse, "bic": result.final.bic, "chi2": result.final.rss,
+                  "chi2_per_residual": result.final.rss / result.final.n, "optimizer": result.final.optimizer()},
         "config": json.loads(result.config.model_dump_json()),
         "runtime_s": result.runtime_s,
         "files": dict(files or {}),
@@ -2282,8 +2533,7 @@ def report_markdown(rep: Mapping[str, Any]) -> str:
         lines += ["| effect | mechanism | parameter | value | 95 % CI | unit |", "|---|---|---|---|---|---|"]
         for n in rep["named"]:
             for p, v in n["parameters"].items():
-                ci = n["ci"].get(p)
-                cis = f"[{ci[0]:.4g}, {ci[1]:.4g}]" if ci else "fixed"
+                cis = _fmt_interval(n["ci"].get(p))
                 lines.append(f"| {n['effect']} | {n['mechanism']} | {p} | {v:.4g} | {cis} | {n['units'].get(p, '')} |")
     else:
         lines.append("None: no candidate cleared the noise floor (BIC and held-out gates).")
@@ -2342,8 +2592,10 @@ def report_markdown(rep: Mapping[str, Any]) -> str:
               f"with the effect vs. without) ≥ {rep['config']['heldout_threshold']:g}, held-out Δχ² ≥ "
               f"{rep['config']['heldout_threshold']:g} and a smaller held-out RMSE; among eligible candidates the lowest "
               "BIC is named; greedy forward selection until nothing is eligible or every clip is at the noise floor.",
-              "- Confidence intervals: s²(JᵀJ)⁻¹ at the joint optimum (nuisance parameters marginalised), Student-t, "
-              "via `mujoco.sysid.calculate_intervals`.",
+              "- Confidence intervals: profile likelihood (the coefficient fixed, everything else refitted; threshold "
+              "χ²₁ quantile × χ²/dof), where the Gauss-Newton interval s²(JᵀJ)⁻¹ (Student-t, "
+              "`mujoco.sysid.calculate_intervals`) is accepted when the profile confirms its ends within 25 %; a side "
+              "the data cannot bound before the search bound is shown open.",
               f"- Runtime: {rep['runtime_s']:.0f} s."]
     return "\n".join(lines) + "\n"
 

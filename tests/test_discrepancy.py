@@ -200,15 +200,15 @@ def test_real_ball_drops_read():
 
 
 # --------------------------------------------------------------------------- one clip: forward gap
-def _foam_drop(seed: int = 0, noise: float = 0.003, fps: int = 30, density: float = 1.2) -> list:
-    """A 1 m drop of a 0.4 g, r = 15 mm foam ball in air (quadratic drag, density 1.2 kg/m^3),
+def _foam_drop(seed: int = 0, noise: float = 0.003, fps: int = 30, density: float = 1.2, m: float = 0.0004) -> list:
+    """A 1 m drop of a 0.4 g (``m``), r = 15 mm foam ball in air (quadratic drag, density 1.2 kg/m^3),
     simulated by the workflow's own MuJoCo bridge (scene language + effects), sampled at
     ``fps`` up to just before the floor, 3 mm Gaussian noise on x, y, z: one clip."""
     import mujoco
 
     from pipeline.scene import Scene
 
-    r, m = 0.015, 0.0004
+    r = 0.015
     times = np.arange(fps + 1) / fps
     scene = Scene.from_dict({"duration": 1.0, "fps": fps, "camera": {"height": 1.2},
                              "objects": [{"shape": "sphere", "size": {"radius": r}, "mass": m,
@@ -245,14 +245,20 @@ def _check_forward_gap(result, rep) -> dict:
 
 def test_single_clip_forward_gap_foam_ball():
     """One clip, nothing to hold out: the shown gap is forward in time; drag is named and the
-    forecast error above the noise shrinks by >= 70 %."""
+    forecast error above the noise shrinks by >= 30 %.
+
+    Measured with converged fits (issue 10 item 2): 15.00 -> 9.65 mm (37 %). Before, 54.6 ->
+    4.5 mm (94 %) was an artefact: the base model's first-part fit stopped at 15 evaluations
+    at chi2 97.2 instead of its optimum 19.9, where the free linear damping forecasts well;
+    on the first 0.3 s the damping and the drag are hardly distinguishable (drag 0.36 fitted
+    there, the truth 1.2 costs +1.1 in chi2)."""
     clips = _foam_drop(seed=0)
     result = D.run_workflow(clips, D.DiscrepancyConfig(threads=1), OPTS)
     assert [n["effect"] for n in result.named] == ["quadratic_drag"]
     assert result.named[0]["parameters"]["density"] == pytest.approx(1.2, rel=0.25)
     gap = _check_forward_gap(result, D.report_dict(result))
-    assert gap["before"] > 5 * gap["noise"]                      # a strong effect
-    assert gap["excess_shrink"] >= 0.7, gap
+    assert gap["before"] > 4 * gap["noise"]                      # a strong effect
+    assert gap["after"] < gap["before"] and gap["excess_shrink"] >= 0.3, gap
 
 
 def test_forward_split_is_a_forecast():
@@ -292,3 +298,71 @@ def test_single_clip_forward_gap_pingpong_drop():
     assert gap["kind"] == "forward" and rep["in_sample"]["k_before"] > 0
     assert result.named, gap
     assert gap["excess_shrink"] >= 0.7, gap
+
+
+# --------------------------------------------------------------------------- converged, nested fits
+NESTED_DATA = [(921, "none"), (922, "none"), (923, "quadratic_drag"), (924, "floor_tilt")]
+"""Small synthetic datasets (2 clips of 0.4 s at 30 fps, hidden-effect generator)."""
+NESTED_REL, NESTED_ABS = 1e-6, 1e-6
+
+
+def test_adding_a_nested_effect_never_worsens_the_fit():
+    """Nested models: for every candidate with ``nested = True`` the workflow's candidate fit
+    (:func:`_profile_candidate` -> :func:`_joint_fit`, best of the profile start and the base
+    optimum with the effect at its null value, converged to ``ftol`` 1e-6) has
+    ``chi2(base + effect) <= chi2(base) (1 + 1e-6) + 1e-6``, on 4 datasets (2 without an effect,
+    2 with one).
+
+    Tolerance: the base optimum is one of the candidate's starts and the trust-region method
+    only accepts steps that lower chi2, so the only slack is floating-point noise of the
+    rollouts and the sums (relative 1e-6 is far above double rounding of a chi2 of ~1e2-1e4 and
+    far below any physical difference: the workflow's gates need a chi2 drop >= 10). Before
+    issue 10 the candidate fit started from the profile's best point only with 20 evaluations:
+    on no-effect data it ended up to 7.6 mm worse than the base (magnus_lift)."""
+    cfg = D.DiscrepancyConfig(threads=1)
+    hidden = D.HiddenConfig(n_clips=2, duration=0.4, fps=30, kinds=("throw", "spin_slide"))
+    nested = [e for e in cfg.candidates if D.fx.REGISTRY[e].nested]
+    assert set(nested) == {"quadratic_drag", "floor_tilt", "magnus_lift", "torsional_friction"}
+    for seed, effect in NESTED_DATA:
+        cols, _ = D.generate_hidden(seed, hidden, OPTS, effect=effect)
+        ws = D.Workspace(D.clips_from_columns(cols, "nested"), cfg, OPTS)
+        idx = list(range(len(ws.clips)))
+        with D.single_threaded_blas():
+            base = ws.fit_each(idx, [D.initial_nuisance(c) for c in ws.clips], {}, converge=True)
+            screen = ws.fit_each(idx, [D.initial_nuisance(c) for c in ws.clips], {})
+            assert base.status > 0 and base.converged, base.optimizer()
+            for name in nested:
+                joint, _, _ = D._profile_candidate(ws, idx, base, name, screen)
+                assert joint.rss <= base.rss * (1 + NESTED_REL) + NESTED_ABS, (seed, effect, name, joint.rss, base.rss)
+                assert joint.status >= 0 and name in joint.effects
+
+
+# --------------------------------------------------------------------------- profile-likelihood intervals
+def _drag_interval(clips):
+    cfg = D.DiscrepancyConfig(threads=1)
+    ws = D.Workspace(clips, cfg, OPTS)
+    with D.single_threaded_blas():
+        base = ws.fit_each([0], [D.initial_nuisance(clips[0])], {}, converge=True)
+        joint = ws.fit([0], base.nuisance, {"quadratic_drag": {"density": 1.0}}, with_ci=True, converge=True)
+        ci, how = D.profile_intervals(ws, [0], joint)
+    return joint, ci["quadratic_drag"]["density"], how["quadratic_drag"]["density"]
+
+
+def test_profile_interval_closed_for_strong_drag():
+    """A 0.4 g foam ball dropped 1 m in air (density 1.2): drag is strong, the profile rises by
+    the chi-square quantile on both sides, the interval is closed and contains the truth."""
+    joint, (lo, hi), how = _drag_interval(_foam_drop(seed=2))
+    assert lo is not None and hi is not None, how
+    assert 0.0 < lo < 1.2 < hi < 50.0, (lo, hi, how)
+    assert lo <= joint.effects["quadratic_drag"]["density"] <= hi
+
+
+def test_profile_interval_open_when_unidentifiable():
+    """A 0.5 kg ball of the same size: air drag is invisible (and the free linear damping
+    absorbs what there is); the data cannot bound the density on at least one side, which is
+    reported open (``None``, shown as ``open``), never as the search bound 0 or 50."""
+    joint, (lo, hi), how = _drag_interval(_foam_drop(seed=3, m=0.5))
+    assert lo is None or hi is None, (lo, hi, how)
+    assert lo not in (0.0, 50.0) and hi not in (0.0, 50.0)
+    assert "open" in how
+    assert "open)" in D._fmt_interval([0.41, None]) and D._fmt_interval([0.41, None]) == "[0.41, open)"
