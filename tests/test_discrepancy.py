@@ -279,14 +279,11 @@ def test_forward_split_is_a_forecast():
 
 @pytest.mark.skipif(not REAL.exists(), reason="shared real data not present")
 @pytest.mark.xfail(strict=False, reason=(
-    "measured (forward_split 0.6: fit on the first 0.268 s = 9 samples, forecast the last 6): the "
-    "workflow names floor_tilt (tilt_y -22 deg, an effectively smaller g) and the forward gap goes "
-    "18.11 -> 13.27 mm, above the 2.86 mm noise 17.88 -> 12.96 mm = 27.5 % shrink (< 70 %); "
-    "with drag alone the first part fits density 3.8 (whole clip 0.72) and the forecast worsens to "
-    "48.6 mm. Not a convergence limit: the first-part fits end the same at max_nfev 15 and 200 "
-    "(chi2 11.5 at density 3.8 vs 23.6 at 0.72). Below 2.6 m/s, drag moves the 2.8 g ball by ~5 mm "
-    "over the first part, and the base model's free linear damping and initial velocity absorb most "
-    "of it, so the first part cannot fix the coefficient"))
+    "measured with converged fits (forward_split 0.6: fit on the first 0.268 s = 9 samples, forecast "
+    "the last 6): nothing is named and the forward gap stays 30.27 -> 30.27 mm (noise 2.86 mm). With "
+    "the earlier 15-evaluation fits floor_tilt was named (27.5 % shrink). On the first part drag and "
+    "the base model's free linear damping and initial velocity are not separable: below 2.6 m/s drag "
+    "moves the 2.8 g ball by ~5 mm there, so the first part cannot fix the coefficient"))
 def test_single_clip_forward_gap_pingpong_drop():
     """The shared ping-pong drop alone: the shown (forward) gap above the noise should shrink by
     >= 70 % (issue 10); measured numbers in the xfail reason."""
