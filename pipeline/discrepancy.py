@@ -2935,8 +2935,13 @@ def _config_from_args(args: argparse.Namespace) -> tuple[DiscrepancyConfig, Hidd
     if update:
         try:
             cfg = DiscrepancyConfig(**{**cfg.model_dump(), **update})
-        except (ValidationError, ValueError) as exc:
-            raise DiscrepancyInputError(f"--candidates: {str(exc).splitlines()[-1].strip()}") from None
+        except ValidationError as exc:
+            err = exc.errors()[0]
+            field = str(err["loc"][0]) if err.get("loc") else "candidates"
+            msg = str(err.get("msg", "invalid")).removeprefix("Value error, ").removeprefix(f"{field}: ")
+            raise DiscrepancyInputError(f"--{field.replace('_', '-')}: {msg}") from None
+        except ValueError as exc:
+            raise DiscrepancyInputError(f"--candidates: {str(exc).splitlines()[0].strip()}") from None
     return cfg, hidden, sim
 
 

@@ -93,6 +93,15 @@ def test_cli_reports_bad_input_in_one_line(tmp_path, capsys):
     assert err == f"error: {path}: column z: required column missing (have: clip, object, t, x, y)"
 
 
+def test_cli_unknown_candidate_in_one_line(tmp_path, capsys):
+    """Issue 12: `--candidates antigravity` printed only a pydantic URL."""
+    path = _table_csv(tmp_path / "ok.csv", _fall(), "clip,object,t,x,y,z")
+    assert D._main(["run", str(path), "--out", str(tmp_path / "out"), "--candidates", "antigravity"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: --candidates: unknown effect 'antigravity', must be one of quadratic_drag"), err
+    assert "\n" not in err and "pydantic" not in err
+
+
 # --------------------------------------------------------------------------- noise, phases, bridge
 def test_noise_estimate_recovers_known_noise():
     # per clip ~50 samples: the robust estimate scatters by ~13 %; the mean over clips is tight
