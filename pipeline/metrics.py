@@ -125,12 +125,7 @@ def pairwise_iou(true_seg: np.ndarray, pred_seg: np.ndarray, n_true: int | None 
     p = np.where(p < npd, p, BACKGROUND).reshape(T, -1) + 1
     idx = (np.arange(T)[:, None] * (nt + 1) + t) * (npd + 1) + p
     counts = np.bincount(idx.ravel(), minlength=T * (nt + 1) * (npd + 1)).reshape(T, nt + 1, npd + 1)
-    inter = counts[:, 1:, 1:].astype(np.float64)
-    area_t = counts[:, 1:, :].sum(axis=2).astype(np.float64)
-    area_p = counts[:, :, 1:].sum(axis=1).astype(np.float64)
-    union = area_t[:, :, None] + area_p[:, None, :] - inter
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(union > 0, inter / np.maximum(union, 1.0), 1.0)
+    return _counts_iou(counts)
 
 
 def _match(iou: np.ndarray) -> list[tuple[int, int]]:

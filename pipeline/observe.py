@@ -111,18 +111,23 @@ def _masks(frames: np.ndarray, context: np.ndarray, method: str, max_objects: in
     return label_objects(masks, max_objects=max_objects)
 
 
-def keep_objects(seg: np.ndarray, flow: np.ndarray, max_objects: int) -> np.ndarray:
+def keep_objects(seg: np.ndarray, flow: np.ndarray, max_objects: int) -> tuple[np.ndarray, list]:
     """Pseudo masks of the objects only: tracks that touch all along are merged
     (:func:`merge_touching`), ghosts of resting objects dropped (:func:`drop_ghosts`), then the
     tracks :func:`pipeline.perception.object_tracks` accepts
     (they move, they are not slivers) are kept, renumbered 0..n-1 in order of first appearance;
-    everything else becomes background. ``(T, H, W)`` int8."""
+    everything else becomes background.
+
+    Returns:
+        ``(seg, tracks)``: ``(T, H, W)`` int8 labels and the kept
+        :class:`pipeline.perception.Track` s (with their labels before renumbering).
+    """
     seg = drop_ghosts(merge_touching(seg))
-    keep = [t.label for t in object_tracks(seg, flow, max_objects)]
+    tracks = object_tracks(seg, flow, max_objects)
     lut = np.full(int(seg.max()) + 2, -1, dtype=np.int8)
-    for new, k in enumerate(keep):
-        lut[k] = new
-    return lut[seg.astype(np.int64)]  # index -1 (background) -> lut[-1] = -1
+    for new, t in enumerate(tracks):
+        lut[t.label] = new
+    return lut[seg.astype(np.int64)], tracks  # index -1 (background) -> lut[-1] = -1
 
 
 def motion_crop(seg: np.ndarray, diameter: float, scale: float, orig_size: tuple[int, int]
@@ -209,8 +214,7 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     _, det_frames, det_ctx = window(dsize, full)
     det_seg = _masks(det_frames, det_ctx, mask_method, max_objects)
     det_flow = estimate_flow(det_frames, method="dis", preset="fast")
-    det_seg = keep_objects(hold_resting(det_seg), det_flow, max_objects)
-    tracks = object_tracks(det_seg, det_flow, max_objects)
+    det_seg, tracks = keep_objects(hold_resting(det_seg), det_flow, max_objects)
     scale = W0 / dsize[0]
     diameter = float(np.median([t.diameter for t in tracks])) if tracks else 0.05 * dsize[1]
     crop = motion_crop(det_seg, diameter, scale, (W0, H0))
@@ -219,7 +223,7 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     seg = _masks(frames, ctx, mask_method, max_objects)
     method = "dis" if flow_method == "gt" else flow_method
     flow = estimate_flow(frames, method=method, preset=flow_preset)
-    seg = keep_objects(hold_resting(seg), flow, max_objects)
+    seg, _ = keep_objects(hold_resting(seg), flow, max_objects)
     return Observation(frames, seg, flow, clip, float(start), auto, clip.crop, size, scene_fps, method)
 
 

@@ -51,7 +51,36 @@ def _evaluate_chunk(job: tuple) -> list[tuple[np.ndarray, np.ndarray | None]]:
     return [pool.evaluate(s, n_frames, flow) for s in scenes]
 
 
-class ParallelEvaluator:
+class _PoolOwner:
+    """What both parallel front ends share: an in-process evaluator pool (``workers == 1``) or a
+    process pool, closed together; a context manager."""
+
+    _local = None
+    _pool = None
+
+    @staticmethod
+    def _chunk_bounds(n_items: int, workers: int) -> list[tuple[int, int]]:
+        """``min(workers, n_items)`` contiguous ``(start, stop)`` slices covering the items."""
+        n = min(workers, n_items)
+        bounds = np.linspace(0, n_items, n + 1).round().astype(int)
+        return list(zip(bounds[:-1].tolist(), bounds[1:].tolist()))
+
+    def close(self) -> None:
+        if self._local is not None:
+            self._local.close()
+            self._local = None
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class ParallelEvaluator(_PoolOwner):
     """Evaluate lists of candidates over ``workers`` processes.
 
     Args:
@@ -87,26 +116,11 @@ class ParallelEvaluator:
             return [self._local.evaluate(s, n_frames, flow) for s in scenes]
         if not scenes:
             return []
-        n = min(self.workers, len(scenes))
-        bounds = np.linspace(0, len(scenes), n + 1).round().astype(int)
         jobs = [(self.width, self.height, self.options, scenes[a:b], n_frames, flow)
-                for a, b in zip(bounds[:-1], bounds[1:])]
+                for a, b in self._chunk_bounds(len(scenes), self.workers)]
         parts = list(self._pool.map(_evaluate_chunk, jobs))
         return [r for part in parts for r in part]
 
-    def close(self) -> None:
-        if self._local is not None:
-            self._local.close()
-            self._local = None
-        if self._pool is not None:
-            self._pool.shutdown()
-            self._pool = None
-
-    def __enter__(self) -> "ParallelEvaluator":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
 
 # ------------------------------------------------------------------------ parallel fitness
@@ -150,7 +164,7 @@ def _score_chunk(job: tuple) -> list[dict[str, float]]:
     return _score_scenes(scenes, priors, cfg, _FITNESS["pool"], _FITNESS["obs_seg"], _FITNESS["obs_flow"])
 
 
-class ParallelFitness:
+class ParallelFitness(_PoolOwner):
     """Score lists of candidate scenes against one observation over ``workers`` processes.
 
     Each worker gets the observation once, when it starts, and keeps its own compiled models
@@ -220,23 +234,9 @@ class ParallelFitness:
             raise RuntimeError("ParallelFitness used after close")
         if not scenes:
             return []
-        n = min(self.workers, len(scenes))
-        bounds = np.linspace(0, len(scenes), n + 1).round().astype(int)
-        jobs = [(self._token, scenes[a:b], priors[a:b], cfg) for a, b in zip(bounds[:-1], bounds[1:])]
+        jobs = [(self._token, scenes[a:b], priors[a:b], cfg)
+                for a, b in self._chunk_bounds(len(scenes), self.workers)]
         return [r for part in self._pool.map(_score_chunk, jobs) for r in part]
 
     __call__ = score
 
-    def close(self) -> None:
-        if self._local is not None:
-            self._local.close()
-            self._local = None
-        if self._pool is not None:
-            self._pool.shutdown()
-            self._pool = None
-
-    def __enter__(self) -> "ParallelFitness":
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
