@@ -372,3 +372,61 @@ def test_profile_interval_open_when_unidentifiable():
     assert lo not in (0.0, 50.0) and hi not in (0.0, 50.0)
     assert "open" in how
     assert "open)" in D._fmt_interval([0.41, None]) and D._fmt_interval([0.41, None]) == "[0.41, open)"
+
+
+# ----------------------------------------------------------------------------- speed (issue 10, item 4)
+def _base_workspace(seed: int, effect: str, n_clips: int = 3, duration: float = 0.8):
+    cols, truth = D.generate_hidden(seed, D.HiddenConfig(n_clips=n_clips, duration=duration), OPTS, effect=effect)
+    ws = D.Workspace(D.clips_from_columns(cols, "hidden"), D.DiscrepancyConfig(workers=1, threads=1), OPTS)
+    idx = list(range(len(ws.clips)))
+    with D.single_threaded_blas():
+        base = ws.fit_each(idx, [D.initial_nuisance(c) for c in ws.clips], {}, converge=True)
+    return ws, idx, base
+
+
+@pytest.mark.parametrize("effect,seed", [("quadratic_drag", 2000), ("restitution", 2003), ("floor_tilt", 2004),
+                                         ("torsional_friction", 2006)])
+def test_screen_keeps_the_true_effect(effect, seed):
+    """The linearised screen must never drop the effect that made the data: its predicted
+    chi-square gain is far above ``screen_gain`` (here >= 100x) on a 3-clip data set."""
+    ws, idx, base = _base_workspace(seed, effect)
+    screen = D.screen_candidates(ws, idx, base, [effect])
+    assert screen[effect]["predicted_gain"] >= 100 * ws.cfg.screen_gain, screen
+
+
+def test_screen_drops_effects_on_data_without_one():
+    """No effect in the data: no candidate is predicted to gain the screen threshold (the
+    base model is right, so every grid point of every effect moves the fit away from it)."""
+    ws, idx, base = _base_workspace(2001, "none")
+    screen = D.screen_candidates(ws, idx, base, list(ws.cfg.candidates))
+    assert all(v["predicted_gain"] < ws.cfg.screen_gain for v in screen.values()), screen
+
+
+def test_clip_pool_gives_the_same_fit_to_the_last_bit():
+    """Per-clip fits in two worker processes (spawn) equal the in-process fits bit for bit."""
+    cols, _ = D.generate_hidden(2002, D.HiddenConfig(n_clips=2, duration=0.5), OPTS, effect="wind")
+    clips = D.clips_from_columns(cols, "hidden")
+    eff = {"wind": {**D.fx.REGISTRY["wind"].defaults(), "wind_x": 1.0, "wind_y": -0.5}}
+    fits = []
+    for workers in (1, 2):
+        ws = D.Workspace(clips, D.DiscrepancyConfig(threads=1), OPTS)
+        ws.start_pool(workers)
+        try:
+            with D.single_threaded_blas():
+                fits.append(ws.fit_each([0, 1], [D.initial_nuisance(c) for c in clips], eff, max_nfev=6))
+        finally:
+            ws.close()
+    assert fits[0].chi2 == fits[1].chi2
+    for a, b in zip(fits[0].nuisance, fits[1].nuisance):
+        assert np.array_equal(a, b)
+
+
+def test_benchmark_scores_the_exact_set_and_the_noise_floor():
+    """An extra named effect is a miss; the gap-within-1.5x-noise fraction counts trials."""
+    trials = [{"correct": ["wind"] == ["wind"], "shrink": 0.9, "excess_shrink": 0.95, "gap_after": 0.0012, "noise": 0.001},
+              {"correct": ["wind", "floor_tilt"] == ["wind"], "shrink": 0.8, "excess_shrink": 0.85,
+               "gap_after": 0.002, "noise": 0.001}]
+    s = D._bench_summary(trials)
+    assert s["naming_accuracy"] == 0.5
+    assert s["gap_within_1p5_noise"] == 0.5
+    assert s["median_shrink"] == pytest.approx(0.85)
