@@ -66,6 +66,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from pipeline import effects as fx
+from pipeline import infer_tracks
 from pipeline.parallel import available_cores
 from pipeline.mjcf import SimOptions, compile_model, initial_state
 from pipeline.scene import Decimals, Scene
@@ -2631,6 +2632,33 @@ def clips_from_columns(cols: Mapping[str, Sequence], source: str = "<table>", ob
                                parse_objects(objects), default or DefaultObject())
 
 
+def clips_from_infer_dir(path: str | Path, default: DefaultObject | None = None
+                         ) -> tuple[list[Clip], dict[str, Any], float]:
+    """Clips from a ``dynamics infer`` output folder (``scene.yaml`` + ``tracks.csv``,
+    :mod:`pipeline.infer_tracks`): the observed tracks in the scene's world frame, objects
+    (shape, size, mass) from the scene, only the axes the camera sees face-on observed.
+
+    Returns:
+        ``(clips, video, gravity)``: ``video`` = ``{folder, camera_axes, resimulation_gap}``
+        (the gap the re-simulated scene leaves, m and px), ``gravity`` = the scene's, m/s^2.
+
+    Raises:
+        DiscrepancyInputError: a missing or malformed file (one line naming it).
+    """
+    try:
+        scene, cols, axes = infer_tracks.read_infer_dir(path)
+    except infer_tracks.InferTracksError as exc:
+        raise DiscrepancyInputError(str(exc)) from None
+    clips = clips_from_columns({c: cols[c] for c in TABLE_COLUMNS + SPEC_COLUMNS}, str(Path(path) / "tracks.csv"),
+                               default=default)
+    for clip in clips:
+        for tr in clip.tracks:
+            tr.axes = axes.copy()
+    video = {"folder": str(path), "camera_axes": "".join(a for a, on in zip("xyz", axes) if on),
+             "resimulation_gap": infer_tracks.resimulation_gap(cols, axes)}
+    return clips, video, float(scene.gravity)
+
+
 # =========================================================================== add
 def extended_scenes(result: Result) -> dict[str, Scene]:
     """One scene per clip: the final fit's initial state and material for every object and
@@ -2735,6 +2763,23 @@ def _gap_lines(rep: Mapping[str, Any]) -> list[str]:
     return lines
 
 
+def _video_lines(rep: Mapping[str, Any]) -> list[str]:
+    """Report lines for a `dynamics infer` input: the gap its re-simulated scene leaves."""
+    v = rep.get("video")
+    if not v:
+        return []
+    g = v["resimulation_gap"]
+    lines = ["## Video reconstruction", "",
+             f"Input: the `dynamics infer` output `{v['folder']}`. Observed tracks (mask centroids) are placed in the "
+             f"scene's world frame at the re-simulated object's depth; observed axes: {v['camera_axes']}. "
+             f"The re-simulated scene (`scene.yaml`) leaves the observed motion at "
+             f"{_fmt(g['rmse_m'], 1e3)} mm ({_fmt(g['rmse_px'], 1, 1)} px) RMSE:", "",
+             "| object | samples | RMSE (mm) | RMSE (px) |", "|---|---|---|---|"]
+    for name, o in g["per_object"].items():
+        lines.append(f"| {name} | {o['samples']} | {o['rmse_m'] * 1e3:.2f} | {o['rmse_px']:.1f} |")
+    return lines + ["", "The base model below is refitted to the tracks; the named effects close what it leaves.", ""]
+
+
 def report_markdown(rep: Mapping[str, Any]) -> str:
     """Human-readable report (Markdown) from :func:`report_dict`."""
     mm = 1e3
@@ -2743,6 +2788,7 @@ def report_markdown(rep: Mapping[str, Any]) -> str:
              "disagrees with the measurements beyond their noise, name the missing effect(s) from the library, add "
              "them and show the gap shrink (held-out with >= 2 clips, forward in time with one).", "",
              f"Inputs: {', '.join(rep['inputs'])}", "",
+             *_video_lines(rep),
              *_gap_lines(rep),
              "## Named effects", ""]
     if rep["named"]:
@@ -2930,7 +2976,7 @@ def record(result: Result, path: str | Path) -> Path:
 
 
 def write_report(result: Result, report_dir: str | Path, artifacts_dir: str | Path | None = None,
-                 decimals: Decimals | None = None) -> dict[str, Any]:
+                 decimals: Decimals | None = None, video: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """Write the report and the extended model.
 
     ``report_dir``: ``discrepancy.md``, ``discrepancy.json``, ``discrepancy_residuals.png``,
@@ -2959,6 +3005,8 @@ def write_report(result: Result, report_dir: str | Path, artifacts_dir: str | Pa
     if result.config.recording:
         files["recording"] = str(record(result, art / "discrepancy.rrd"))
     rep = report_dict(result, files)
+    if video:   # input was a `dynamics infer` folder: the gap its re-simulation left
+        rep["video"] = dict(video)
     write_json(report_dir / "discrepancy.json", rep)
     write_text(report_dir / "discrepancy.md", report_markdown(rep))
     return rep
@@ -3167,7 +3215,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``dynamics discrepancy``."""
     parser.add_argument("trajectories", nargs="+", metavar="TRAJECTORIES",
                         help="trajectory files (CSV/Parquet with clip, object, t, x, y, z [m, s, z up]; or 2-D Tracker "
-                             "exports with t and x, y [y up]) or directories of them")
+                             "exports with t and x, y [y up]) or directories of them; or ONE output folder of "
+                             "`dynamics infer` (scene.yaml + tracks.csv): where does its re-simulation leave the video")
     parser.add_argument("--out", required=True, help="output directory (report, plots, extended scenes, .rrd)")
     parser.add_argument("--objects", default=None,
                         help="object sizes/masses: YAML/JSON file or inline YAML "
@@ -3220,9 +3269,19 @@ def main_cli(args: argparse.Namespace) -> int:
     """
     cfg, _, sim = _config_from_args(args)
     say = None if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
-    clips = read_trajectories(args.trajectories, args.objects, cfg.default_object)
-    result = run_workflow(clips, cfg, sim, log=say)
-    rep = write_report(result, args.out)
+    video, gravity = None, 9.81
+    if any(infer_tracks.is_infer_dir(t) for t in args.trajectories):
+        if len(args.trajectories) != 1:
+            raise DiscrepancyInputError(f"{args.trajectories[0]}: a `dynamics infer` folder must be the only input")
+        clips, video, gravity = clips_from_infer_dir(args.trajectories[0], cfg.default_object)
+        g = video["resimulation_gap"]
+        print(f"video reconstruction {args.trajectories[0]}: the re-simulated scene leaves "
+              f"{g['rmse_m'] * 1e3:.2f} mm ({g['rmse_px']:.1f} px) RMSE on the observed tracks "
+              f"(axes {video['camera_axes']})")
+    else:
+        clips = read_trajectories(args.trajectories, args.objects, cfg.default_object)
+    result = run_workflow(clips, cfg, sim, gravity=gravity, log=say)
+    rep = write_report(result, args.out, video=video)
     named = ", ".join(f"{n['effect']} ({', '.join(f'{k}={v:.4g}' for k, v in n['parameters'].items())})"
                       for n in rep["named"]) or "none"
     print(f"named: {named}")

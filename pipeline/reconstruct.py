@@ -17,7 +17,10 @@ Outputs in DIR:
   against the observed flow (same estimator), for the first sample, Best@K and Best@K +
   CMA-ES, and per source (model, perception) the number of proposals, valid ones and the best
   IoU;
-* ``recording.rrd``: rerun recording (observed and re-simulated streams, 3D scene, camera).
+* ``recording.rrd``: rerun recording (observed and re-simulated streams, 3D scene, camera);
+* ``tracks.csv``: the observed object tracks in the scene's world frame beside the
+  re-simulated ones (:mod:`pipeline.infer_tracks`), so ``dynamics discrepancy DIR`` can ask
+  where the re-simulation leaves the video and which effect closes the gap.
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pipeline import shards
+from pipeline import infer_tracks, shards
 from pipeline.params import load_params, path_of
 from pipeline.scene import Scene
 
@@ -243,6 +246,12 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
         "cmaes_seconds": float(history[-1]["seconds"]) if history else 0.0,
         "seconds": round(time.time() - t0, 1),
     }
+    if tracks:   # observed tracks in the scene's world frame: input of `dynamics discrepancy OUT`
+        table = infer_tracks.tracks_table(refined, trace.qpos, tracks, scene_fps, W, H, clip=Path(video).stem)
+        infer_tracks.write_tracks(out / "tracks.csv", table)
+        gap = infer_tracks.resimulation_gap(table, infer_tracks.observed_axes(refined)) if table["t"] else None
+        metrics["tracks"] = {"file": "tracks.csv", "rows": len(table["t"]),
+                             "resimulation_rmse_px": None if gap is None else round(gap["rmse_px"], 3)}
     shards.write_json(out / "metrics.json", metrics)
     viz.record_clip(out / "recording.rrd", rgb=obs.frames, seg=fr.seg, flow=obs.flow,
                     positions=trace.qpos[..., :3], quaternions=trace.qpos[..., 3:],
