@@ -402,10 +402,15 @@ def save_checkpoint(out_dir: Path, model, tokenizer, head: torch.nn.Module, opti
 
 
 def _write_curve(path: Path, curve: list[dict[str, float]]) -> None:
-    with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=CURVE_COLUMNS)
-        writer.writeheader()
-        writer.writerows(curve)
+    import io
+
+    from pipeline.shards import write_text
+
+    buf = io.StringIO(newline="")
+    writer = csv.DictWriter(buf, fieldnames=CURVE_COLUMNS)
+    writer.writeheader()
+    writer.writerows(curve)
+    write_text(path, buf.getvalue())
 
 
 def read_curve(model_dir: str | Path) -> list[dict[str, float]]:
@@ -451,6 +456,12 @@ def plot_curve(model_dir: str | Path, png: str | Path | None = None) -> Path | N
     ax2.legend()
     ax2.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(png)
+    import io
+
+    from pipeline.shards import write_bytes
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")          # temp-then-rename: a killed run leaves no half PNG
     plt.close(fig)
+    write_bytes(png, buf.getvalue())
     return png
