@@ -119,3 +119,125 @@ def test_stage_script_exits_when_dvc_dies(tmp_path):
              and "stage.py" in Path(f"/proc/{p}/cmdline").read_text(errors="replace")]
     assert not alive, alive
     assert not marker.exists()
+
+
+# --------------------------------------------------------------------------- finetune
+FINETUNE_MODEL = dict(n_frames=4, input="flow+rgb", hidden_size=64, intermediate_size=128, num_layers=2, num_heads=4,
+                      num_kv_heads=2, vision_depth=2, vision_hidden_size=32, vision_intermediate_size=64,
+                      vision_num_heads=2, batch_size=2, lr=3e-3, min_lr=1e-3, warmup_steps=2, max_steps=16,
+                      eval_interval=2, eval_batches=1, eval_samples=0, max_new_tokens=160, k=2, threads=1,
+                      init="scratch")
+"""A ~190k-parameter model that saves a checkpoint every 2 of its 16 steps."""
+TIMED = {"train_curve.csv", "trainer_state.pt", "result.json", "train_curve.png"}
+"""Checkpoint files that hold wall-clock seconds (compared by content, not bytes)."""
+
+
+def _finetune_workspace(tmp_path: Path, name: str) -> tuple[Path, dict]:
+    """Six synthetic scenes (configs, think events, random flow and RGB) and the params of a
+    tokenize + finetune run; the tokenize stage has run."""
+    import numpy as np
+
+    from pipeline.scene import Scene
+
+    ws = tmp_path / name
+    ws.mkdir()
+    rng = np.random.default_rng(0)
+    ids = [shards.scene_id(i) for i in range(6)]
+    splits = ["train", "train", "train", "val", "test", "test_comp"]
+    scenes = [Scene.from_dict({"camera": {"height": 1.2, "pitch": 35.0, "fov": 45.0},
+                               "objects": [{"shape": "sphere", "size": {"radius": 0.1}, "mass": 0.5,
+                                            "position": [0.0, 0.3, 0.1 * (i + 1)]}]}).to_yaml() for i in range(6)]
+    data = ws / "data"
+    for s in range(2):
+        part = slice(3 * s, 3 * s + 3)
+        shards.write_table(shards.shard_path(data / "configs", s, "parquet"), [
+            {"scene_id": i, "split": sp, "seed": 0, "scene": sc, "composition": "sphere"}
+            for i, sp, sc in zip(ids[part], splits[part], scenes[part])])
+        shards.write_arrays(shards.shard_path(data / "flow", s, "zarr"),
+                            {"flow": rng.normal(size=(3, 8, 32, 48, 2)).astype(np.float16)},
+                            scene_ids=ids[part], attrs={"max_magnitude": 2.0})
+        shards.write_arrays(shards.shard_path(data / "video", s, "zarr"),
+                            {"rgb": rng.integers(0, 256, (3, 9, 32, 48, 3), dtype=np.uint8)}, scene_ids=ids[part])
+    shards.write_table(shards.shard_path(data / "events", 0, "parquet", prefix="think"),
+                       [{"scene_id": i, "think": "t=0.23 sphere_0 hits floor"} for i in ids])
+    for folder in ("configs", "flow", "video", "events"):
+        shards.write_meta(data / folder, {})
+    paths = {k: str(data / k) for k in ("configs", "events", "flow", "video", "tokenizer", "examples", "model")}
+    paths["reports"] = str(ws / "reports")
+    (ws / "params.yaml").write_text(yaml.safe_dump({"seed": 1, "paths": paths, "model": FINETUNE_MODEL}))
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "DYNAMICS_PARAMS": str(ws / "params.yaml"),
+           "HF_HUB_OFFLINE": "1", "TRANSFORMERS_OFFLINE": "1"}
+    _run(ws, env, "tokenize_targets")
+    return ws, env
+
+
+def _finetune(ws: Path, env: dict) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, str(ROOT / "stages" / "finetune.py"), "--no-progress"], cwd=ws, env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+
+
+@pytest.fixture(scope="module")
+def finetune_reference(tmp_path_factory) -> tuple[Path, dict[str, str]]:
+    """An uninterrupted finetune run: its workspace and the sha256 of its model folder."""
+    a, env = _finetune_workspace(tmp_path_factory.mktemp("finetune"), "a")
+    proc = _finetune(a, env)
+    assert proc.wait(timeout=600) == 0, proc.stderr.read()[-2000:]
+    ref = _hashes(a / "data" / "model")
+    assert {"model.safetensors", "composition_head.pt", "codec.json", "trainer_state.pt", "result.json"} <= set(ref)
+    return a, ref
+
+
+@pytest.mark.parametrize("moment", ["after_a_checkpoint", "during_a_save"])
+def test_finetune_killed_midway_then_rerun_equals_an_uninterrupted_run(tmp_path, finetune_reference, moment):
+    """Finetune killed with SIGKILL just after its first checkpoint, or while a checkpoint is being
+    written (its temporary folder exists): the model folder holds one whole checkpoint (it loads,
+    passes check_checkpoint, its trainer state is readable) or none, never a mix, and no
+    result.json; the rerun removes the leftovers and gives the uninterrupted run's bytes (weights,
+    head, tokenizer, codec, config) and the same curve but for the seconds."""
+    import csv
+
+    import torch
+
+    from pipeline.model import check_checkpoint, load_model
+
+    a, ref = finetune_reference
+    b, env = _finetune_workspace(tmp_path, "b")
+    model = b / "data" / "model"
+
+    def reached() -> bool:
+        if moment == "after_a_checkpoint":
+            return (model / "trainer_state.pt").exists()
+        return any(p.name.startswith(".model.") for p in model.parent.iterdir())
+
+    proc = _finetune(b, env)
+    deadline = time.time() + 300
+    while time.time() < deadline and proc.poll() is None and not reached():
+        time.sleep(0.005)
+    assert proc.poll() is None, "finetune ended before it could be killed"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert not (model / "result.json").exists()
+    if moment == "during_a_save":    # the kill did hit the save: its temporary folder is left
+        assert [p.name for p in model.parent.iterdir() if p.name.startswith(".model.")]
+    if (model / "config.json").exists():
+        check_checkpoint(model)
+        load_model(model)
+        state = torch.load(model / "trainer_state.pt", map_location="cpu", weights_only=False)
+        assert 2 <= state["step"] < FINETUNE_MODEL["max_steps"]
+        assert ref.keys() - TIMED - {"result.json"} <= set(_hashes(model)), "a checkpoint without some files"
+    else:   # killed in the first save: no checkpoint at all, only what precedes it
+        assert not model.exists() or {p.name for p in model.iterdir()} <= {"codec.json"}
+
+    proc = _finetune(b, env)
+    assert proc.wait(timeout=600) == 0, proc.stderr.read()[-2000:]
+    got = _hashes(model)
+    assert got.keys() == ref.keys()
+    different = [k for k in ref if k not in TIMED and got[k] != ref[k]]
+    assert not different, different
+
+    def curve(ws: Path) -> list[dict]:
+        with open(ws / "data" / "model" / "train_curve.csv", newline="") as f:
+            return [{k: v for k, v in row.items() if k not in ("seconds", "examples_per_s")} for row in csv.DictReader(f)]
+    assert curve(b) == curve(a) and len(curve(a)) == FINETUNE_MODEL["max_steps"] // 2
+    # no temporary folder of the killed run is left beside the model
+    assert not [p.name for p in (b / "data").iterdir() if p.name.startswith(".")]

@@ -70,18 +70,16 @@ def build_tokenizer(codec: SceneCodec, think_words: Sequence[str], out_dir: str 
         additional_special_tokens=list(SPECIAL_TOKENS[3:]),
         clean_up_tokenization_spaces=False, model_max_length=1 << 20,
     )
-    if out_dir is not None:   # into a temporary sibling, then moved in file by file (no half file)
-        import os
+    if out_dir is not None:   # into a temporary sibling, swapped in whole (no half-written folder)
         import shutil
-        import tempfile
+
+        from pipeline.shards import replace_path, temp_dir_for
 
         out_dir = Path(out_dir)
-        out_dir.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".tmp", dir=out_dir.parent))
+        tmp = temp_dir_for(out_dir)
         try:
             fast.save_pretrained(str(tmp))
-            for f in sorted(tmp.iterdir()):
-                os.replace(f, out_dir / f.name)
+            replace_path(tmp, out_dir)
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
     return fast
