@@ -241,3 +241,62 @@ def test_finetune_killed_midway_then_rerun_equals_an_uninterrupted_run(tmp_path,
     assert curve(b) == curve(a) and len(curve(a)) == FINETUNE_MODEL["max_steps"] // 2
     # no temporary folder of the killed run is left beside the model
     assert not [p.name for p in (b / "data").iterdir() if p.name.startswith(".")]
+
+
+# --------------------------------------------------------------------------- through dvc
+@pytest.mark.slow
+def test_kill_dvc_during_render_then_status_and_repro(tmp_path):
+    """In a fresh DVC repository of the project (tiny profile): ``kill -9`` of ``dvc repro`` once
+    render has written its first shard ends the stage script within seconds (pipeline.orphan;
+    it used to keep writing for minutes), leaves no meta.json, ``dvc status`` lists render as
+    changed, and the next ``dvc repro`` completes it with the bytes of a direct run."""
+    import json
+    import shutil
+
+    ws, env = _workspace(tmp_path, "repo")
+    for name in ("stages", "pipeline", "models"):
+        shutil.copytree(ROOT / name, ws / name, ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(ROOT / "dvc.yaml", ws / "dvc.yaml")
+    env = {**env, "PYTHONPATH": str(ws), "DVC_NO_ANALYTICS": "1",
+           "PATH": str(Path(sys.executable).parent) + os.pathsep + os.environ.get("PATH", "")}
+    dvc = [sys.executable, "-m", "dvc"]
+
+    def run(*cmd: str) -> str:
+        proc = subprocess.run(list(cmd), cwd=ws, env=env, capture_output=True, text=True, timeout=600)
+        assert proc.returncode == 0, f"{cmd}:\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}"
+        return proc.stdout
+
+    run("git", "init", "-q")
+    run("git", "-c", "user.email=ci@example.com", "-c", "user.name=ci", "commit", "-q", "--allow-empty", "-m", "init")
+    run(*dvc, "init", "-q")
+    run(*dvc, "repro", "compile_mjcf")
+    repro = subprocess.Popen([*dvc, "repro", "render"], cwd=ws, env=env, stdout=subprocess.DEVNULL,
+                             stderr=subprocess.DEVNULL)
+    video = ws / "data" / "video"
+    deadline = time.time() + 300
+    while time.time() < deadline and repro.poll() is None:
+        if video.is_dir() and any(p.name.startswith("shard-") for p in video.iterdir()):
+            break
+        time.sleep(0.05)
+    children = subprocess.run(["ps", "-o", "pid=", "--ppid", str(repro.pid)], capture_output=True,
+                              text=True).stdout.split()
+    stage = [int(p) for p in children if "stages/render.py" in Path(f"/proc/{p}/cmdline").read_text(errors="replace")]
+    assert repro.poll() is None and stage, "render finished before dvc could be killed"
+    repro.kill()
+    repro.wait()
+    killed = time.time()
+    while time.time() < killed + 15 and Path(f"/proc/{stage[0]}").exists():
+        time.sleep(0.05)
+    assert not Path(f"/proc/{stage[0]}").exists(), "the stage script outlived dvc by 15 s"
+    assert not (video / "meta.json").exists()
+    status = json.loads(run(*dvc, "status", "--json", "render"))
+    assert "render" in status, status
+    run(*dvc, "repro", "render")
+    assert json.loads(run(*dvc, "status", "--json", "render")) == {}
+
+    direct, env_d = _workspace(tmp_path, "direct")
+    for stage_name in ("sample_configs", "compile_mjcf", "render"):
+        _run(direct, env_d, stage_name)
+    ref = _hashes(direct / "data")
+    got = {k: v for k, v in _hashes(ws / "data").items() if k != ".gitignore"}
+    assert got == ref
