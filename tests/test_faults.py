@@ -45,6 +45,15 @@ def _hashes(root: Path) -> dict[str, str]:
             for f in sorted(root.rglob("*")) if f.is_file()}
 
 
+def _wait_for_a_shard(proc: subprocess.Popen, folder: Path, timeout: float = 300) -> None:
+    """Until a finished shard (renamed into place: ``shard-*``) is in ``folder`` or ``proc`` ends."""
+    deadline = time.time() + timeout
+    while time.time() < deadline and proc.poll() is None:
+        if folder.is_dir() and any(p.name.startswith("shard-") for p in folder.iterdir()):
+            return
+        time.sleep(0.05)
+
+
 def test_render_killed_midway_then_rerun_equals_an_uninterrupted_run(tmp_path):
     """Workspace A runs the six data stages; workspace B the same, but render is killed with
     SIGKILL once it has written its first shard. After the kill: no meta.json, every visible
@@ -65,11 +74,7 @@ def test_render_killed_midway_then_rerun_equals_an_uninterrupted_run(tmp_path):
     proc = subprocess.Popen([sys.executable, str(ROOT / "stages" / "render.py")], cwd=b, env=env,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     video = b / "data" / "video"
-    deadline = time.time() + 300
-    while time.time() < deadline and proc.poll() is None:
-        if video.is_dir() and any(p.name.startswith("shard-") for p in video.iterdir()):
-            break
-        time.sleep(0.05)
+    _wait_for_a_shard(proc, video)
     assert proc.poll() is None, "render finished before it could be killed (make the profile larger)"
     proc.send_signal(signal.SIGKILL)
     proc.wait()
@@ -135,33 +140,17 @@ TIMED = {"train_curve.csv", "trainer_state.pt", "result.json", "train_curve.png"
 def _finetune_workspace(tmp_path: Path, name: str) -> tuple[Path, dict]:
     """Six synthetic scenes (configs, think events, random flow and RGB) and the params of a
     tokenize + finetune run; the tokenize stage has run."""
-    import numpy as np
-
     from pipeline.scene import Scene
+
+    from conftest import write_model_inputs
 
     ws = tmp_path / name
     ws.mkdir()
-    rng = np.random.default_rng(0)
-    ids = [shards.scene_id(i) for i in range(6)]
-    splits = ["train", "train", "train", "val", "test", "test_comp"]
     scenes = [Scene.from_dict({"camera": {"height": 1.2, "pitch": 35.0, "fov": 45.0},
                                "objects": [{"shape": "sphere", "size": {"radius": 0.1}, "mass": 0.5,
                                             "position": [0.0, 0.3, 0.1 * (i + 1)]}]}).to_yaml() for i in range(6)]
     data = ws / "data"
-    for s in range(2):
-        part = slice(3 * s, 3 * s + 3)
-        shards.write_table(shards.shard_path(data / "configs", s, "parquet"), [
-            {"scene_id": i, "split": sp, "seed": 0, "scene": sc, "composition": "sphere"}
-            for i, sp, sc in zip(ids[part], splits[part], scenes[part])])
-        shards.write_arrays(shards.shard_path(data / "flow", s, "zarr"),
-                            {"flow": rng.normal(size=(3, 8, 32, 48, 2)).astype(np.float16)},
-                            scene_ids=ids[part], attrs={"max_magnitude": 2.0})
-        shards.write_arrays(shards.shard_path(data / "video", s, "zarr"),
-                            {"rgb": rng.integers(0, 256, (3, 9, 32, 48, 3), dtype=np.uint8)}, scene_ids=ids[part])
-    shards.write_table(shards.shard_path(data / "events", 0, "parquet", prefix="think"),
-                       [{"scene_id": i, "think": "t=0.23 sphere_0 hits floor"} for i in ids])
-    for folder in ("configs", "flow", "video", "events"):
-        shards.write_meta(data / folder, {})
+    write_model_inputs(data, scenes, "t=0.23 sphere_0 hits floor")
     paths = {k: str(data / k) for k in ("configs", "events", "flow", "video", "tokenizer", "examples", "model")}
     paths["reports"] = str(ws / "reports")
     (ws / "params.yaml").write_text(yaml.safe_dump({"seed": 1, "paths": paths, "model": FINETUNE_MODEL}))
@@ -273,11 +262,7 @@ def test_kill_dvc_during_render_then_status_and_repro(tmp_path):
     repro = subprocess.Popen([*dvc, "repro", "render"], cwd=ws, env=env, stdout=subprocess.DEVNULL,
                              stderr=subprocess.DEVNULL)
     video = ws / "data" / "video"
-    deadline = time.time() + 300
-    while time.time() < deadline and repro.poll() is None:
-        if video.is_dir() and any(p.name.startswith("shard-") for p in video.iterdir()):
-            break
-        time.sleep(0.05)
+    _wait_for_a_shard(repro, video)
     children = subprocess.run(["ps", "-o", "pid=", "--ppid", str(repro.pid)], capture_output=True,
                               text=True).stdout.split()
     stage = [int(p) for p in children if "stages/render.py" in Path(f"/proc/{p}/cmdline").read_text(errors="replace")]
