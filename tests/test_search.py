@@ -373,11 +373,26 @@ def test_stages_best_of_k_cmaes_score(tmp_path, monkeypatch):
     assert metrics["methods"]["first_sample"]["test_comp"]["full_iou"] == 0.0   # sample 0 did not parse
     table = (tmp_path / "reports" / "table.md").read_text()
     assert "Trivial baseline" in table and "Trivial baseline + CMA-ES" in table
-    # the table shows the numbers of metrics.json, row by row (composition accuracy, full IoU)
-    row = next(line for line in table.splitlines() if line.startswith("| Best@2 + CMA-ES | flow |"))
-    cells = [c.strip() for c in row.strip("|").split("|")]
-    assert float(cells[2]) == pytest.approx(test["composition_accuracy"], abs=5e-4)
-    assert float(cells[4]) == pytest.approx(test["full_iou"], abs=5e-4)
+    # the table shows the numbers of metrics.json: every method, split and column, in place
+    labels = {"trivial_baseline": "Trivial baseline", "trivial_baseline_cmaes": "Trivial baseline + CMA-ES",
+              "first_sample": "Model (first sample)", "best_of_k": "Best@2", "best_of_k_cmaes": "Best@2 + CMA-ES"}
+    columns = ["composition_accuracy", "initial_iou", "full_iou", "foreground_iou", "epe"]
+    checked = 0
+    for section in table.split("### Split `")[1:]:
+        split = section.split("`")[0]
+        for line in section.splitlines():
+            cells = [c.strip() for c in line.strip("|").split("|")]
+            method = next((m for m, lab in labels.items() if cells[0] == lab), None)
+            if method is None:
+                continue
+            want = metrics["methods"][method][split]
+            for col, cell in zip(columns, cells[2:7]):
+                if want[col] is None:
+                    assert cell == "–", (method, split, col, cell)
+                else:
+                    assert float(cell) == pytest.approx(want[col], abs=5e-3 if col == "epe" else 5e-4), (method, split, col)
+                checked += 1
+    assert checked == len(labels) * 2 * len(columns)              # 5 methods x 2 splits
     # the progress plot is a drawn figure: decodable, two panels wide, the IoU curve in tab:green
     import cv2
 
