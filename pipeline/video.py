@@ -84,6 +84,31 @@ def centre_crop_box(width: int, height: int, aspect: float) -> tuple[int, int, i
     return (width - w) // 2, (height - h) // 2, w, h
 
 
+def _open_capture(path: Path) -> cv2.VideoCapture:
+    """``cv2.VideoCapture`` through FFmpeg (the backend that opens every video OpenCV reads by
+    default here), then, if FFmpeg cannot open the file, through OpenCV's other backends, with
+    the process's stderr (file descriptor 2) sent to /dev/null while opening: OpenCV's own AVI
+    parser prints lines such as "Unexpected element. Expected: LIST" for a damaged header and
+    its log a "can't be used to capture by name" warning, which would follow our one-line error.
+    Decoding messages are silenced by ``OPENCV_FFMPEG_LOGLEVEL`` (``pipeline/__init__.py``)."""
+    import os
+    import sys
+
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 2)
+            cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+            if not cap.isOpened():
+                cap.release()
+                cap = cv2.VideoCapture(str(path))
+            return cap
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
 def read_video(
     path: str | Path,
     fps: float | None = None,
@@ -141,7 +166,7 @@ def read_video(
     if not path.is_file():
         raise VideoError(f"{path}: not a file")
 
-    cap = cv2.VideoCapture(str(path))
+    cap = _open_capture(path)
     try:
         if not cap.isOpened():
             raise VideoError(f"{path}: cannot open as a video")

@@ -255,6 +255,13 @@ def test_unreadable_and_truncated_videos(tmp_path):
     assert proc.returncode == 2, proc.stderr
     assert len(lines) == 2 and lines[0].startswith(f"warning: {cut}: truncated or corrupt") and \
         lines[1].startswith(f"error: {cut}: only"), lines
+    # a header cut short: FFmpeg cannot open it, OpenCV's own AVI parser (tried next) must not add
+    # its "Unexpected element. Expected: LIST" line to ours
+    head = tmp_path / "head.avi"
+    head.write_bytes(data[: len(data) // 10])
+    proc = _dynamics("infer", str(head), "--no-model", "--out", str(tmp_path / "o"))
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [f"error: {head}: cannot open as a video"]
     # a start past the decodable part names the truncation
     proc = _dynamics("infer", str(cut), "--no-model", "--start", "1.5", "--out", str(tmp_path / "o"))
     assert proc.returncode == 2
