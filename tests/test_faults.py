@@ -233,55 +233,91 @@ def test_finetune_killed_midway_then_rerun_equals_an_uninterrupted_run(tmp_path,
 
 
 # --------------------------------------------------------------------------- through dvc
-@pytest.mark.slow
-def test_kill_dvc_during_render_then_status_and_repro(tmp_path):
-    """In a fresh DVC repository of the project (tiny profile): ``kill -9`` of ``dvc repro`` once
-    render has written its first shard ends the stage script within seconds (pipeline.orphan;
-    it used to keep writing for minutes), leaves no meta.json, ``dvc status`` lists render as
-    changed, and the next ``dvc repro`` completes it with the bytes of a direct run."""
-    import json
+DVC_FINETUNE = {"max_steps": 12, "eval_interval": 2, "eval_batches": 1, "eval_samples": 0, "batch_size": 2,
+                "warmup_steps": 1}
+"""model params of the DVC test: the shipped checkpoint (model.init) trained 12 steps, saved every 2."""
+
+
+def _dvc_repo(tmp_path: Path) -> tuple[Path, dict]:
+    """A fresh git + DVC repository of the project with the 12-scene profile."""
     import shutil
 
     ws, env = _workspace(tmp_path, "repo")
+    params = yaml.safe_load((ws / "params.yaml").read_text())
+    params["model"].update(DVC_FINETUNE)
+    (ws / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     for name in ("stages", "pipeline", "models"):
         shutil.copytree(ROOT / name, ws / name, ignore=shutil.ignore_patterns("__pycache__"))
     shutil.copy(ROOT / "dvc.yaml", ws / "dvc.yaml")
-    env = {**env, "PYTHONPATH": str(ws), "DVC_NO_ANALYTICS": "1",
+    env = {**env, "PYTHONPATH": str(ws), "DVC_NO_ANALYTICS": "1", "HF_HUB_OFFLINE": "1",
+           "TRANSFORMERS_OFFLINE": "1", "TOKENIZERS_PARALLELISM": "false",
            "PATH": str(Path(sys.executable).parent) + os.pathsep + os.environ.get("PATH", "")}
+    for cmd in (["git", "init", "-q"],
+                ["git", "-c", "user.email=ci@example.com", "-c", "user.name=ci", "commit", "-q", "--allow-empty",
+                 "-m", "init"],
+                [sys.executable, "-m", "dvc", "init", "-q"]):
+        subprocess.run(cmd, cwd=ws, env=env, check=True, capture_output=True, timeout=120)
+    return ws, env
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("stage, script, written", [
+    ("render", "stages/render.py", lambda ws: any(p.name.startswith("shard-") for p in (ws / "data" / "video").glob("*"))),
+    ("finetune", "stages/finetune.py", lambda ws: (ws / "data" / "model" / "trainer_state.pt").exists()),
+])
+def test_kill_dvc_during_a_stage_then_status_and_repro(tmp_path, stage, script, written):
+    """In a fresh DVC repository of the project (12-scene profile): ``kill -9`` of ``dvc repro``
+    once the stage has written (render: its first shard; finetune: its first checkpoint) ends
+    the stage script within seconds (pipeline.orphan; it used to keep writing for minutes) and
+    leaves it unfinished (no meta.json / result.json); ``dvc status`` lists the stage as changed;
+    the next ``dvc repro`` completes it (render: with the bytes of a direct run; finetune: all
+    steps, a loadable checkpoint) and ``dvc status`` is clean."""
+    import json
+
+    ws, env = _dvc_repo(tmp_path)
     dvc = [sys.executable, "-m", "dvc"]
 
     def run(*cmd: str) -> str:
-        proc = subprocess.run(list(cmd), cwd=ws, env=env, capture_output=True, text=True, timeout=600)
+        proc = subprocess.run(list(cmd), cwd=ws, env=env, capture_output=True, text=True, timeout=900)
         assert proc.returncode == 0, f"{cmd}:\n{proc.stdout[-2000:]}\n{proc.stderr[-2000:]}"
         return proc.stdout
 
-    run("git", "init", "-q")
-    run("git", "-c", "user.email=ci@example.com", "-c", "user.name=ci", "commit", "-q", "--allow-empty", "-m", "init")
-    run(*dvc, "init", "-q")
-    run(*dvc, "repro", "compile_mjcf")
-    repro = subprocess.Popen([*dvc, "repro", "render"], cwd=ws, env=env, stdout=subprocess.DEVNULL,
+    upstream = {"render": "compile_mjcf", "finetune": "tokenize"}[stage]
+    run(*dvc, "repro", upstream)
+    if stage == "finetune":
+        run(*dvc, "repro", "flow")
+    repro = subprocess.Popen([*dvc, "repro", "--single-item", stage], cwd=ws, env=env, stdout=subprocess.DEVNULL,
                              stderr=subprocess.DEVNULL)
-    video = ws / "data" / "video"
-    _wait_for_a_shard(repro, video)
+    deadline = time.time() + 600
+    while time.time() < deadline and repro.poll() is None and not written(ws):
+        time.sleep(0.02)
     children = subprocess.run(["ps", "-o", "pid=", "--ppid", str(repro.pid)], capture_output=True,
                               text=True).stdout.split()
-    stage = [int(p) for p in children if "stages/render.py" in Path(f"/proc/{p}/cmdline").read_text(errors="replace")]
-    assert repro.poll() is None and stage, "render finished before dvc could be killed"
+    pids = [int(p) for p in children if script in Path(f"/proc/{p}/cmdline").read_text(errors="replace")]
+    assert repro.poll() is None and pids, f"{stage} finished before dvc could be killed"
     repro.kill()
     repro.wait()
     killed = time.time()
-    while time.time() < killed + 15 and Path(f"/proc/{stage[0]}").exists():
+    while time.time() < killed + 15 and Path(f"/proc/{pids[0]}").exists():
         time.sleep(0.05)
-    assert not Path(f"/proc/{stage[0]}").exists(), "the stage script outlived dvc by 15 s"
-    assert not (video / "meta.json").exists()
-    status = json.loads(run(*dvc, "status", "--json", "render"))
-    assert "render" in status, status
-    run(*dvc, "repro", "render")
-    assert json.loads(run(*dvc, "status", "--json", "render")) == {}
+    assert not Path(f"/proc/{pids[0]}").exists(), "the stage script outlived dvc by 15 s"
+    unfinished = ws / "data" / ("video/meta.json" if stage == "render" else "model/result.json")
+    assert not unfinished.exists()
+    assert stage in json.loads(run(*dvc, "status", "--json", stage))
+    run(*dvc, "repro", "--single-item", stage)
+    assert json.loads(run(*dvc, "status", "--json", stage)) == {}
 
-    direct, env_d = _workspace(tmp_path, "direct")
-    for stage_name in ("sample_configs", "compile_mjcf", "render"):
-        _run(direct, env_d, stage_name)
-    ref = _hashes(direct / "data")
-    got = {k: v for k, v in _hashes(ws / "data").items() if k != ".gitignore"}
-    assert got == ref
+    if stage == "render":
+        direct, env_d = _workspace(tmp_path, "direct")
+        for name in ("sample_configs", "compile_mjcf", "render"):
+            _run(direct, env_d, name)
+        ref = _hashes(direct / "data")
+        got = {k: v for k, v in _hashes(ws / "data").items() if k != ".gitignore" and not k.startswith(("flow/", "events/"))}
+        assert got == ref
+    else:
+        from pipeline.model import check_checkpoint
+
+        check_checkpoint(ws / "data" / "model")
+        result = json.loads((ws / "data" / "model" / "result.json").read_text())
+        assert result["step"] == DVC_FINETUNE["max_steps"], result
+        assert not [p.name for p in (ws / "data").iterdir() if p.name.startswith(".model.")]
