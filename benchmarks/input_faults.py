@@ -92,26 +92,15 @@ def trajectories(seeds: int) -> None:
         print("  false alarm:", line)
 
 
-def _moving_disc_avi(path: Path, n: int = 60) -> Path:
-    import cv2
-
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (96, 64))
-    for k in range(n):
-        frame = np.full((64, 96, 3), 90, np.uint8)
-        cv2.circle(frame, (10 + k, 32), 8, (40, 200, 40), -1)
-        writer.write(frame)
-    writer.release()
-    return path
-
-
 def videos() -> None:
     from pipeline.video import VideoError, VideoWarning, read_video
+    from tests.conftest import moving_disc_avi
 
     rng = np.random.default_rng(0)
     results = collections.Counter()
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        sources = sorted((ROOT.parent / "shared" / "repro" / "video").glob("*")) + [_moving_disc_avi(tmp / "disc.avi")]
+        sources = sorted((ROOT.parent / "shared" / "repro" / "video").glob("*")) + [moving_disc_avi(tmp / "disc.avi")]
         for src in sources:
             data = src.read_bytes()
             if not data:

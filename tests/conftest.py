@@ -44,3 +44,18 @@ def write_model_inputs(root, scenes: list[str], think: str) -> list[str]:
     for name in ("configs", "flow", "video", "events"):  # finished stages leave a meta.json
         shards.write_meta(root / name, {})
     return ids
+
+
+def moving_disc_avi(path, n: int = 60):
+    """Write an MJPG avi of ``n`` frames, 96 x 64 px at 30 fps, a green disc moving right 1 px per
+    frame on grey (a small, exactly countable video to cut and damage). Returns ``path``."""
+    import cv2
+    import numpy as np
+
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (96, 64))
+    for k in range(n):
+        frame = np.full((64, 96, 3), 90, np.uint8)
+        cv2.circle(frame, (10 + k, 32), 8, (40, 200, 40), -1)
+        writer.write(frame)
+    writer.release()
+    return path

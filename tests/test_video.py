@@ -8,6 +8,7 @@ import pytest
 
 import cv2
 
+from conftest import moving_disc_avi
 from pipeline.video import (BACKGROUND, VideoError, VideoWarning, label_objects, pseudo_ground_truth,
                             pseudo_masks, read_video, resample)
 
@@ -199,17 +200,6 @@ def test_hold_resting_keeps_an_object_that_stops_inside_the_frame():
     np.testing.assert_array_equal(held[:3], seg[:3])
 
 
-def _moving_disc_avi(path: Path, n: int = 60) -> Path:
-    """An MJPG avi of ``n`` frames, 96x64, a green disc moving right 1 px per frame."""
-    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (96, 64))
-    for k in range(n):
-        frame = np.full((64, 96, 3), 90, np.uint8)
-        cv2.circle(frame, (10 + k, 32), 8, (40, 200, 40), -1)
-        writer.write(frame)
-    writer.release()
-    return path
-
-
 def _dynamics(*args: str) -> "subprocess.CompletedProcess":
     import subprocess
     import sys
@@ -229,7 +219,7 @@ def test_unreadable_and_truncated_videos(tmp_path):
     assert proc.stderr.strip().splitlines() == [f"error: {text}: cannot open as a video"]
     assert not (tmp_path / "o").exists()
 
-    full = _moving_disc_avi(tmp_path / "full.avi")
+    full = moving_disc_avi(tmp_path / "full.avi")
     data = full.read_bytes()
     cut = tmp_path / "cut.avi"
     cut.write_bytes(data[: len(data) // 2])
@@ -277,7 +267,7 @@ def test_video_with_broken_frames_is_read_up_to_the_damage(tmp_path, where):
     other than VideoError, and a warning naming the frames read whenever frames are lost."""
     import warnings
 
-    data = bytearray(_moving_disc_avi(tmp_path / "full.avi").read_bytes())
+    data = bytearray(moving_disc_avi(tmp_path / "full.avi").read_bytes())
     n = len(data)
     a = int(n * where)
     data[a:a + n // 10] = np.random.default_rng(0).integers(0, 256, n // 10, dtype=np.uint8).tobytes()
