@@ -12,3 +12,9 @@ os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
 
 __version__ = "0.1.0"
+
+if os.environ.get("DVC_STAGE"):
+    # a stage script run by `dvc repro` ends when dvc dies (kill -9 of dvc), see pipeline.orphan
+    from pipeline.orphan import exit_with_parent
+
+    exit_with_parent()

@@ -14,14 +14,18 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
+
+_python_showwarning = warnings.showwarning
 
 
 def _user_errors() -> tuple[type[BaseException], ...]:
+    from pipeline.model.config import ModelError
     from pipeline.params import ParamsError
     from pipeline.scene import SceneError
     from pipeline.shards import ShardError
 
-    errors: list[type[BaseException]] = [SceneError, ShardError, ParamsError]
+    errors: list[type[BaseException]] = [SceneError, ShardError, ParamsError, ModelError]
     try:
         from pipeline.video import VideoError
 
@@ -94,7 +98,19 @@ def _schema_cli(args: argparse.Namespace) -> int:
     return 0
 
 
+def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Our own warnings (e.g. a truncated video) as one stderr line ``warning: <message>``;
+    others keep Python's format."""
+    from pipeline.video import VideoWarning
+
+    if issubclass(category, VideoWarning):
+        print(f"warning: {message}", file=file or sys.stderr)
+    else:
+        _python_showwarning(message, category, filename, lineno, file, line)
+
+
 def main(argv: list[str] | None = None) -> int:
+    warnings.showwarning = _one_line_warning
     args = build_parser().parse_args(argv)
     try:
         result = args.func(args)

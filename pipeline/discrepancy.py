@@ -289,6 +289,91 @@ class Clip:
         return int(max(1, round(1.0 / float(np.median(np.diff(self.times))))))
 
 
+DT_RANGE = (1e-4, 1.0)
+"""s; the median sample spacing of every track must lie in this range (10 kHz to 1 Hz): outside
+it the times are in other units (ms, us, ns) and the fit would simulate hours or nothing."""
+MAX_GAP_FACTOR = 10.0
+"""A spacing longer than this many median spacings is a gap the reader refuses (a few
+dropped frames pass; a 1,000 s pause in a 60 Hz track does not)."""
+MAX_MEDIAN_ACCELERATION_G = 3.0
+"""Upper bound on a track's typical acceleration, in units of g = 9.81 m/s^2. Objects on a
+floor under gravity accelerate by g in flight, by at most ~mu g sliding and not at all at
+rest; the library's effects (drag, wind, Magnus lift, tilt) stay within ~g. The typical value
+is the median over 0.1 s windows of a least-squares parabola's curvature (per axis, the median
+vector's norm), robust to bounces (a few windows) and to noise (the fit averages it): 1 mm
+noise at 240 fps moves it by ~0.5 m/s^2. Millimetres (x1000) or pixels give 10-1000x g."""
+GRAVITY_CHECK = 9.81
+"""m/s^2, the g of the plausibility checks (the scenes' default gravity)."""
+REST_HEIGHT_TOLERANCE = 0.05
+"""m. A 3-D track that keeps its height (range < 1 cm over >= 0.2 s, i.e. not falling) must be
+held by the floor or by the other objects: its lowest point may be at most this plus the
+other objects' diameters above z = 0."""
+ACCELERATION_WINDOW = 0.1
+"""s, window of the local parabola fits of the acceleration check (at least 5 samples)."""
+
+
+def _typical_acceleration(t: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """Median over windows of the fitted acceleration of one track.
+
+    Args:
+        t: ``(T,)`` strictly increasing times, s, ``T >= 5``.
+        pos: ``(T, 3)`` positions, m.
+    Returns:
+        ``(3,)`` median (over windows of :data:`ACCELERATION_WINDOW` s, at least 5 samples, half
+        overlapping) of ``2 c`` of the least-squares fit ``p(t) = a + b t + c t^2`` per axis, m/s^2.
+    """
+    dt = float(np.median(np.diff(t)))
+    w = int(min(len(t), max(5, round(ACCELERATION_WINDOW / dt) + 1)))
+    starts = range(0, len(t) - w + 1, max(1, w // 2))
+    acc = []
+    for s in starts:
+        tt = t[s:s + w] - t[s:s + w].mean()
+        coef = np.polynomial.polynomial.polyfit(tt, pos[s:s + w], 2)   # (3, 3): rows 1, t, t^2
+        acc.append(2.0 * coef[2])
+    return np.median(np.asarray(acc), axis=0)
+
+
+def _check_plausible(path: Path, c: str, o: str, tt: np.ndarray, pos: np.ndarray, rows: np.ndarray,
+                     file_col: Mapping[int, str]) -> None:
+    """Time units, gaps and position units of one track (see the constants above)."""
+    step = np.diff(tt)
+    med = float(np.median(step))
+    if not DT_RANGE[0] <= med <= DT_RANGE[1]:
+        hint = "milliseconds?" if med > DT_RANGE[1] else "micro- or nanoseconds?"
+        raise _err(path, "t", f"clip {c!r}, object {o!r}: median sample spacing must be in "
+                              f"[{DT_RANGE[0]:g}, {DT_RANGE[1]:g}] s, got {med:.4g} s (times in {hint})")
+    k = int(np.argmax(step))
+    if step[k] > MAX_GAP_FACTOR * med:
+        raise _err(path, "t", f"clip {c!r}, object {o!r}: gaps must be <= {MAX_GAP_FACTOR:g}x the median "
+                              f"spacing ({med:.4g} s), got {step[k]:.4g} s from {tt[k]:g} to {tt[k + 1]:g} "
+                              f"at row {rows[k + 1]} (split the clip)")
+    acc = _typical_acceleration(tt, pos)
+    g = GRAVITY_CHECK
+    if np.linalg.norm(acc) > MAX_MEDIAN_ACCELERATION_G * g:
+        a = max(file_col, key=lambda i: abs(acc[i]))
+        raise _err(path, file_col[a], f"clip {c!r}, object {o!r}: typical acceleration must be <= "
+                                      f"{MAX_MEDIAN_ACCELERATION_G:g} g ({MAX_MEDIAN_ACCELERATION_G * g:.1f} m/s^2) "
+                                      f"for metres, got {np.linalg.norm(acc):.4g} m/s^2 "
+                                      f"(positions in millimetres or pixels?)")
+
+
+def _check_supported(path: Path, c: str, tracks: Sequence["Track"], rows_of: Mapping[str, np.ndarray]) -> None:
+    """A 3-D track that does not fall must rest on the floor (z = 0) or on the other objects."""
+    reach = sum(2 * tr.spec.bounding_radius for tr in tracks)
+    for tr in tracks:
+        z = tr.pos[:, 2]
+        if tr.t[-1] - tr.t[0] < 0.2 or np.ptp(z) >= 0.01:
+            continue
+        height = float(np.min(z)) - tr.spec.bounding_radius
+        support = reach - 2 * tr.spec.bounding_radius + REST_HEIGHT_TOLERANCE
+        if height > support:
+            i = int(np.argmin(z))
+            raise _err(path, "z", f"clip {c!r}, object {tr.object!r}: an object that does not fall must rest on the "
+                                  f"floor (z = 0) or on the other objects (lowest point <= {support:.3g} m), got "
+                                  f"{height:.4g} m above the floor for {tr.t[-1] - tr.t[0]:.3g} s at row "
+                                  f"{rows_of[tr.object][i]} (positions in millimetres, or the floor not at z = 0?)")
+
+
 def _err(path: Any, column: str, message: str) -> DiscrepancyInputError:
     return DiscrepancyInputError(f"{path}: column {column}: {message}")
 
@@ -450,7 +535,11 @@ def read_trajectory_file(path: str | Path, objects: Mapping | None = None,
     Raises:
         DiscrepancyInputError: ``<file>: column <name>: <problem>`` for a missing column, a
             non-numeric value, NaN, time not strictly increasing within an object, fewer than
-            5 samples, coordinates that look like pixels, or a non-unit quaternion.
+            5 samples, coordinates that look like pixels, or a non-unit quaternion; for times
+            in other units than s (median spacing outside :data:`DT_RANGE`), a gap over
+            :data:`MAX_GAP_FACTOR` median spacings, a typical acceleration over
+            :data:`MAX_MEDIAN_ACCELERATION_G` g (millimetres, pixels), or, in 3-D tables, an
+            object that neither falls nor rests on the floor or the other objects.
     """
     path = Path(path)
     if not path.is_file():
@@ -536,6 +625,7 @@ def _clips_from_columns(path: Path, cols: Mapping[str, Any], two_d: bool, first:
                 k = bad[0] + 1
                 raise _err(path, "t", f"must increase strictly within clip {c!r}, object {o!r}: "
                                       f"{tt[k]:g} after {tt[k - 1]:g} at row {rows[idx[k]]}")
+            _check_plausible(path, c, o, tt, xyz[idx], rows[idx], file_col)
             given = {}
             for key, values in spec_cols.items():
                 vals = {values[j] for j in idx if values[j] is not None and not
@@ -548,6 +638,8 @@ def _clips_from_columns(path: Path, cols: Mapping[str, Any], two_d: bool, first:
             given.update(_lookup_object(objects, c, o))
             spec = _object_spec(o, given, default, f"{path}: clip {c!r}, object {o!r}")
             tracks.append(Track(o, tt, xyz[idx], None if quat is None else quat[idx], axes.copy(), spec))
+        if not two_d:   # 2-D files have no floor: their height is arbitrary
+            _check_supported(path, c, tracks, {o: rows[np.asarray(idx)] for o, idx in objs.items()})
         t0 = min(float(tr.t[0]) for tr in tracks)
         z_offset = 0.0
         if two_d:  # the file's vertical origin is arbitrary and has no floor: keep clear of z = 0

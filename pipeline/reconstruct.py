@@ -51,6 +51,26 @@ def default_model_dir(params: dict) -> Path | None:
     return SHIPPED_CHECKPOINT if (Path(SHIPPED_CHECKPOINT) / "config.json").exists() else None
 
 
+def resolve_model_dir(model_dir: str | Path | None, params: dict) -> Path | None:
+    """The model folder ``dynamics infer`` will use, checked before any video is decoded.
+
+    Args:
+        model_dir: ``--model``; None picks :func:`default_model_dir`.
+        params: parsed params.yaml.
+    Returns:
+        the folder, or None when no model was asked for and none is available.
+    Raises:
+        ModelError: the folder (given or default) is missing or not a checkpoint this version
+            can load (:func:`pipeline.model.check_checkpoint`): one line.
+    """
+    from pipeline.model.network import check_checkpoint
+
+    mdir = Path(model_dir) if model_dir else default_model_dir(params)
+    if mdir is not None:
+        check_checkpoint(mdir)
+    return mdir
+
+
 def model_samples(model_dir: Path, frames: np.ndarray, params: dict, k: int | None, seed: int,
                   scene_fps: int, duration: float) -> tuple[list[Scene | None], list[str | None]]:
     """K scenes sampled from a model for a clip (None where a sample is not a valid scene).
@@ -111,6 +131,8 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     Raises:
         VideoError: unreadable video, window past its end, or nothing to reconstruct (no model
             sample and no moving object found).
+        ModelError: ``model_dir`` (or the default trained model) is not a usable checkpoint;
+            raised before the video is decoded.
     """
     from pipeline import perception, viz
     from pipeline.flow import FlowConfig
@@ -138,6 +160,17 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     scene_fps, duration = int(rv.get("fps", 30)), float(rv.get("duration", 1.0))
     max_objects = int(rv.get("max_objects", 4))
 
+    # the model folder is checked first (milliseconds), before decoding the video (seconds)
+    model_note, mdir = None, None
+    if use_model:
+        mdir = resolve_model_dir(model_dir, params)
+        if mdir is None:
+            model_note = (f"no trained model at {path_of(params, 'model')} and no shipped checkpoint: using the "
+                          "perception proposals only (run `dvc repro` or pass --model)")
+            print(f"[infer] {model_note}")
+    else:
+        model_note = "model not used (--no-model)"
+
     obs = observe(video, fps, start, scene_fps, duration, fcfg.method, fcfg.preset,
                   rv.get("mask_method", "median"), max_objects)
     W, H = obs.size
@@ -150,21 +183,12 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     labels: list[str] = []
     errors: list[str | None] = []
     notes: list[str] = []
-    model_note = None
-    if use_model:
-        mdir = Path(model_dir) if model_dir else default_model_dir(params)
-        if mdir is None or not (mdir / "config.json").exists():
-            model_note = (f"no trained model at {mdir or path_of(params, 'model')}: using the perception "
-                          "proposals only (run `dvc repro` or pass --model)")
-            print(f"[infer] {model_note}")
-        else:
-            scenes, errs = model_samples(mdir, obs.frames, params, k, seed, scene_fps, duration)
-            candidates += scenes
-            sources += ["model"] * len(scenes)
-            labels += [f"model sample {i}" for i in range(len(scenes))]
-            errors += errs
-    else:
-        model_note = "model not used (--no-model)"
+    if mdir is not None:
+        scenes, errs = model_samples(mdir, obs.frames, params, k, seed, scene_fps, duration)
+        candidates += scenes
+        sources += ["model"] * len(scenes)
+        labels += [f"model sample {i}" for i in range(len(scenes))]
+        errors += errs
     proposals = None
     try:
         proposals = perception.propose(obs.seg, obs.flow, scene_fps, duration, max_objects)

@@ -102,8 +102,23 @@ def _tmp_sibling(path: Path, suffix: str = ".tmp") -> Path:
     return Path(tmp)
 
 
-def _replace(tmp: Path, path: Path) -> None:
-    """Move ``tmp`` onto ``path`` (file or directory); the old target is removed only after."""
+def temp_dir_for(path: str | Path) -> Path:
+    """A new empty folder ``.<name>.XXXX.tmp`` beside ``path`` (same file system, so it can be
+    renamed onto ``path``), with the permissions of a normal folder (mkdtemp makes 0700)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    os.chmod(tmp, 0o777 & ~_umask())
+    return tmp
+
+
+def replace_path(tmp: str | Path, path: str | Path) -> None:
+    """Move ``tmp`` onto ``path`` (file or directory); the old target is removed only after.
+
+    A directory is swapped whole: a reader sees the old folder, the new one, or (killed between
+    the two renames) none, never a mix; the old one waits as ``.<name>.old`` until it is removed
+    (or until :func:`remove_stale_temps` at the next run)."""
+    tmp, path = Path(tmp), Path(path)
     if path.is_dir() and not path.is_symlink():
         old = path.with_name(f".{path.name}.old")
         if old.exists():
@@ -123,7 +138,7 @@ def atomic_path(path: str | Path, suffix: str = ".tmp") -> Iterator[Path]:
     tmp = _tmp_sibling(path, suffix)
     try:
         yield tmp
-        _replace(tmp, path)
+        replace_path(tmp, path)
     finally:
         if tmp.exists():
             tmp.unlink()
@@ -135,7 +150,7 @@ def write_bytes(path: str | Path, data: bytes) -> Path:
     tmp = _tmp_sibling(path)
     try:
         tmp.write_bytes(data)
-        _replace(tmp, path)
+        replace_path(tmp, path)
     finally:
         if tmp.exists():
             tmp.unlink()
@@ -186,7 +201,7 @@ def write_table(
     tmp = _tmp_sibling(path)
     try:
         pq.write_table(table, tmp)
-        _replace(tmp, path)
+        replace_path(tmp, path)
     finally:
         if tmp.exists():
             tmp.unlink()
@@ -233,9 +248,7 @@ def write_arrays(
     import zarr
 
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
-    os.chmod(tmp, 0o777 & ~_umask())
+    tmp = temp_dir_for(path)
     try:
         group = zarr.open_group(str(tmp), mode="w")
         for name, arr in arrays.items():
@@ -248,7 +261,7 @@ def write_arrays(
             z = group.create_array("scene_id", shape=ids.shape, dtype=str)  # variable-length UTF-8 (zarr v3 spec)
             z[...] = ids
         group.attrs.update(json.loads(json.dumps(dict(attrs or {}), default=_json_default)))
-        _replace(tmp, path)
+        replace_path(tmp, path)
     finally:
         if tmp.exists():
             shutil.rmtree(tmp)
@@ -318,9 +331,31 @@ def read_meta(out_dir: str | Path, required: bool = True) -> dict:
         raise ShardError(f"{path}: invalid JSON: {exc.msg}") from None
 
 
+def remove_stale_temps(path: str | Path) -> list[Path]:
+    """Remove what an interrupted atomic write of ``path`` left beside it: the temporary siblings
+    ``.<name>.*.tmp`` (and ``.tmp-*``) and ``.<name>.old`` (see :func:`replace_path`).
+
+    Returns:
+        the removed paths.
+    """
+    path = Path(path)
+    if not path.parent.is_dir():
+        return []
+    stale = sorted({*path.parent.glob(f".{path.name}.*.tmp"), *path.parent.glob(f".{path.name}.*tmp-*"),
+                    *path.parent.glob(f".{path.name}.old")})
+    for p in stale:
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p, ignore_errors=True)
+        else:
+            p.unlink(missing_ok=True)
+    return stale
+
+
 def reset_dir(out_dir: str | Path) -> Path:
-    """Create ``out_dir`` empty (stages own their whole output directory)."""
+    """Create ``out_dir`` empty (stages own their whole output directory), removing temporary
+    leftovers of an interrupted earlier run beside it (:func:`remove_stale_temps`)."""
     out_dir = Path(out_dir)
+    remove_stale_temps(out_dir)
     if out_dir.exists():
         shutil.rmtree(out_dir)
     out_dir.mkdir(parents=True)

@@ -18,6 +18,7 @@ All errors about the user's file are :class:`VideoError` with a one-line message
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -33,6 +34,11 @@ BACKGROUND = -1
 
 class VideoError(ValueError):
     """A video cannot be read as asked. ``str(err)`` is one line: ``<file>: <reason>``."""
+
+
+class VideoWarning(UserWarning):
+    """A video was read only in part (truncated or corrupt file). ``str(w)`` is one line naming
+    the file and how many frames were decoded; ``dynamics`` prints it as ``warning: ...``."""
 
 
 @dataclass(frozen=True)
@@ -78,6 +84,31 @@ def centre_crop_box(width: int, height: int, aspect: float) -> tuple[int, int, i
     return (width - w) // 2, (height - h) // 2, w, h
 
 
+def _open_capture(path: Path) -> cv2.VideoCapture:
+    """``cv2.VideoCapture`` through FFmpeg (the backend that opens every video OpenCV reads by
+    default here), then, if FFmpeg cannot open the file, through OpenCV's other backends, with
+    the process's stderr (file descriptor 2) sent to /dev/null while opening: OpenCV's own AVI
+    parser prints lines such as "Unexpected element. Expected: LIST" for a damaged header and
+    its log a "can't be used to capture by name" warning, which would follow our one-line error.
+    Decoding messages are silenced by ``OPENCV_FFMPEG_LOGLEVEL`` (``pipeline/__init__.py``)."""
+    import os
+    import sys
+
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 2)
+            cap = cv2.VideoCapture(str(path), cv2.CAP_FFMPEG)
+            if not cap.isOpened():
+                cap.release()
+                cap = cv2.VideoCapture(str(path))
+            return cap
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
 def read_video(
     path: str | Path,
     fps: float | None = None,
@@ -114,6 +145,10 @@ def read_video(
     Raises:
         VideoError: the file is missing, cannot be decoded, has no usable frame rate and
             no override, or ``start`` lies past its end; or an argument is out of range.
+
+    Warns:
+        VideoWarning: decoding stopped before the frame count the container declares (a
+            truncated or corrupt file); the frames up to there are returned.
     """
     path = Path(path)
     if fps is not None and not (math.isfinite(fps) and fps > 0):
@@ -131,7 +166,7 @@ def read_video(
     if not path.is_file():
         raise VideoError(f"{path}: not a file")
 
-    cap = cv2.VideoCapture(str(path))
+    cap = _open_capture(path)
     try:
         if not cap.isOpened():
             raise VideoError(f"{path}: cannot open as a video")
@@ -144,19 +179,25 @@ def read_video(
         if max_frames is not None:
             count = max_frames if count is None else min(count, max_frames)
 
+        declared = int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0)   # <= 0: the container does not say
+
         def past_end(n_frames: int) -> VideoError:
+            broken = (f", of the {declared} the container declares: truncated or corrupt file"
+                      if n_frames < declared else "")
             return VideoError(f"{path}: start {start:g} s (frame {first}) is past the end "
-                              f"({n_frames} frames = {n_frames / true_fps:.3f} s at "
-                              f"{true_fps:g} fps)")
+                              f"({n_frames} frames decodable = {n_frames / true_fps:.3f} s at "
+                              f"{true_fps:g} fps{broken})")
 
         for skipped in range(first):                  # grab(): exact, unlike seeking
             if not cap.grab():
                 raise past_end(skipped)
         frames: list[np.ndarray] = []
         crop_checked = False
+        stopped_early = False
         while count is None or len(frames) < count:
             ok, bgr = cap.read()
             if not ok or bgr is None:
+                stopped_early = True
                 break
             if not crop_checked:
                 orig_h, orig_w = bgr.shape[:2]
@@ -182,6 +223,14 @@ def read_video(
         if first > 0:
             raise past_end(first)
         raise VideoError(f"{path}: no decodable frame")
+    if stopped_early and first + len(frames) < declared:
+        # FFmpeg stops at the first undecodable packet; the container's frame count is exact for
+        # every intact file we have (6 real clips, 5 synthetic ones), so a shortfall means a
+        # truncated or corrupt file
+        warnings.warn(VideoWarning(
+            f"{path}: truncated or corrupt: decoding stopped after frame {first + len(frames)} of the "
+            f"{declared} the container declares; read {len(frames)} frames ({len(frames) / true_fps:.3f} s) "
+            f"from frame {first}"), stacklevel=2)
     return Clip(frames=np.stack(frames), fps=float(true_fps), source=path,
                 original_size=(orig_w, orig_h), crop=crop, start_frame=first,
                 container_fps=container_fps)

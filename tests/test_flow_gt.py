@@ -73,13 +73,42 @@ def test_warped_foreground_matches_next_frame(clip):
     assert min(ious) >= 0.95, f"{name}: per-frame IoU {np.round(ious, 3).tolist()}"
 
 
-def test_static_floor_has_zero_flow(clip):
-    _, _, frames = clip
-    background = frames.seg[:-1] < 0
-    assert np.all(frames.flow[background] == 0)
+def test_floor_depth_lies_on_the_floor_and_static_pixels_do_not_change(clip):
+    """The floor's flow is 0 by construction (it is no body), so check what the flow rests on:
+    the rendered depth of the floor's pixels, back-projected with the *scene* camera model
+    (pipeline.camera, not the renderer's MuJoCo camera), lies on the plane z = 0; and the
+    camera is static, so floor pixels away from objects keep their colour."""
+    from pipeline.camera import pixel_grid, unproject
+
+    name, _, frames = clip
+    scene = Scene.from_dict({"duration": 0.5, "gravity": CASES[name][0], "camera": CAMERA, "objects": [CASES[name][1]]})
+    floor0 = (frames.seg[0] < 0) & np.isfinite(frames.depth[0]) & (frames.depth[0] < 20.0)
+    assert floor0.mean() > 0.5
+    world = unproject(pixel_grid(W, H)[floor0], frames.depth[0][floor0].astype(np.float64), scene.camera, W, H)
+    # float16/32 depth over 1-5 m: < 2 mm; a wrong fov, pitch, pixel-centre or depth convention is cm off
+    np.testing.assert_allclose(world[:, 2], 0.0, atol=2e-3)
     # the camera is static: the floor's pixels are identical wherever no object is in either
     # frame, away from the 2 px band that anti-aliasing blends with object edges
     near = binary_dilation(frames.seg >= 0, structure=np.ones((1, 5, 5), bool))
     floor = ~near[:-1] & ~near[1:]
     assert floor.mean() > 0.5
     assert np.array_equal(frames.rgb[:-1][floor], frames.rgb[1:][floor])
+
+
+def test_translating_box_flow_equals_the_scene_camera_projection():
+    """Known answer for a pure translation: flow = project(X + dp) - uv with X back-projected from
+    the rendered depth and dp the body's displacement between frames, computed with the scene
+    camera model (pipeline.camera) instead of the renderer's MuJoCo camera matrices."""
+    from pipeline.camera import pixel_grid, project, unproject
+
+    gravity, obj = CASES["translating_box"]
+    scene = Scene.from_dict({"duration": 0.2, "gravity": gravity, "camera": CAMERA, "objects": [obj]})
+    trace, frames = render_scene(scene, W, H)
+    grid = pixel_grid(W, H)
+    for k in range(len(frames.flow)):
+        on = frames.seg[k] == 0
+        dp = trace.qpos[k + 1, 0, :3] - trace.qpos[k, 0, :3]
+        assert np.linalg.norm(dp) > 0.03   # the box moves several px per frame
+        X = unproject(grid[on], frames.depth[k][on].astype(np.float64), scene.camera, W, H)
+        uv1, _ = project(X + dp, scene.camera, W, H)
+        np.testing.assert_allclose(frames.flow[k][on], uv1 - grid[on], atol=0.02)

@@ -334,29 +334,13 @@ def test_stages_tokenize_finetune_infer(tmp_path, monkeypatch):
 
     import yaml
 
+    from conftest import write_model_inputs
     from pipeline import shards
 
     pytest.importorskip("pipeline.flow")
     stages = Path(__file__).resolve().parents[1] / "stages"
-    rng = np.random.default_rng(0)
-    splits = ["train", "train", "train", "val", "test", "test_comp"]
-    ids = [shards.scene_id(i) for i in range(6)]
     scenes = [SCENE.replace("0.5\n", f"0.{i + 1}\n") for i in range(6)]
-    for s in range(2):  # two shards of three scenes
-        part = slice(3 * s, 3 * s + 3)
-        shards.write_table(shards.shard_path(tmp_path / "configs", s, "parquet"), [
-            {"scene_id": i, "split": sp, "seed": 0, "scene": sc, "composition": "sphere"}
-            for i, sp, sc in zip(ids[part], splits[part], scenes[part])])
-        shards.write_arrays(shards.shard_path(tmp_path / "flow", s, "zarr"),
-                            {"flow": rng.normal(size=(3, 8, 32, 48, 2)).astype(np.float16)},
-                            scene_ids=ids[part], attrs={"max_magnitude": 2.0})
-        shards.write_arrays(shards.shard_path(tmp_path / "video", s, "zarr"),
-                            {"rgb": rng.integers(0, 256, (3, 9, 32, 48, 3), dtype=np.uint8)},
-                            scene_ids=ids[part])
-    shards.write_table(shards.shard_path(tmp_path / "events", 0, "parquet", prefix="think"),
-                       [{"scene_id": i, "think": THINK} for i in ids])
-    for name in ("configs", "flow", "video", "events"):  # finished stages leave a meta.json
-        shards.write_meta(tmp_path / name, {})
+    ids = write_model_inputs(tmp_path, scenes, THINK)
     model = TINY.model_dump(exclude={"pretrained", "seed"}) | {"max_steps": 4, "eval_interval": 2, "k": 2,
                                                                "input": "flow+rgb"}
     paths = {name: str(tmp_path / name) for name in

@@ -8,7 +8,8 @@ import pytest
 
 import cv2
 
-from pipeline.video import (BACKGROUND, VideoError, label_objects, pseudo_ground_truth,
+from conftest import moving_disc_avi
+from pipeline.video import (BACKGROUND, VideoError, VideoWarning, label_objects, pseudo_ground_truth,
                             pseudo_masks, read_video, resample)
 
 _ROOT = Path(__file__).resolve().parents[1]
@@ -199,29 +200,152 @@ def test_hold_resting_keeps_an_object_that_stops_inside_the_frame():
     np.testing.assert_array_equal(held[:3], seg[:3])
 
 
-def test_unreadable_and_truncated_videos(tmp_path):
-    """A file that is not a video ends in exactly one stderr line and exit 2 (FFmpeg's own log
-    is silenced); a video cut in half is read up to where it breaks (../shared/repro/video)."""
+def _dynamics(*args: str) -> "subprocess.CompletedProcess":
     import subprocess
     import sys
 
+    return subprocess.run([sys.executable, "-m", "pipeline.cli", *args], capture_output=True, text=True,
+                          timeout=300)
+
+
+def test_unreadable_and_truncated_videos(tmp_path):
+    """A file that is not a video ends in exactly one stderr line and exit 2 (FFmpeg's own log
+    is silenced); a video cut in half is read up to where it breaks, with a one-line warning
+    naming how many frames were read (../shared/repro/video/truncated50.*)."""
     text = tmp_path / "text.mp4"
     text.write_text("not a video\n" * 100)
-    proc = subprocess.run([sys.executable, "-m", "pipeline.cli", "infer", str(text), "--out", str(tmp_path / "o")],
-                          capture_output=True, text=True, timeout=120)
+    proc = _dynamics("infer", str(text), "--out", str(tmp_path / "o"))
     assert proc.returncode == 2
     assert proc.stderr.strip().splitlines() == [f"error: {text}: cannot open as a video"]
     assert not (tmp_path / "o").exists()
 
-    full = tmp_path / "full.avi"
-    writer = cv2.VideoWriter(str(full), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, (64, 48))
-    for k in range(60):
-        frame = np.zeros((48, 64, 3), np.uint8)
-        cv2.circle(frame, (5 + k, 24), 4, (255, 255, 255), -1)
-        writer.write(frame)
-    writer.release()
-    cut = tmp_path / "cut.avi"
+    full = moving_disc_avi(tmp_path / "full.avi")
     data = full.read_bytes()
+    cut = tmp_path / "cut.avi"
     cut.write_bytes(data[: len(data) // 2])
-    clip = read_video(cut)
+    with pytest.warns(VideoWarning, match=r"cut.avi: truncated or corrupt: decoding stopped after frame (\d+) "
+                                          r"of the 60 the container declares; read \1 frames") as rec:
+        clip = read_video(cut)
     assert 10 <= len(clip.frames) < 60
+    assert f"read {len(clip.frames)} frames" in str(rec[0].message)
+    # the decoded frames are the file's first frames (the last one may be cut mid-frame)
+    good = read_video(full)
+    np.testing.assert_array_equal(clip.frames[:-1], good.frames[: len(clip.frames) - 1])
+    # an intact file and a window inside the readable part warn about nothing
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        read_video(full)
+        read_video(cut, duration=len(clip.frames) / 30 / 2)
+
+    # through the CLI: the warning is one line, then the error (the cut clip is under 1 s)
+    proc = _dynamics("infer", str(cut), "--no-model", "--out", str(tmp_path / "o"))
+    lines = proc.stderr.strip().splitlines()
+    assert proc.returncode == 2, proc.stderr
+    assert len(lines) == 2 and lines[0].startswith(f"warning: {cut}: truncated or corrupt") and \
+        lines[1].startswith(f"error: {cut}: only"), lines
+    # a header cut short: FFmpeg cannot open it, OpenCV's own AVI parser (tried next) must not add
+    # its "Unexpected element. Expected: LIST" line to ours
+    head = tmp_path / "head.avi"
+    head.write_bytes(data[: len(data) // 10])
+    proc = _dynamics("infer", str(head), "--no-model", "--out", str(tmp_path / "o"))
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [f"error: {head}: cannot open as a video"]
+    # a start past the decodable part names the truncation
+    proc = _dynamics("infer", str(cut), "--no-model", "--start", "1.5", "--out", str(tmp_path / "o"))
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [
+        f"error: {cut}: start 1.5 s (frame 45) is past the end ({len(clip.frames)} frames decodable = "
+        f"{len(clip.frames) / 30:.3f} s at 30 fps, of the 60 the container declares: truncated or corrupt file)"]
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("where", [0.3, 0.5, 0.7])
+def test_video_with_broken_frames_is_read_up_to_the_damage(tmp_path, where):
+    """10 % of the bytes overwritten with noise at 30/50/70 % of the file: never an exception
+    other than VideoError, and a warning naming the frames read whenever frames are lost."""
+    import warnings
+
+    data = bytearray(moving_disc_avi(tmp_path / "full.avi").read_bytes())
+    n = len(data)
+    a = int(n * where)
+    data[a:a + n // 10] = np.random.default_rng(0).integers(0, 256, n // 10, dtype=np.uint8).tobytes()
+    broken = tmp_path / "broken.avi"
+    broken.write_bytes(bytes(data))
+    with warnings.catch_warnings(record=True) as rec:
+        warnings.simplefilter("always")
+        clip = read_video(broken)
+    ours = [w for w in rec if issubclass(w.category, VideoWarning)]
+    assert 1 <= len(clip.frames) <= 60
+    if len(clip.frames) < 60:
+        assert len(ours) == 1 and f"read {len(clip.frames)} frames" in str(ours[0].message)
+    else:
+        assert ours == []
+
+
+def _fake_checkpoint(tmp_path: Path, edit) -> Path:
+    """A copy of the shipped checkpoint (7 MB) with ``edit(folder)`` applied."""
+    import shutil
+
+    from pipeline.model import SHIPPED_CHECKPOINT
+
+    folder = tmp_path / "model"
+    shutil.copytree(SHIPPED_CHECKPOINT, folder)
+    edit(folder)
+    return folder
+
+
+def _json_edit(name: str, change):
+    import json
+
+    def edit(folder: Path) -> None:
+        data = json.loads((folder / name).read_text())
+        change(data)
+        (folder / name).write_text(json.dumps(data))
+    return edit
+
+
+@pytest.mark.parametrize("edit, message", [
+    (_json_edit("dynamics_model.json", lambda d: d.update(patch_frames=4)),
+     "dynamics_model.json: written by another version of the project (model.patch_frames: extra inputs"),
+    (_json_edit("dynamics_model.json", lambda d: d.pop("input")),     # a field of this version missing
+     "dynamics_model.json: written by another version of the project (model.input: missing)"),
+    (_json_edit("codec.json", lambda d: d.pop("quantizers")), "codec.json: written by another version"),
+    (_json_edit("config.json", lambda d: d.update(model_type="qwen3_vl")),
+     "config.json: model_type: must be 'qwen2_5_vl' (this version), got 'qwen3_vl'"),
+    (lambda f: (f / "codec.json").unlink(), "no codec.json"),
+    (lambda f: (f / "model.safetensors").unlink(), "no weights"),
+    (lambda f: (f / "config.json").write_text("{not json"), "config.json: must be a JSON object"),
+])
+def test_model_folder_from_another_version_is_refused_before_decoding(tmp_path, edit, message):
+    """``dynamics infer --model DIR`` with a folder this version cannot load: one line, exit 2,
+    and before the video is read (the video here is not a video: its error would come first if
+    it were decoded first)."""
+    from pipeline.model import ModelError, check_checkpoint
+
+    folder = _fake_checkpoint(tmp_path, edit)
+    with pytest.raises(ModelError) as err:
+        check_checkpoint(folder)
+    assert str(err.value).startswith(f"{folder}: ") and "\n" not in str(err.value)
+    assert message in str(err.value)
+    text = tmp_path / "text.mp4"
+    text.write_text("not a video\n")
+    proc = _dynamics("infer", str(text), "--model", str(folder), "--out", str(tmp_path / "o"))
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [f"error: {err.value}"]
+    assert not (tmp_path / "o").exists()
+
+
+def test_shipped_checkpoint_passes_the_check_and_no_model_is_a_note(tmp_path, monkeypatch):
+    """The committed checkpoint is usable; with no trained model and no shipped one,
+    ``resolve_model_dir`` returns None (infer then says so in one line and uses perception)."""
+    import pipeline.model as vlm
+    from pipeline.reconstruct import resolve_model_dir
+
+    vlm.check_checkpoint(vlm.SHIPPED_CHECKPOINT)
+    params = {"paths": {"root": str(tmp_path), "model": str(tmp_path / "model")}}
+    monkeypatch.setattr(vlm, "SHIPPED_CHECKPOINT", tmp_path / "none")
+    assert resolve_model_dir(None, params) is None
+    with pytest.raises(vlm.ModelError, match="no such model folder"):
+        resolve_model_dir(tmp_path / "missing", params)

@@ -54,6 +54,16 @@ def test_side_by_side_mp4(tmp_path, clip):
     cap.release()
     assert len(frames) == T
     assert frames[0].shape == (H, 5 * W, 3)               # width = sum of the columns
+    # content, not just a file: each column lands at its place (below the label band, mean
+    # colour per column and frame within the codec's error), RGB order kept
+    band = 12
+    x = 0
+    for c in cols:
+        w = c.shape[2]
+        for t in range(T):
+            got = cv2.cvtColor(frames[t], cv2.COLOR_BGR2RGB)[band:, x:x + w].reshape(-1, 3).mean(0)
+            np.testing.assert_allclose(got, c[t, band:].reshape(-1, 3).mean(0), atol=12)
+        x += w
     with pytest.raises(ValueError, match="columns\\[1\\]"):
         side_by_side_mp4(path, [rgb, rgb[:2]], ["a", "b"], fps=30)
 
@@ -102,5 +112,13 @@ def test_plot_curves(tmp_path):
                 title="loss", xlabel="step", ylabel="loss", logy=True)
     img = cv2.imread(str(path))
     assert img is not None and img.shape[0] > 100 and img.shape[1] > 100
+    # both series are drawn, in matplotlib's first two colours (C0 blue, C1 orange), and the
+    # train curve falls from left to right (exp(-x) on a log axis is a descending line)
+    rgb = cv2.cvtColor(img, cv2.COLOR_BGR2RGB).astype(int)
+    for colour in ((31, 119, 180), (255, 127, 14)):
+        assert (np.abs(rgb - colour).sum(-1) < 30).sum() > 200, colour
+    rows, cols = np.nonzero(np.abs(rgb - (31, 119, 180)).sum(-1) < 30)
+    left, right = cols < np.percentile(cols, 20), cols > np.percentile(cols, 80)
+    assert rows[left].mean() < rows[right].mean() - 100      # image rows grow downwards
     with pytest.raises(ValueError, match="train"):
         plot_curves(path, {"train": (x, x[:3])})

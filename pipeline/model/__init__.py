@@ -26,7 +26,8 @@ Example::
 from pathlib import Path
 
 from pipeline.model.config import SCRATCH, ModelConfig, ModelError
-from pipeline.model.network import CompositionHead, build_model, checkpoint_config, load_model, n_parameters
+from pipeline.model.network import (CompositionHead, build_model, check_checkpoint, checkpoint_config, load_model,
+                                    n_parameters)
 from pipeline.model.sampling import (CODEC_FILE, compiled_grammar, generate, generate_many, load_codec,
                                      save_codec, to_scene)
 from pipeline.model.tokenizer import (EOS, PAD, SPECIAL_TOKENS, VIDEO_PAD, VISION_END, VISION_START,

@@ -112,6 +112,79 @@ def _check_geometry(model, cfg: ModelConfig) -> None:
                              f"({getattr(vc, name)}), got {getattr(cfg, name)}")
 
 
+MODEL_TYPE = "qwen2_5_vl"
+"""``config.json`` ``model_type`` of every checkpoint this version loads."""
+
+
+def check_checkpoint(model_dir: str | Path, need_codec: bool = True) -> None:
+    """Check, without loading weights (milliseconds), that a folder holds a checkpoint this
+    version of the project can use, so a caller can refuse it before any expensive work.
+
+    Checked: ``config.json`` exists, is JSON and names ``model_type`` :data:`MODEL_TYPE`;
+    ``tokenizer.json`` and a weights file exist; ``codec.json`` (when ``need_codec``) parses into
+    a :class:`pipeline.codec.SceneCodec`; ``dynamics_model.json`` (this project's checkpoints)
+    holds every field of :class:`ModelConfig` and validates (no unknown or missing fields: a
+    folder written by another version fails here).
+
+    Raises:
+        ModelError: one line ``<folder>: <file>: <problem>``.
+    """
+    import json
+
+    from pipeline.codec import SceneCodec
+
+    model_dir = Path(model_dir)
+    if not model_dir.is_dir():
+        raise ModelError(f"{model_dir}: no such model folder (run `dvc repro` or point --model at a checkpoint folder)")
+    if not (model_dir / "config.json").exists():
+        raise ModelError(f"{model_dir}: no model (config.json missing; run the finetune stage "
+                         f"or point --model at a checkpoint folder)")
+
+    def read_json(name: str) -> dict:
+        try:
+            data = json.loads((model_dir / name).read_text())
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            raise ModelError(f"{model_dir}: {name}: must be a JSON object, got unreadable text "
+                             f"({type(exc).__name__})") from None
+        if not isinstance(data, dict):
+            raise ModelError(f"{model_dir}: {name}: must be a JSON object, got {type(data).__name__}")
+        return data
+
+    kind = read_json("config.json").get("model_type")
+    if kind != MODEL_TYPE:
+        raise ModelError(f"{model_dir}: config.json: model_type: must be {MODEL_TYPE!r} (this version), "
+                         f"got {str(kind)[:40]!r}")
+    if not (model_dir / "tokenizer.json").exists():
+        raise ModelError(f"{model_dir}: tokenizer.json: missing (not a checkpoint of this project)")
+    if not any(model_dir.glob("*.safetensors")) and not any(model_dir.glob("*.bin")):
+        raise ModelError(f"{model_dir}: no weights (*.safetensors) in the folder")
+    if need_codec:
+        from pipeline.model.sampling import CODEC_FILE
+
+        if not (model_dir / CODEC_FILE).exists():
+            raise ModelError(f"{model_dir}: no {CODEC_FILE} (not a checkpoint of this project's finetune stage)")
+        try:
+            SceneCodec.from_dict(read_json(CODEC_FILE))
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise ModelError(f"{model_dir}: {CODEC_FILE}: written by another version of the project "
+                             f"(cannot read it: {type(exc).__name__} {str(exc)[:80]})") from None
+    if (model_dir / "dynamics_model.json").exists():
+        from pydantic import ValidationError
+
+        saved = read_json("dynamics_model.json")
+        missing = sorted(set(ModelConfig.model_fields) - set(saved))
+        if missing:   # a default would silently stand in for what the checkpoint was trained with
+            raise ModelError(f"{model_dir}: dynamics_model.json: written by another version of the project "
+                             f"(model.{missing[0]}: missing)")
+        try:
+            ModelConfig.model_validate(saved)
+        except ValidationError as exc:
+            err = exc.errors()[0]
+            loc = ".".join(str(p) for p in err["loc"]) or "(root)"
+            raise ModelError(f"{model_dir}: dynamics_model.json: written by another version of the project "
+                             f"(model.{loc}: {err['msg'].lower()})") from None
+
+
 def load_model(model_dir: str | Path):
     """Load a trained model and its tokenizer from a ``save_pretrained`` folder, offline.
 

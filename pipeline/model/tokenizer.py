@@ -70,8 +70,18 @@ def build_tokenizer(codec: SceneCodec, think_words: Sequence[str], out_dir: str 
         additional_special_tokens=list(SPECIAL_TOKENS[3:]),
         clean_up_tokenization_spaces=False, model_max_length=1 << 20,
     )
-    if out_dir is not None:
-        fast.save_pretrained(str(out_dir))
+    if out_dir is not None:   # into a temporary sibling, swapped in whole (no half-written folder)
+        import shutil
+
+        from pipeline.shards import replace_path, temp_dir_for
+
+        out_dir = Path(out_dir)
+        tmp = temp_dir_for(out_dir)
+        try:
+            fast.save_pretrained(str(tmp))
+            replace_path(tmp, out_dir)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
     return fast
 
 

@@ -13,9 +13,7 @@ from __future__ import annotations
 
 import csv
 import math
-import os
 import shutil
-import tempfile
 import time
 from pathlib import Path
 from typing import Any, Sequence
@@ -264,6 +262,9 @@ def train(
         raise ModelError("train: no training examples (is the train split empty?)")
     torch.set_num_threads(cfg.threads)
     out_dir = Path(out_dir)
+    from pipeline.shards import remove_stale_temps
+
+    remove_stale_temps(out_dir)              # leftovers of a killed save (resume keeps out_dir itself)
     out_dir.mkdir(parents=True, exist_ok=True)
     state_path = out_dir / TRAINER_STATE_FILE
     torch.manual_seed(cfg.seed)
@@ -381,11 +382,15 @@ def save_checkpoint(out_dir: Path, model, tokenizer, head: torch.nn.Module, opti
                     step: int, seconds: float, cfg: ModelConfig, curve: list[dict[str, float]]) -> None:
     """Write model, tokenizer, aux head, trainer state, config and curve into ``out_dir``.
 
-    Everything is first written to a temporary sibling folder, then moved in file by file,
-    the trainer state last, so an interrupted save never leaves a state newer than the model.
+    Everything is written to a temporary sibling folder, with the other files of ``out_dir``
+    (e.g. ``codec.json``) copied in, and the folder is swapped in whole
+    (:func:`pipeline.shards.replace_path`): after ``kill -9`` at any point ``out_dir`` holds the
+    previous checkpoint or the new one, never a mix.
     """
+    from pipeline.shards import replace_path, temp_dir_for
+
     out_dir = Path(out_dir)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".tmp", dir=out_dir.parent))
+    tmp = temp_dir_for(out_dir)
     try:
         model.save_pretrained(str(tmp))
         tokenizer.save_pretrained(str(tmp))
@@ -394,18 +399,25 @@ def save_checkpoint(out_dir: Path, model, tokenizer, head: torch.nn.Module, opti
         _write_curve(tmp / CURVE_FILE, curve)
         torch.save({"optimizer": optimizer.state_dict(), "step": step, "seconds": seconds,
                     "config": cfg.model_dump()}, tmp / TRAINER_STATE_FILE)
-        names = sorted(p.name for p in tmp.iterdir() if p.name != TRAINER_STATE_FILE) + [TRAINER_STATE_FILE]
-        for name in names:
-            os.replace(tmp / name, out_dir / name)
+        if out_dir.is_dir():
+            for old in out_dir.iterdir():
+                if not (tmp / old.name).exists():
+                    (shutil.copytree if old.is_dir() else shutil.copy2)(old, tmp / old.name)
+        replace_path(tmp, out_dir)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
 def _write_curve(path: Path, curve: list[dict[str, float]]) -> None:
-    with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=CURVE_COLUMNS)
-        writer.writeheader()
-        writer.writerows(curve)
+    import io
+
+    from pipeline.shards import write_text
+
+    buf = io.StringIO(newline="")
+    writer = csv.DictWriter(buf, fieldnames=CURVE_COLUMNS)
+    writer.writeheader()
+    writer.writerows(curve)
+    write_text(path, buf.getvalue())
 
 
 def read_curve(model_dir: str | Path) -> list[dict[str, float]]:
@@ -451,6 +463,12 @@ def plot_curve(model_dir: str | Path, png: str | Path | None = None) -> Path | N
     ax2.legend()
     ax2.grid(alpha=0.3)
     fig.tight_layout()
-    fig.savefig(png)
+    import io
+
+    from pipeline.shards import write_bytes
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png")          # temp-then-rename: a killed run leaves no half PNG
     plt.close(fig)
+    write_bytes(png, buf.getvalue())
     return png
