@@ -14,31 +14,11 @@ from __future__ import annotations
 
 import argparse
 import sys
+
+from pipeline.errors import UserError
 import warnings
 
 _python_showwarning = warnings.showwarning
-
-
-def _user_errors() -> tuple[type[BaseException], ...]:
-    from pipeline.model.config import ModelError
-    from pipeline.params import ParamsError
-    from pipeline.scene import SceneError
-    from pipeline.shards import ShardError
-
-    errors: list[type[BaseException]] = [SceneError, ShardError, ParamsError, ModelError]
-    try:
-        from pipeline.video import VideoError
-
-        errors.append(VideoError)
-    except ImportError:  # pragma: no cover
-        pass
-    try:
-        from pipeline.discrepancy import DiscrepancyInputError
-
-        errors.append(DiscrepancyInputError)
-    except ImportError:  # pragma: no cover
-        pass
-    return tuple(errors)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -114,8 +94,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         result = args.func(args)
-    except _user_errors() as exc:
-        print(f"error: {exc}", file=sys.stderr)
+    except UserError as exc:   # every subcommand: one line, exit 2 (pipeline.errors)
+        print(f"error: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return 130

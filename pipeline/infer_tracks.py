@@ -32,6 +32,7 @@ from typing import Any, Sequence
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from pipeline.errors import UserError
 from pipeline import shards
 from pipeline.camera import camera_pose, project, unproject
 from pipeline.scene import Scene, load_scene
@@ -43,7 +44,7 @@ FACE_ON = math.cos(math.radians(45.0))
 """A world axis is observed when the optical axis' component along it is below this."""
 
 
-class InferTracksError(ValueError):
+class InferTracksError(UserError, ValueError):
     """An infer output folder that cannot be read as trajectories (one line: file and field)."""
 
 

@@ -12,10 +12,12 @@ from typing import Any
 
 import yaml
 
+from pipeline.errors import UserError
+
 PARAMS_FILE = "params.yaml"
 
 
-class ParamsError(ValueError):
+class ParamsError(UserError, ValueError):
     """params.yaml is missing, malformed or lacks a section (one line naming file and key)."""
 
 

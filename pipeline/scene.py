@@ -23,6 +23,8 @@ from typing import Annotated, Any, Literal, Union
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
+from pipeline.errors import UserError
+
 _LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml when available: ~10x faster
 
 MAX_SCENE_BYTES = 1_000_000
@@ -44,7 +46,7 @@ SHAPES = ("sphere", "cylinder", "box")
 """Primitive shapes of scene language v1, in canonical order."""
 
 
-class SceneError(ValueError):
+class SceneError(UserError, ValueError):
     """A scene failed to parse or validate. ``str(err)`` is one line: ``<file>: <field>: <rule>``."""
 
 

@@ -28,13 +28,15 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from pipeline.errors import UserError
+
 SHARD_TEMPLATE = "shard-{index:05d}.{ext}"
 """File name of shard ``index``; ``ext`` is ``parquet`` or ``zarr``."""
 META_FILE = "meta.json"
 SCENE_ID_TEMPLATE = "scene-{index:06d}"
 
 
-class ShardError(RuntimeError):
+class ShardError(UserError, RuntimeError):
     """A shard is missing, unreadable or inconsistent. ``str(err)`` is one line naming the path."""
 
 

@@ -28,11 +28,13 @@ import numpy as np
 from scipy import ndimage
 from scipy.optimize import linear_sum_assignment
 
+from pipeline.errors import UserError
+
 BACKGROUND = -1
 """Label of background pixels in segmentation arrays (same as the renderer's floor)."""
 
 
-class VideoError(ValueError):
+class VideoError(UserError, ValueError):
     """A video cannot be read as asked. ``str(err)`` is one line: ``<file>: <reason>``."""
 
 

@@ -6,8 +6,10 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from pipeline.errors import UserError
 
-class ModelError(ValueError):
+
+class ModelError(UserError, ValueError):
     """Bad model config or input. ``str(err)`` is one line naming the field and the bad value."""
 
 
