@@ -160,6 +160,9 @@ class DiscrepancyConfig(_Strict):
         forward_split: with a single clip (nothing to hold out) the shown gap is a forecast:
             base and base + named effects are fitted on the clip's first ``forward_split``
             of its duration and scored on the samples after it (:func:`forward_gap`).
+        hold_damping: hold every object's ``material.damping`` at 0 instead of fitting it
+            (the variant of :func:`forward_gap` in which an effect with
+            ``Effect.replaces_damping`` stands in for the linear damping).
         diff_step: finite-difference step, in units of each parameter's scale.
         ci_level: confidence level of the coefficient intervals.
         default_object: size and mass assumed when the input has none.
@@ -187,6 +190,7 @@ class DiscrepancyConfig(_Strict):
     screen_gain: float = Field(10.0, ge=0)
     horizons: tuple[float, ...] = (0.5, 1.0)
     forward_split: float = Field(0.6, gt=0, lt=1)
+    hold_damping: bool = False
     diff_step: float = Field(1e-2, gt=0)
     ci_level: float = Field(0.95, gt=0, lt=1)
     default_object: DefaultObject = DefaultObject()
@@ -1108,7 +1112,8 @@ def _near_floor(tr: Track, tol: float) -> bool:
 def free_mask(clip: Clip, effects: Sequence[str], cfg: DiscrepancyConfig) -> np.ndarray:
     """``(n, 14)`` bool: which base parameters are fitted for this clip.
 
-    Frozen: position/velocity of unobserved axes; for objects that never come near the floor
+    Frozen: the damping when ``cfg.hold_damping``; position/velocity of unobserved axes; for
+    objects that never come near the floor
     the friction (no contact), and, without measured orientation, the orientation and the
     angular velocity (held at 0): they cannot change the measured positions, except through
     ``magnus_lift``, whose lift multiplies the spin; with the spin unobserved the two are not
@@ -1122,6 +1127,8 @@ def free_mask(clip: Clip, effects: Sequence[str], cfg: DiscrepancyConfig) -> np.
         contact = _near_floor(tr, cfg.contact_tolerance) or len(clip.tracks) > 1
         if not contact:
             m[_F] = False
+        if cfg.hold_damping:
+            m[_D] = False
         if tr.quat is None:
             if not contact or tr.spec.shape == "sphere":
                 m[_R] = False
@@ -1275,8 +1282,8 @@ def fit_clips(clips: Sequence[Clip], models: Sequence[ClipModel], weights: Seque
     scales = [_nuisance_scales(c) for c in clips]
     bounds = [_nuisance_bounds(c) for c in clips]
     starts = [np.clip(s.copy(), b[0], b[1]) for s, b in zip(start_nuisance, bounds)]
-    for s0, sc in zip(starts, scales):  # off the damping bound: trf stalls on an active bound
-        s0[:, _D] = np.maximum(s0[:, _D], 1e-3 * sc[:, _D])
+    for s0, sc, m in zip(starts, scales, masks):  # off the damping bound: trf stalls on an active bound
+        s0[:, _D] = np.where(m[:, _D], np.maximum(s0[:, _D], 1e-3 * sc[:, _D]), s0[:, _D])
     n_theta = len(keys)
     th_spec = [fx.REGISTRY[e].parameters[p] for e, p in keys]
     th_scale = np.array([s.scale for s in th_spec])
@@ -2378,9 +2385,16 @@ def forward_gap(ws: "Workspace", c: int, effects: Sequence[str], log=None) -> di
     forecast (the same as simulating from the model's own state at the split) and only they
     are scored. The noise weights are those of the whole clip (:func:`estimate_noise`).
 
+    An effect with ``Effect.replaces_damping`` (quadratic drag) is fitted twice on the first
+    part: added to the base model (damping still fitted) and in place of the damping (held
+    at 0, one parameter fewer per object); the variant with the lower BIC on the first part
+    is kept (``variants`` says which and why). Both are honest forecasts: the choice uses
+    the first part only.
+
     Returns:
         ``{before, after, k_before, k_after, t_split, fit_s, predict_s, n_fit, n_predicted,
-        effects, label}`` (RMSE in m over the predicted samples' observed coordinates), or
+        effects, variants, label}`` (RMSE in m over the predicted samples' observed
+        coordinates), or
         ``None`` if the first part keeps fewer than :data:`MIN_SAMPLES` samples of an object or
         nothing is left after it.
     """
@@ -2394,10 +2408,34 @@ def forward_gap(ws: "Workspace", c: int, effects: Sequence[str], log=None) -> di
     part.noise, part.weights = [ws.noise[c]], [ws.weights[c]]
     base = part.fit_each([0], [initial_nuisance(first)], {}, converge=True)
     current = base
+    held: Workspace | None = None   # the same first part with every damping held at 0
+    variants: list[dict[str, Any]] = []
     for e in effects:
         joint, _, _ = _profile_candidate(part, [0], current, e)
-        current = _refit_from_data(part, [0], joint)
-    out = {}
+        cand = _refit_from_data(part, [0], joint)
+        if fx.REGISTRY[e].replaces_damping and not ws.cfg.hold_damping:
+            # The effect instead of the base model's linear damping: on a short first part the
+            # two are nearly collinear (quadratic vs linear in speed), so fitted together the
+            # coefficient is poorly fixed and the forecast inherits that; fitted alone it
+            # carries the law. The lower BIC on the first part decides (nothing after the split).
+            if held is None:
+                held = Workspace([first], ws.cfg.model_copy(update={"hold_damping": True}), ws.options, ws.gravity)
+                held.noise, held.weights = part.noise, part.weights
+            start = current.nuisance[0].copy()
+            start[:, _D] = 0.0
+            cur_held = held.fit([0], [start], current.effects, converge=True)
+            j2, _, _ = _profile_candidate(held, [0], cur_held, e)
+            alt = _refit_from_data(held, [0], j2)
+            use = alt.bic < cand.bic
+            variants.append({"effect": e, "damping": "held at 0" if use else "fitted",
+                             "bic_fitted": round(float(cand.bic), 3), "bic_held": round(float(alt.bic), 3)})
+            if log:
+                log(f"forward gap: {e} with the damping fitted (BIC {cand.bic:.1f}) or held at 0 "
+                    f"(BIC {alt.bic:.1f}): {variants[-1]['damping']}")
+            if use:
+                cand = alt
+        current = cand
+    out: dict[str, Any] = {"variants": variants}
     for key, fit in (("before", base), ("after", current)):
         qpos = ws.model(c, fit.effects).simulate(fit.nuisance[0], fit.effects)
         sq, n = _late_sq(clip, qpos, t_split)
@@ -2878,6 +2916,11 @@ def _gap_lines(rep: Mapping[str, Any]) -> list[str]:
                   f"| base + {after} | {_fmt(ins['after'], mm)} | {ins['k_after']} |", ""]
         if kind == "forward":
             lines += [f"Forward fits: k = {g['k_before']} (base) and {g['k_after']} (with the effects).", ""]
+    for v in g.get("variants") or []:
+        lines += [f"Forward fit of {v['effect']}: fitted with the base model's linear damping (BIC "
+                  f"{v['bic_fitted']:.1f} on the first part) and instead of it (damping held at 0, BIC "
+                  f"{v['bic_held']:.1f}): kept with the damping {v['damping']} (lower BIC; the two laws are "
+                  f"nearly collinear over a short first part).", ""]
     return lines
 
 

@@ -92,6 +92,11 @@ class Effect:
     nested: ClassVar[bool] = True
     """True if the model without the effect is the effect at the first value of each fitted
     parameter's ``grid`` (the fits then start from the model without it)."""
+    replaces_damping: ClassVar[bool] = False
+    """True if the effect is an alternative law for what the base model's free linear
+    damping (``material.damping``) stands in for: a one-clip forecast
+    (``pipeline.discrepancy.forward_gap``) then also fits the effect *instead of* the
+    damping (held at 0) and keeps the variant with the lower BIC on the fitted part."""
 
     @classmethod
     def apply(cls, root, params: Mapping[str, float]) -> None:  # root: dm_control mjcf.RootElement
@@ -192,6 +197,7 @@ class QuadraticDrag(Effect):
 
     name = "quadratic_drag"
     mechanism = "option density (inertia-box model)"
+    replaces_damping = True  # air resistance: quadratic in speed instead of linear
     parameters = {"density": ParamSpec(0.0, 50.0, "kg/m^3", AIR_DENSITY, scale=1.0,
                                       grid=(0.0, AIR_DENSITY, 3.0, 8.0, 20.0))}
 

@@ -11,6 +11,7 @@ runs the full profile over many seeds.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -334,20 +335,40 @@ def _check_forward_gap(result, rep) -> dict:
 
 def test_single_clip_forward_gap_foam_ball():
     """One clip, nothing to hold out: the shown gap is forward in time; drag is named and the
-    forecast error above the noise shrinks by >= 30 %.
+    forecast error above the noise shrinks by >= 70 % (issue 10 item 1).
 
-    Measured with converged fits (issue 10 item 2): 15.00 -> 9.65 mm (37 %). Before, 54.6 ->
-    4.5 mm (94 %) was an artefact: the base model's first-part fit stopped at 15 evaluations
-    at chi2 97.2 instead of its optimum 19.9, where the free linear damping forecasts well;
-    on the first 0.3 s the damping and the drag are hardly distinguishable (drag 0.36 fitted
-    there, the truth 1.2 costs +1.1 in chi2)."""
+    Measured: 15.00 -> 4.52 mm (noise 2.88 mm, 76 % of the part above it). On the first
+    0.3 s the base model's free linear damping and the drag are nearly collinear: fitted
+    together, drag came out 0.36 (truth 1.2) and the forecast shrank 37 %; the forward fit
+    now also fits drag *instead of* the damping and keeps the lower BIC on the first part
+    (here: held at 0, BIC 12.1 vs 14.8, density 1.34)."""
     clips = _foam_drop(seed=0)
     result = D.run_workflow(clips, D.DiscrepancyConfig(threads=1), OPTS)
     assert [n["effect"] for n in result.named] == ["quadratic_drag"]
     assert result.named[0]["parameters"]["density"] == pytest.approx(1.2, rel=0.25)
-    gap = _check_forward_gap(result, D.report_dict(result))
+    rep = D.report_dict(result)
+    gap = _check_forward_gap(result, rep)
     assert gap["before"] > 4 * gap["noise"]                      # a strong effect
-    assert gap["after"] < gap["before"] and gap["excess_shrink"] >= 0.3, gap
+    assert gap["after"] < gap["before"] and gap["excess_shrink"] >= 0.7, gap
+    assert rep["gap"]["variants"][0]["damping"] == "held at 0"
+    assert "damping held at 0" in D.report_markdown(rep)
+
+
+def test_forward_variant_is_chosen_on_the_first_part_only():
+    """The damping-replacing variant of the forward fit: over 10 simulated foam drops (3 mm
+    noise) the forecast above the noise shrinks by >= 70 % in at least 7 (measured 8 of 10,
+    median 75.5 %; the misses are drops whose first 0.3 s of noise favour another density),
+    and the fitted density is the truth within 40 % in at least 8."""
+    shrinks, dens = [], []
+    for seed in range(10):
+        ws = D.Workspace(_foam_drop(seed=seed), D.DiscrepancyConfig(threads=1), OPTS)
+        g = D.forward_gap(ws, 0, ["quadratic_drag"])
+        s2 = ws.noise[0].position ** 2
+        ex = lambda r: math.sqrt(max(r * r - s2, 0.0))  # noqa: E731
+        shrinks.append(1 - ex(g["after"]) / ex(g["before"]))
+        dens.append(g["effects"]["quadratic_drag"]["density"])
+    assert sum(s >= 0.7 for s in shrinks) >= 7, shrinks
+    assert sum(abs(d - 1.2) <= 0.48 for d in dens) >= 8, dens
 
 
 def test_forward_split_is_a_forecast():
@@ -368,11 +389,12 @@ def test_forward_split_is_a_forecast():
 
 @pytest.mark.skipif(not REAL.exists(), reason="shared real data not present")
 @pytest.mark.xfail(strict=False, reason=(
-    "measured with converged fits (forward_split 0.6: fit on the first 0.268 s = 9 samples, forecast "
-    "the last 6): nothing is named and the forward gap stays 30.27 -> 30.27 mm (noise 2.86 mm). With "
-    "the earlier 15-evaluation fits floor_tilt was named (27.5 % shrink). On the first part drag and "
-    "the base model's free linear damping and initial velocity are not separable: below 2.6 m/s drag "
-    "moves the 2.8 g ball by ~5 mm there, so the first part cannot fix the coefficient"))
+    "measured (forward_split 0.6: fit on the first 0.268 s = 9 samples, forecast the last 6): the "
+    "forward gap does not shrink. Not a limit of the workflow: a plain point mass fitted on the "
+    "same 9 samples (benchmarks/forward_gap_pointmass.py) forecasts 23.4 mm with no drag, 41.7 mm "
+    "with linear and 68.2 mm with quadratic drag (density 6.3 there, 1.2 on the whole clip): the "
+    "first part decelerates more than the rest allows (release, tracking), so no drag law fitted "
+    "on it forecasts the rest better than free fall"))
 def test_single_clip_forward_gap_pingpong_drop():
     """The shared ping-pong drop alone: the shown (forward) gap above the noise should shrink by
     >= 70 % (issue 10); measured numbers in the xfail reason."""
