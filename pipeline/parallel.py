@@ -210,9 +210,12 @@ _RAY_ADDRESS: list = []
 """The ``address`` this process's Ray connection was opened with (empty: not opened here)."""
 
 
-def _ray_task(fn: Callable[[T], R], item: T) -> R:
-    """A Ray task: worker set-up as in the local pool, then ``fn(item)``."""
+def _ray_task(fn: Callable[[T], R], item: T, cwd: str) -> R:
+    """A Ray task: worker set-up as in the local pool, the driver's working directory ``cwd``
+    (stage paths are relative to the workspace; on a cluster it must be on a file system every
+    node mounts at the same path), then ``fn(item)``."""
     _init_worker()
+    os.chdir(cwd)
     return fn(item)
 
 
@@ -264,13 +267,13 @@ def _ray_map(fn: Callable[[T], R], items: list[T], compute: ComputeConfig) -> It
     ray = ray_connect(compute)
     name = getattr(fn, "__name__", "chunk")
     task = ray.remote(num_cpus=1, max_retries=RAY_MAX_RETRIES)(_ray_task).options(name=name)
-    fn_ref = ray.put(fn)  # shipped once, not with every chunk
+    fn_ref, cwd = ray.put(fn), os.getcwd()  # the function is shipped once, not with every chunk
     limit = compute.workers or len(items)
     todo = iter(items)
-    pending = deque(task.remote(fn_ref, item) for _, item in zip(range(limit), todo))
+    pending = deque(task.remote(fn_ref, item, cwd) for _, item in zip(range(limit), todo))
     while pending:
         result = ray.get(pending.popleft())
         for item in todo:  # keep `limit` in flight
-            pending.append(task.remote(fn_ref, item))
+            pending.append(task.remote(fn_ref, item, cwd))
             break
         yield result

@@ -57,7 +57,8 @@ def test_compute_defaults_and_local_map_order():
 
 # ---------------------------------------------------------------------------- workspaces
 def _env() -> dict:
-    return {**os.environ, "MUJOCO_GL": "egl", "PYTHONPATH": str(ROOT), "RAY_USAGE_STATS_ENABLED": "0"}
+    return {**os.environ, "MUJOCO_GL": "egl", "PYTHONPATH": str(ROOT), "RAY_USAGE_STATS_ENABLED": "0",
+            "RAY_AUTH_MODE": "disabled"}  # a test cluster without token auth (Ray 2.60 enables it on `ray start`)
 
 
 def _workspace(root: Path, name: str, compute: dict) -> Path:
