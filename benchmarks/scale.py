@@ -157,9 +157,9 @@ def main(argv=None) -> int:
             run["render_ratio"] = run["scenes_per_s"] / base["scenes_per_s"]
             run["search_ratio"] = run["evaluations_per_s"] / base["evaluations_per_s"]
             print(f"{name:7s} vs local1: render x{run['render_ratio']:.2f}, cmaes x{run['search_ratio']:.2f}")
-    basis = "ray2" if "ray2" in results else next(iter(results))
+    basis = "local1" if "local1" in results else next(iter(results))  # one dedicated core: the per-core rate
     model = cost_model(results[basis])
-    print(f"cost model from {basis} (per-core rates), nodes of {NODE_CORES} cores, linear scaling assumed:")
+    print(f"cost model from {basis} (per-core rate), nodes of {NODE_CORES} cores, linear scaling assumed:")
     for work, m in model.items():
         walls = ", ".join(f"{n} node(s) {m['wall_hours'][n]:.2f} h" for n in NODES)
         print(f"  {work}: {m['per_core_per_s']:.2f}/s per core, {m['core_hours']:.0f} core-hours; wall {walls}")

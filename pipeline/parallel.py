@@ -11,7 +11,9 @@ backend:
 * ``ray``: every chunk is a Ray task (``max_retries`` :data:`RAY_MAX_RETRIES`: a chunk whose
   worker process dies is run again); ``address`` null starts or joins a local Ray instance,
   ``auto`` or ``ray://host:port`` joins a cluster; ``workers`` caps the tasks in flight (null:
-  as many as the cluster takes). Ray is imported here only, never by a stage.
+  as many as the cluster takes). A task runs in the driver's working directory (stage paths
+  are relative to the workspace: on a cluster, a shared file system at the same path on every
+  node). Ray is imported here only, never by a stage.
 
 Each scene's randomness comes from ``(seed, scene index)`` (or the scene id) and no state
 carries from one scene to the next, so the outputs do not depend on the backend or the number
