@@ -68,7 +68,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from pipeline.errors import UserError
 from pipeline import effects as fx
 from pipeline import infer_tracks
-from pipeline.parallel import available_cores
+from pipeline.parallel import ComputeConfig, available_cores, parallel_map
 from pipeline.mjcf import SimOptions, compile_model, initial_state
 from pipeline.scene import Decimals, Scene
 from pipeline.shards import write_bytes, write_json, write_text
@@ -3203,7 +3203,7 @@ def _trial_job(args: tuple) -> dict[str, Any]:
     return run_trial(seed, effect, cfg, hidden, options)
 
 
-def run_benchmark(trials: int, null_trials: int, seed: int = 1000, jobs: int = 1,
+def run_benchmark(trials: int, null_trials: int, seed: int = 1000, jobs: int | ComputeConfig = 1,
                   cfg: DiscrepancyConfig | None = None, hidden: HiddenConfig | None = None,
                   options: SimOptions | None = None, log=None, single_trials: int = 0,
                   single_duration: float = 1.5) -> dict[str, Any]:
@@ -3217,7 +3217,7 @@ def run_benchmark(trials: int, null_trials: int, seed: int = 1000, jobs: int = 1
         trials: number of trials with a hidden effect.
         null_trials: number of trials without one.
         seed: first seed.
-        jobs: worker processes.
+        jobs: local worker processes, or a :class:`pipeline.parallel.ComputeConfig` (e.g. Ray).
         cfg, hidden, options: workflow, data and simulation settings.
         log: optional ``print``-like callable (one line per finished trial).
         single_trials: further trials with a hidden effect (cycling the library) on ONE clip
@@ -3240,27 +3240,17 @@ def run_benchmark(trials: int, null_trials: int, seed: int = 1000, jobs: int = 1
     plan += [(seed + trials + i, "none", hidden) for i in range(null_trials)]
     plan += [(seed + trials + null_trials + i, names[i % len(names)], single) for i in range(single_trials)]
     cfg = cfg or DiscrepancyConfig()
-    if jobs > 1:  # one rollout thread per worker process
+    compute = jobs if isinstance(jobs, ComputeConfig) else ComputeConfig(workers=jobs)
+    if compute.backend == "ray" or compute.n_workers > 1:  # one rollout thread per worker process
         cfg = cfg.model_copy(update={"threads": 1, "workers": 1})
     args = [(s, e, cfg, h, options) for s, e, h in plan]
     t0 = time.perf_counter()
     results = []
-    if jobs > 1:
-        import multiprocessing as mp
-
-        with mp.get_context("spawn").Pool(jobs) as pool:
-            for r in pool.imap_unordered(_trial_job, args):
-                results.append(r)
-                if log:
-                    log(f"[{len(results)}/{len(args)}] seed {r['seed']}: truth {r['truth']}, named {r['named']}, "
-                        f"gap {r['gap_before'] * 1e3:.2f} -> {r['gap_after'] * 1e3:.2f} mm")
-    else:
-        for a in args:
-            r = _trial_job(a)
-            results.append(r)
-            if log:
-                log(f"[{len(results)}/{len(args)}] seed {r['seed']}: truth {r['truth']}, named {r['named']}, "
-                    f"gap {r['gap_before'] * 1e3:.2f} -> {r['gap_after'] * 1e3:.2f} mm")
+    for r in parallel_map(_trial_job, args, compute):  # one trial per task: each takes seconds
+        results.append(r)
+        if log:
+            log(f"[{len(results)}/{len(args)}] seed {r['seed']}: truth {r['truth']}, named {r['named']}, "
+                f"gap {r['gap_before'] * 1e3:.2f} -> {r['gap_after'] * 1e3:.2f} mm")
     results.sort(key=lambda r: r["seed"])
     first_single = seed + trials + null_trials
     for r in results:
@@ -3270,7 +3260,8 @@ def run_benchmark(trials: int, null_trials: int, seed: int = 1000, jobs: int = 1
     one = [r for r in results if r["group"] == "single"]
     summary = {**_bench_summary(eff), "effect_trials": len(eff), "null_trials": len(null),
                "false_positive_rate": sum(bool(r["named"]) for r in null) / len(null) if null else None,
-               "runtime_s": time.perf_counter() - t0, "jobs": jobs, "first_seed": seed,
+               "runtime_s": time.perf_counter() - t0, "jobs": jobs if isinstance(jobs, int) else compute.model_dump(),
+               "first_seed": seed,
                "single": {**_bench_summary(one), "trials": len(one), "duration_s": single_duration}}
     return {"summary": summary, "per_effect": _per_effect(eff, names), "per_effect_single": _per_effect(one, names),
             "trials": results, "config": json.loads(cfg.model_dump_json()),
@@ -3469,7 +3460,9 @@ def _main(argv: Sequence[str] | None = None) -> int:
                    help="trials with a hidden effect on ONE clip (forward gap), scored apart")
     b.add_argument("--single-duration", type=float, default=1.5, help="s, length of the single clip")
     b.add_argument("--seed", type=int, default=1000, help="first seed")
-    b.add_argument("--jobs", type=int, default=1, help="worker processes")
+    b.add_argument("--jobs", type=int, default=1, help="worker processes (Ray: tasks in flight)")
+    b.add_argument("--backend", choices=("local", "ray"), default="local", help="pipeline.parallel backend")
+    b.add_argument("--address", default=None, help="Ray address (auto, ray://host:port); default: local Ray")
     b.add_argument("--out", default="reports/discrepancy_benchmark.json", help="JSON output (.md written beside it)")
     b.add_argument("--params", default=None, help="params.yaml (sections discrepancy, measure_hidden, sim)")
     args = parser.parse_args(argv)
@@ -3477,7 +3470,9 @@ def _main(argv: Sequence[str] | None = None) -> int:
         if args.command == "run":
             return main_cli(args)
         cfg, hidden, sim = _config_from_args(args)
-        bench = run_benchmark(args.trials, args.null_trials, args.seed, args.jobs, cfg, hidden, sim,
+        jobs = args.jobs if args.backend == "local" else ComputeConfig(backend="ray", address=args.address,
+                                                                            workers=args.jobs)
+        bench = run_benchmark(args.trials, args.null_trials, args.seed, jobs, cfg, hidden, sim,
                               log=lambda m: print(m, flush=True), single_trials=args.single_trials,
                               single_duration=args.single_duration)
         out = Path(args.out)

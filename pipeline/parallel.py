@@ -1,22 +1,36 @@
-"""Process pool for the data stages (sample_configs, compile_mjcf, render, flow, events).
+"""Where the embarrassingly parallel work runs: a local process pool or a Ray cluster.
 
-Every stage splits its scenes into chunks (:func:`chunks`), maps a top-level function over
-them with :func:`parallel_map`, and gets the results back in chunk order. Each scene's
-randomness comes from ``(seed, scene index)`` and no state carries from one scene to the
-next, so the outputs do not depend on the number of workers (``tests/test_render.py``
-compares 1 and 2 workers).
+The data stages (sample_configs, compile_mjcf, render, flow, events), the search stages
+(best_of_k, cmaes) and the hidden-effect benchmark split their work into chunks of scenes
+(:func:`chunks`) and map a top-level function over them with :func:`parallel_map`, which
+yields the results in chunk order. Params ``compute`` (:class:`ComputeConfig`) pick the
+backend:
+
+* ``local`` (default): a ``spawn`` process pool of ``workers`` processes on this machine
+  (``null``: every available core); 1 worker runs in this process.
+* ``ray``: every chunk is a Ray task (``max_retries`` :data:`RAY_MAX_RETRIES`: a chunk whose
+  worker process dies is run again); ``address`` null starts or joins a local Ray instance,
+  ``auto`` or ``ray://host:port`` joins a cluster; ``workers`` caps the tasks in flight (null:
+  as many as the cluster takes). A task runs in the driver's working directory (stage paths
+  are relative to the workspace: on a cluster, a shared file system at the same path on every
+  node). Ray is imported here only, never by a stage.
+
+Each scene's randomness comes from ``(seed, scene index)`` (or the scene id) and no state
+carries from one scene to the next, so the outputs do not depend on the backend or the number
+of workers (``tests/test_render.py``, ``tests/test_parallel.py``: sha256-identical shards).
+A chunk function that writes a shard itself writes it temp-then-rename, so a retried chunk
+leaves exactly one complete shard.
 
 Workers are started with the ``spawn`` method: a forked child would inherit the parent's
 EGL/OpenGL state, which is not fork-safe. Each worker keeps its own GL context and
 ``MjrContext`` objects (``pipeline.render.shared_gl``) for all the chunks it renders.
 
-The worker count comes from params ``compute.workers`` (:func:`workers_from_params`; default:
-every core this process may use). It is not a dependency of any stage in dvc.yaml because it
-changes no output.
+``compute`` is not a dependency of any stage in dvc.yaml because it changes no output.
 
 Example::
 
-    for rows in parallel_map(render_chunk, chunks(table, 10), workers=2):
+    compute = compute_from_params(p)          # ComputeConfig(backend='local', workers=2, ...)
+    for rows in parallel_map(render_chunk, chunks(table, 10), compute):
         ...
 """
 
@@ -24,11 +38,93 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+from collections import deque
 from concurrent.futures import Executor, ProcessPoolExecutor
-from typing import Any, Callable, Iterable, Iterator, Sequence, TypeVar
+from typing import Any, Callable, Iterable, Iterator, Literal, Sequence, TypeVar
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+
+from pipeline.params import PARAMS_FILE, ParamsError
 
 T = TypeVar("T")
 R = TypeVar("R")
+
+BACKENDS = ("local", "ray")
+RAY_MAX_RETRIES = 3
+"""Times Ray runs a chunk again after its worker process died (system failures only: an
+exception raised by the chunk function is not retried, it fails the map)."""
+
+WORKER_ENV = {"OMP_NUM_THREADS": "1", "LP_NUM_THREADS": "0"}
+"""Environment of every worker, set before it imports a library (see :func:`_init_worker`)."""
+
+
+class ComputeConfig(BaseModel):
+    """Params ``compute``: where :func:`parallel_map` runs the chunks.
+
+    Attributes:
+        backend: ``local`` (process pool on this machine) or ``ray`` (Ray tasks).
+        address: Ray only: null starts or joins a local Ray instance; ``auto`` joins the
+            cluster this machine belongs to; ``ray://host:port`` (Ray client) or ``host:port``
+            joins a given cluster. Ignored by ``local``.
+        workers: ``local``: processes (null: every available core); ``ray``: tasks in flight
+            at once (null: as many as the cluster schedules) and the CPUs of a local Ray
+            instance this process starts (null: every available core).
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    backend: Literal["local", "ray"] = "local"
+    address: str | None = None
+    workers: int | None = Field(default=None, ge=1, strict=True)
+
+    @field_validator("address")
+    @classmethod
+    def _check_address(cls, value: str | None) -> str | None:
+        if value is None or value == "auto":
+            return value
+        host, sep, port = value.removeprefix("ray://").rpartition(":")
+        if not (sep and host and port.isdigit()):
+            raise ValueError(f"must be null, auto, ray://host:port or host:port, got {value!r}")
+        return value
+
+    @property
+    def n_workers(self) -> int:
+        """Worker processes of the local backend (``workers``, or every available core)."""
+        return self.workers or available_cores()
+
+
+def _format_error(exc: ValidationError, source: str) -> str:
+    """First pydantic error as ``params.yaml: compute.backend: must be one of local, ray, got 'x'``."""
+    err = exc.errors()[0]
+    path = ".".join(str(x) for x in err["loc"])
+    kind, value = err["type"], err.get("input")
+    if kind == "literal_error":
+        rule = f"must be one of {', '.join(BACKENDS)}"
+    elif kind == "extra_forbidden":
+        return f"{source}: compute.{path}: unknown key (known: {', '.join(ComputeConfig.model_fields)})"
+    elif path == "workers":
+        rule = "must be a positive integer or null"
+    elif kind == "value_error":
+        return f"{source}: compute.{path}: {err['ctx']['error']}"
+    else:
+        rule = f"must be {err['msg'].lower().removeprefix('input should be ')}"
+    return f"{source}: compute.{path}: {rule}, got {value!r}"
+
+
+def compute_from_params(params: dict[str, Any], source: str = PARAMS_FILE) -> ComputeConfig:
+    """The :class:`ComputeConfig` of params section ``compute`` (defaults when it is missing).
+
+    Raises:
+        ParamsError: one line naming the bad key, e.g. ``params.yaml: compute.backend: must be
+            one of local, ray, got 'x'``.
+    """
+    section = params.get("compute") or {}
+    if not isinstance(section, dict):
+        raise ParamsError(f"{source}: compute: must be a mapping, got {section!r}")
+    try:
+        return ComputeConfig(**section)
+    except ValidationError as exc:
+        raise ParamsError(_format_error(exc, source)) from None
 
 
 def available_cores() -> int:
@@ -39,23 +135,12 @@ def available_cores() -> int:
         return os.cpu_count() or 1
 
 
-def workers_from_params(params: dict[str, Any]) -> int:
-    """Worker processes for a data stage: params ``compute.workers`` (an int >= 1), or all
-    available cores when the key is missing or null.
+def chunks(items: Sequence[T], size: int) -> list[Sequence[T]]:
+    """Consecutive slices of ``items`` of at most ``size`` elements (the last may be shorter).
 
     Raises:
-        ValueError: ``compute.workers`` is not a positive integer.
+        ValueError: ``size`` is not positive.
     """
-    value = (params.get("compute") or {}).get("workers")
-    if value is None:
-        return available_cores()
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ValueError(f"params.yaml: compute.workers: must be a positive integer or null, got {value!r}")
-    return value
-
-
-def chunks(items: Sequence[T], size: int) -> list[Sequence[T]]:
-    """Consecutive slices of ``items`` of at most ``size`` elements (the last may be shorter)."""
     if size <= 0:
         raise ValueError(f"chunk size must be > 0, got {size}")
     return [items[i:i + size] for i in range(0, len(items), size)]
@@ -68,8 +153,8 @@ def _init_worker() -> None:
     every draw to its own threads; with more busy processes than cores those hand-offs wait
     for the scheduler and rendering slowed ~2x. Pixels do not depend on it.
     """
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
-    os.environ.setdefault("LP_NUM_THREADS", "0")  # read when the worker's EGL display starts
+    for key, value in WORKER_ENV.items():
+        os.environ.setdefault(key, value)  # LP_NUM_THREADS is read when the worker's EGL display starts
     try:
         import cv2
 
@@ -80,31 +165,117 @@ def _init_worker() -> None:
 
 def make_pool(workers: int) -> ProcessPoolExecutor:
     """A ``spawn`` process pool of ``workers`` workers, set up as :func:`parallel_map`'s (for
-    callers that run several maps on one pool, e.g. ``benchmarks/gen_scenes.py``)."""
+    callers that run several maps on one pool)."""
     return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
                                initializer=_init_worker)
 
 
-def parallel_map(fn: Callable[[T], R], items: Iterable[T], workers: int,
+def parallel_map(fn: Callable[[T], R], items: Iterable[T], compute: ComputeConfig | int | None = None,
                  pool: Executor | None = None) -> Iterator[R]:
-    """``map(fn, items)`` over a process pool, results yielded in input order as they complete.
+    """``map(fn, items)`` on the configured backend, results yielded in input order.
 
     Args:
-        fn: a module-level function (pickled by name) of one argument; its argument and result
-            must be picklable.
+        fn: a module-level function of one argument (a chunk of scenes); its argument and
+            result must be picklable. It must not depend on which worker runs it, and a chunk
+            that writes files must write them temp-then-rename (Ray may run it again).
         items: the chunks of work.
-        workers: processes; 1 (or a single item) runs everything in this process, no pool.
-        pool: an open pool to use instead of starting one (``workers`` is then ignored).
+        compute: a :class:`ComputeConfig`, or an int: that many local processes (default:
+            ``ComputeConfig()``, local on every core). Local with 1 worker (or a single item)
+            runs everything in this process, no pool.
+        pool: an open local pool to use instead (``compute`` is then ignored).
     Yields:
         ``fn(item)`` for each item, in order.
+    Raises:
+        whatever ``fn`` raises (the first failing chunk in order); with Ray, a chunk whose
+        worker died more than :data:`RAY_MAX_RETRIES` times raises ``ray.exceptions.WorkerCrashedError``.
     """
     items = list(items)
     if pool is not None:
         yield from pool.map(fn, items)
         return
+    if compute is None or isinstance(compute, int):
+        compute = ComputeConfig(workers=compute)
+    if compute.backend == "ray":
+        yield from _ray_map(fn, items, compute)
+        return
+    workers = compute.n_workers
     if workers <= 1 or len(items) <= 1:
         for item in items:
             yield fn(item)
         return
-    with make_pool(min(workers, len(items))) as pool:
-        yield from pool.map(fn, items)
+    with make_pool(min(workers, len(items))) as local_pool:
+        yield from local_pool.map(fn, items)
+
+
+# ------------------------------------------------------------------------------------- Ray
+_RAY_ADDRESS: list = []
+"""The ``address`` this process's Ray connection was opened with (empty: not opened here)."""
+
+
+def _ray_task(fn: Callable[[T], R], item: T, cwd: str) -> R:
+    """A Ray task: worker set-up as in the local pool, the driver's working directory ``cwd``
+    (stage paths are relative to the workspace; on a cluster it must be on a file system every
+    node mounts at the same path), then ``fn(item)``."""
+    _init_worker()
+    os.chdir(cwd)
+    return fn(item)
+
+
+def ray_connect(compute: ComputeConfig):
+    """Connect this process to Ray as ``compute`` says (once; a different address reconnects).
+
+    ``address`` null: join the local instance ``ray start`` left (``RAY_ADDRESS`` or the latest
+    one on this machine), else start one with ``workers`` CPUs (default every core) and no
+    dashboard. Workers get :data:`WORKER_ENV` and this process's ``MUJOCO_GL``.
+
+    Returns:
+        the ``ray`` module, initialised.
+    Raises:
+        ConnectionError: ``address`` names a cluster that cannot be reached.
+    """
+    import ray
+
+    if ray.is_initialized():
+        if _RAY_ADDRESS and _RAY_ADDRESS[0] == compute.address:
+            return ray
+        ray.shutdown()
+    env = {**WORKER_ENV, **{k: os.environ[k] for k in ("MUJOCO_GL", "PYOPENGL_PLATFORM") if k in os.environ}}
+    kwargs = {"include_dashboard": False, "runtime_env": {"env_vars": env}, "logging_level": "WARNING"}
+    if compute.address is None:
+        try:
+            ray.init(address=None, num_cpus=compute.n_workers, **kwargs)
+        except ValueError:  # a local instance exists (num_cpus is refused when joining one): join it
+            ray.init(address=None, **kwargs)
+    else:
+        ray.init(address=compute.address, **kwargs)
+    _RAY_ADDRESS[:] = [compute.address]
+    return ray
+
+
+def ray_shutdown() -> None:
+    """Disconnect from Ray (and stop the local instance this process started, if any)."""
+    if _RAY_ADDRESS:
+        import ray
+
+        ray.shutdown()
+        _RAY_ADDRESS.clear()
+
+
+def _ray_map(fn: Callable[[T], R], items: list[T], compute: ComputeConfig) -> Iterator[R]:
+    """:func:`parallel_map` on Ray: one task (1 CPU, :data:`RAY_MAX_RETRIES` retries) per item,
+    at most ``compute.workers`` in flight, results in input order."""
+    if not items:
+        return
+    ray = ray_connect(compute)
+    name = getattr(fn, "__name__", "chunk")
+    task = ray.remote(num_cpus=1, max_retries=RAY_MAX_RETRIES)(_ray_task).options(name=name)
+    fn_ref, cwd = ray.put(fn), os.getcwd()  # the function is shipped once, not with every chunk
+    limit = compute.workers or len(items)
+    todo = iter(items)
+    pending = deque(task.remote(fn_ref, item, cwd) for _, item in zip(range(limit), todo))
+    while pending:
+        result = ray.get(pending.popleft())
+        for item in todo:  # keep `limit` in flight
+            pending.append(task.remote(fn_ref, item, cwd))
+            break
+        yield result

@@ -518,12 +518,17 @@ def render_mjcf(mjcf: str, n_objects: int, n_frames: int, fps: float, width: int
         (trace, frames): the :class:`pipeline.simulate.Trace` (T frames) and :class:`Frames`
         with rgb (T, H, W, 3) uint8, seg (T, H, W) int8, depth (T, H, W) float32 m and
         ground-truth flow (T-1, H, W, 2) float32 px.
+    Raises:
+        ValueError: MuJoCo rejects the MJCF.
+        pipeline.simulate.SimulationError: the simulation diverged (see :func:`check_rollout`).
     """
     from pipeline.mjcf import compile_model
-    from pipeline.simulate import rollout
+    from pipeline.simulate import check_rollout, rollout
 
     model = compile_model(mjcf)
-    trace = rollout(model, n_objects, n_frames, fps)
+    data = mujoco.MjData(model)
+    trace = rollout(model, n_objects, n_frames, fps, data=data)
+    check_rollout(data, trace)
     with FrameRenderer(model, width, height, gl or shared_gl()) as renderer:
         return trace, renderer.render(trace.qpos)
 

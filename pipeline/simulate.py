@@ -53,6 +53,26 @@ class Trace:
         return self.qpos[..., :3]
 
 
+class SimulationError(RuntimeError):
+    """A rollout diverged: MuJoCo reset an unstable state, or a state is not finite."""
+
+
+def check_rollout(data: mujoco.MjData, trace: "Trace") -> None:
+    """Raise if the rollout that used ``data`` and made ``trace`` diverged.
+
+    MuJoCo does not raise on an unstable simulation: it warns (``mjWARN_BADQACC``: bad
+    acceleration) and silently resets the state, so the trace would look valid.
+
+    Raises:
+        SimulationError: a divergence warning was raised or a state is not finite (one line).
+    """
+    bad = data.warning[mujoco.mjtWarning.mjWARN_BADQACC].number
+    if bad:
+        raise SimulationError(f"simulation diverged: MuJoCo reset an unstable state {bad} time(s)")
+    if not (np.isfinite(trace.qpos).all() and np.isfinite(trace.qvel).all()):
+        raise SimulationError("simulation diverged: non-finite state")
+
+
 def frame_times(n_frames: int, fps: float) -> np.ndarray:
     """(n_frames,) float64 times of the video frames, s."""
     return np.arange(n_frames, dtype=np.float64) / float(fps)

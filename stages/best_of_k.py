@@ -7,6 +7,10 @@ Reads ``paths.predictions`` (scene_id, split, sample, text, scene YAML or null, 
 ``full_iou - lambda_epe * EPE`` (pipeline.search). Writes ``paths.best_of_k``: one Parquet
 shard per predictions shard with scene_id, split, sample, valid, initial_iou, full_iou, epe
 (px), fitness, is_best, error.
+
+Scenes are scored in chunks of :data:`CHUNK` on the ``compute`` backend (``pipeline.parallel``:
+local processes or Ray tasks), each chunk with its own evaluators; rows come back in scene
+order, so the shards do not depend on the backend or the worker count.
 """
 
 import pyarrow as pa
@@ -14,6 +18,7 @@ from tqdm import tqdm
 
 from pipeline import shards
 from pipeline.mjcf import SimOptions
+from pipeline.parallel import chunks, compute_from_params, parallel_map
 from pipeline.params import load_params, path_of
 from pipeline.search import (EvaluatorPool, Observations, SearchConfig, at_clip_timing, best_of_k, parse_sample,
                              samples_by_scene)
@@ -24,30 +29,53 @@ SCHEMA = pa.schema([("scene_id", pa.string()), ("split", pa.string()), ("sample"
                     ("error", pa.string())])
 
 
+CHUNK = 8
+"""Scenes per task (K re-simulations each, ~0.1 s per scene at the small profile)."""
+
+
+def score_chunk(task: tuple[str, str, SearchConfig, SimOptions, list[tuple[str, list[dict]]]]) -> list[dict]:
+    """Best@K rows of ``(video dir, flow dir, search config, sim options, [(scene id, its
+    prediction rows), ...])``: one row per sample, in the order given (SCHEMA's columns)."""
+    video, flow_dir, cfg, sim, scenes = task
+    obs = Observations(video, flow_dir)
+    rows = []
+    with EvaluatorPool(*obs.frame_size, sim) as pool:
+        for sid, preds in scenes:
+            seg, flow, fps = obs.get(sid)
+            cands = [parse_sample(r) for r in preds]  # None: the output did not parse
+            cands = [None if c is None else at_clip_timing(c, len(seg), fps) for c in cands]
+            scores, best = best_of_k(cands, seg, flow, cfg, sim, pool=pool)
+            rows += [{"scene_id": sid, "split": r["split"], "sample": r["sample"], "valid": s["valid"],
+                      "initial_iou": s["initial_iou"], "full_iou": s["full_iou"], "epe": s["epe"],
+                      "fitness": s["fitness"], "is_best": j == best, "error": r["error"] or s["error"]}
+                     for j, (r, s) in enumerate(zip(preds, scores))]
+    return rows
+
+
 def main() -> None:
     p = load_params()
     cfg, sim = SearchConfig(**(p.get("search") or {})), SimOptions(**p["sim"])
-    obs = Observations(path_of(p, "video"), path_of(p, "flow"))
+    video, flow_dir = str(path_of(p, "video")), str(path_of(p, "flow"))
+    Observations(video, flow_dir)  # fail here, before any task, if an input is missing
     pred_shards = shards.list_shards(path_of(p, "predictions"), "parquet")
     out = shards.reset_dir(path_of(p, "best_of_k"))
     used = ("k", "lambda_epe", "prior_weight", "penalize_extra", "splits")  # the dvc.yaml params of this stage
     meta = {"params": {"search": {k: v for k, v in cfg.model_dump().items() if k in used}, "sim": p["sim"]},
             "units": {"epe": "px (rendered resolution)"},
             "observed": {"seg": "rendered ground truth", "flow": (p.get("flow") or {}).get("method")}}
-    with EvaluatorPool(*obs.frame_size, sim) as pool:
-        for i, shard in enumerate(pred_shards):
+    tasks, owner = [], []  # chunks of scenes and the predictions shard each belongs to
+    for i, shard in enumerate(pred_shards):
+        scenes = list(samples_by_scene(shards.read_table(shard), cfg.splits, cfg.k).items())
+        for part in chunks(scenes, CHUNK) or [[]]:
+            tasks.append((video, flow_dir, cfg, sim, part))
+            owner.append(i)
+    rows: list[dict] = []
+    results = parallel_map(score_chunk, tasks, compute_from_params(p))
+    for k, part in enumerate(tqdm(results, total=len(tasks), desc="best_of_k", unit="chunk")):
+        rows += part
+        if k + 1 == len(tasks) or owner[k + 1] != owner[k]:  # the shard is complete
+            shards.write_table(shards.shard_path(out, owner[k], "parquet"), rows, schema=SCHEMA, metadata=meta)
             rows = []
-            scenes = samples_by_scene(shards.read_table(shard), cfg.splits, cfg.k)
-            for sid, preds in tqdm(scenes.items(), desc=f"best_of_k shard {i}", unit="scene"):
-                seg, flow, fps = obs.get(sid)
-                cands = [parse_sample(r) for r in preds]  # None: the output did not parse
-                cands = [None if c is None else at_clip_timing(c, len(seg), fps) for c in cands]
-                scores, best = best_of_k(cands, seg, flow, cfg, sim, pool=pool)
-                rows += [{"scene_id": sid, "split": r["split"], "sample": r["sample"], "valid": s["valid"],
-                          "initial_iou": s["initial_iou"], "full_iou": s["full_iou"], "epe": s["epe"],
-                          "fitness": s["fitness"], "is_best": j == best, "error": r["error"] or s["error"]}
-                         for j, (r, s) in enumerate(zip(preds, scores))]
-            shards.write_table(shards.shard_path(out, i, "parquet"), rows, schema=SCHEMA, metadata=meta)
     shards.write_meta(out, {**meta, "shards": {"shard": len(pred_shards)},
                             "features": {c: str(SCHEMA.field(c).type) for c in SCHEMA.names}})
 

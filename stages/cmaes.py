@@ -10,6 +10,11 @@ Parquet shard per best_of_k shard with scene_id, split, sample (the start), scen
 canonical YAML; null when no sample was valid), initial_iou, full_iou, epe (px), fitness of the
 written (rounded) scene, start_fitness, evaluations, seconds and history (JSON list of
 {iteration, best_fitness, mean_fitness, best_full_iou, best_epe, evaluations, seconds}).
+
+Scenes are refined in chunks of :data:`CHUNK` on the ``compute`` backend (``pipeline.parallel``:
+local processes or Ray tasks), each chunk with its own evaluators; each search is seeded by
+its scene id, so every column but ``seconds`` (and the times in ``history``) is the same on
+any backend and worker count.
 """
 
 import json
@@ -21,6 +26,7 @@ from tqdm import tqdm
 
 from pipeline import shards
 from pipeline.mjcf import SimOptions
+from pipeline.parallel import chunks, compute_from_params, parallel_map
 from pipeline.params import load_params, path_of
 from pipeline.scene import Decimals, Scene
 from pipeline.search import (EvaluatorPool, Observations, SearchConfig, at_clip_timing, baseline_scene, cmaes_refine,
@@ -32,11 +38,48 @@ SCHEMA = pa.schema([("scene_id", pa.string()), ("split", pa.string()), ("start",
                     ("evaluations", pa.int32()), ("seconds", pa.float64()), ("history", pa.string())])
 
 
+CHUNK = 4
+"""Scenes per task (two searches of 1 + popsize x iterations evaluations each)."""
+
+
+def refine_chunk(task: tuple) -> list[dict]:
+    """CMA-ES rows of ``(video dir, flow dir, search config, sim options, seed, decimals,
+    baseline scene, [(scene id, split, best sample index or None, its prediction row), ...])``:
+    rows ``start = model`` then ``baseline`` per scene, in the order given (SCHEMA's columns)."""
+    video, flow_dir, cfg, sim, seed, decimals, baseline, scenes = task
+    obs = Observations(video, flow_dir)
+    rows = []
+    with EvaluatorPool(*obs.frame_size, sim) as pool:
+        for sid, split, sample, pred in scenes:
+            seg, flow, fps = obs.get(sid)
+            starts = {"baseline": (None, baseline)}
+            if sample is not None:
+                starts["model"] = (sample, parse_sample(pred))
+            for start_kind in ("model", "baseline"):
+                row = {"scene_id": sid, "split": split, "start": start_kind, "sample": None, "scene": None,
+                       "evaluations": 0, "seconds": 0.0, "history": "[]", **dict.fromkeys(
+                           ("initial_iou", "full_iou", "epe", "fitness", "start_fitness"), math.nan)}
+                if start_kind in starts:
+                    start_sample, start = starts[start_kind]
+                    start = at_clip_timing(start, len(seg), fps)
+                    refined, history = cmaes_refine(start, seg, flow, cfg, sim, pool=pool,
+                                                    seed=seed + zlib.crc32(sid.encode()))
+                    final = Scene.from_yaml(refined.to_yaml(decimals))  # score what is written
+                    f = fitness(*pool.evaluate(final, len(seg)), seg, flow, cfg)
+                    row.update(sample=start_sample, scene=final.to_yaml(decimals),
+                               evaluations=history[-1]["evaluations"], seconds=history[-1]["seconds"],
+                               start_fitness=history[0]["best_fitness"], history=json.dumps(history),
+                               **{k: f[k] for k in ("initial_iou", "full_iou", "epe", "fitness")})
+                rows.append(row)
+    return rows
+
+
 def main() -> None:
     p = load_params()
     cfg, sim, seed = SearchConfig(**(p.get("search") or {})), SimOptions(**p["sim"]), int(p.get("seed", 0))
     decimals = Decimals(**(p.get("scene") or {}).get("decimals", {}))
-    obs = Observations(path_of(p, "video"), path_of(p, "flow"))
+    video, flow_dir = str(path_of(p, "video")), str(path_of(p, "flow"))
+    Observations(video, flow_dir)  # fail here, before any task, if an input is missing
     preds = samples_by_scene(shards.read_table(path_of(p, "predictions")), cfg.splits)
     bok_shards = shards.list_shards(path_of(p, "best_of_k"), "parquet")
     baseline = baseline_scene(shards.read_table(path_of(p, "configs")).to_pylist(), split="train")
@@ -44,36 +87,24 @@ def main() -> None:
     meta = {"params": {"search": cfg.model_dump(), "sim": p["sim"], "seed": seed},
             "units": {"epe": "px (rendered resolution)"},
             "observed": {"seg": "rendered ground truth", "flow": (p.get("flow") or {}).get("method")}}
-    with EvaluatorPool(*obs.frame_size, sim) as pool:
-        for i, shard in enumerate(bok_shards):
-            table = shards.read_table(shard).to_pylist()
-            best = {r["scene_id"]: r for r in table if r["is_best"]}
-            split = {r["scene_id"]: r["split"] for r in table}
-            rows, bar = [], tqdm(list(split), desc=f"cmaes shard {i}", unit="scene")
-            for sid in bar:
-                seg, flow, fps = obs.get(sid)
-                starts = {"baseline": (None, baseline)}
-                if sid in best:
-                    sample = best[sid]["sample"]
-                    starts["model"] = (sample, parse_sample(next(r for r in preds[sid] if r["sample"] == sample)))
-                for start_kind in ("model", "baseline"):
-                    row = {"scene_id": sid, "split": split[sid], "start": start_kind, "sample": None, "scene": None,
-                           "evaluations": 0, "seconds": 0.0, "history": "[]", **dict.fromkeys(
-                               ("initial_iou", "full_iou", "epe", "fitness", "start_fitness"), math.nan)}
-                    if start_kind in starts:
-                        sample, start = starts[start_kind]
-                        start = at_clip_timing(start, len(seg), fps)
-                        refined, history = cmaes_refine(start, seg, flow, cfg, sim, pool=pool,
-                                                        seed=seed + zlib.crc32(sid.encode()))
-                        final = Scene.from_yaml(refined.to_yaml(decimals))  # score what is written
-                        f = fitness(*pool.evaluate(final, len(seg)), seg, flow, cfg)
-                        row.update(sample=sample, scene=final.to_yaml(decimals),
-                                   evaluations=history[-1]["evaluations"], seconds=history[-1]["seconds"],
-                                   start_fitness=history[0]["best_fitness"], history=json.dumps(history),
-                                   **{k: f[k] for k in ("initial_iou", "full_iou", "epe", "fitness")})
-                        bar.set_postfix({start_kind: f"{history[0]['best_full_iou']:.2f}->{f['full_iou']:.2f}"})
-                    rows.append(row)
-            shards.write_table(shards.shard_path(out, i, "parquet"), rows, schema=SCHEMA, metadata=meta)
+    tasks, owner = [], []  # chunks of scenes and the best_of_k shard each belongs to
+    for i, shard in enumerate(bok_shards):
+        table = shards.read_table(shard).to_pylist()
+        best = {r["scene_id"]: r["sample"] for r in table if r["is_best"]}
+        split = {r["scene_id"]: r["split"] for r in table}
+        scenes = [(sid, split[sid], best.get(sid),
+                   next((r for r in preds[sid] if r["sample"] == best[sid]), None) if sid in best else None)
+                  for sid in split]
+        for part in chunks(scenes, CHUNK) or [[]]:
+            tasks.append((video, flow_dir, cfg, sim, seed, decimals, baseline, part))
+            owner.append(i)
+    rows: list[dict] = []
+    results = parallel_map(refine_chunk, tasks, compute_from_params(p))
+    for k, part in enumerate(tqdm(results, total=len(tasks), desc="cmaes", unit="chunk")):
+        rows += part
+        if k + 1 == len(tasks) or owner[k + 1] != owner[k]:  # the shard is complete
+            shards.write_table(shards.shard_path(out, owner[k], "parquet"), rows, schema=SCHEMA, metadata=meta)
+            rows = []
     shards.write_meta(out, {**meta, "shards": {"shard": len(bok_shards)},
                             "features": {c: str(SCHEMA.field(c).type) for c in SCHEMA.names}})
 

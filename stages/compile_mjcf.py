@@ -3,14 +3,14 @@
 Reads ``paths.configs`` and params ``sim`` (:class:`pipeline.mjcf.SimOptions`); writes
 ``paths.mjcf``: one Parquet shard per configs shard with columns scene_id, split, mjcf (XML),
 n_objects, n_frames, fps (what the render stage needs besides the XML). Scenes are converted
-in chunks over ``compute.workers`` processes (``pipeline.parallel``).
+in chunks on the ``compute`` backend (``pipeline.parallel``).
 """
 
 from tqdm import tqdm
 
 from pipeline import shards
 from pipeline.mjcf import SimOptions, to_xml
-from pipeline.parallel import chunks, parallel_map, workers_from_params
+from pipeline.parallel import chunks, compute_from_params, parallel_map
 from pipeline.params import load_params, path_of
 from pipeline.scene import Scene
 
@@ -41,7 +41,7 @@ def main() -> None:
             tasks.append((str(shard), part, options))
             owner.append(i)
     done: list[dict] = []
-    results = parallel_map(compile_chunk, tasks, workers_from_params(p))
+    results = parallel_map(compile_chunk, tasks, compute_from_params(p))
     for k, rows in enumerate(tqdm(results, total=len(tasks), desc="compile_mjcf", unit="chunk")):
         done += rows
         if k + 1 == len(tasks) or owner[k + 1] != owner[k]:  # the shard is complete

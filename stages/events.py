@@ -4,8 +4,8 @@ Reads ``paths.traces`` (contacts, velocities and per-frame visible pixel counts,
 render stage took from the segmentation) and params ``events``
 (:class:`pipeline.events.EventConfig`). Writes ``paths.events``: ``events-00000.parquet``
 (scene_id, t, frame, kind, objects, force) and ``think-00000.parquet`` (scene_id, split, think),
-one of each per traces shard. Shards are processed over ``compute.workers`` processes
-(``pipeline.parallel``).
+one of each per traces shard. Shards are processed on the ``compute`` backend
+(``pipeline.parallel``), one task per shard.
 """
 
 import pyarrow as pa
@@ -13,7 +13,7 @@ from tqdm import tqdm
 
 from pipeline import shards
 from pipeline.events import EventConfig, events_to_rows, events_to_text, extract_events
-from pipeline.parallel import parallel_map, workers_from_params
+from pipeline.parallel import compute_from_params, parallel_map
 from pipeline.params import load_params, path_of
 from pipeline.traces import trace_from_row
 
@@ -41,8 +41,8 @@ def main() -> None:
     trace_shards = shards.list_shards(path_of(p, "traces"), "parquet")
     meta = {"params": cfg.model_dump(), "units": {"t": "s", "force": "N (peak normal force)"}}
     # ~0.3 ms per scene: a pool pays off only for many shards
-    workers = workers_from_params(p) if len(trace_shards) >= 8 else 1
-    results = parallel_map(events_shard, [(str(s), cfg) for s in trace_shards], workers)
+    compute = compute_from_params(p) if len(trace_shards) >= 8 else 1
+    results = parallel_map(events_shard, [(str(s), cfg) for s in trace_shards], compute)
     for i, (events, think) in enumerate(tqdm(results, total=len(trace_shards), desc="events", unit="shard")):
         shards.write_table(shards.shard_path(out, i, "parquet", prefix="events"), events, meta, EVENTS_SCHEMA)
         shards.write_table(shards.shard_path(out, i, "parquet", prefix="think"), think, meta)

@@ -7,49 +7,68 @@ Reads ``paths.mjcf`` and params ``render`` (width, height). Writes per mjcf shar
   ground-truth forward flow px, scene_id;
 * ``paths.traces``: Parquet shard, one row per scene (``pipeline.traces.TRACES_SCHEMA``).
 
-Shards are rendered over ``compute.workers`` processes (``pipeline.parallel``), each with one
-GL context reused for all its scenes (``pipeline.render.shared_gl``). A worker writes the
-shards it renders itself: sending ~1.8 MB of arrays per scene back to one writer process
-would make that process the bottleneck on 2 cores.
+One task per mjcf shard (``shard_size`` scenes) on the ``compute`` backend (``pipeline.parallel``:
+local processes or Ray tasks), each worker with one GL context reused for all its scenes
+(``pipeline.render.shared_gl``). A worker writes the shards it renders itself (temp-then-rename,
+so a task Ray retries after its worker died leaves one complete shard): sending ~1.8 MB of
+arrays per scene back to one writer process would make that process the bottleneck on 2 cores.
+
+A scene whose MJCF does not compile or whose simulation diverges is left out of the shards and
+listed by id in ``meta.json`` of both outputs (``failed``: [{scene_id, error}]), never dropped
+silently; the stage fails only when no scene at all could be rendered.
 """
 
 import numpy as np
 from tqdm import tqdm
 
 from pipeline import shards
-from pipeline.parallel import parallel_map, workers_from_params
+from pipeline.parallel import compute_from_params, parallel_map
 from pipeline.params import load_params, path_of
 from pipeline.render import render_mjcf
+from pipeline.simulate import SimulationError
 from pipeline.traces import TRACES_SCHEMA, trace_to_row
 
 UNITS = {"rgb": "uint8 RGB", "seg": "object index, -1 = floor/background", "depth": "m along the optical axis",
          "flow": "px, forward (u, v), ground truth"}
 
 
-def render_shard(task: tuple[str, int, str, str, dict]) -> int:
+def render_shard(task: tuple[str, int, str, str, dict]) -> list[dict]:
     """Render mjcf shard ``(mjcf shard, index i, video dir, traces dir, params)`` and write
-    video and traces shard i. Returns the number of scenes."""
+    video and traces shard i (without the scenes that failed).
+
+    Returns:
+        the failed scenes, ``[{scene_id, error}]`` (error: one line).
+    """
     shard, i, video, traces, p = task
     W, H = int(p["render"]["width"]), int(p["render"]["height"])
     attrs = {"units": UNITS, "params": {"render": p["render"]}, "width": W, "height": H}
     arrays = {k: [] for k in ("rgb", "seg", "depth", "flow")}
-    rows = []
+    rows, failed = [], []
     table = shards.read_table(shard).to_pylist()
     for r in table:
-        trace, frames = render_mjcf(r["mjcf"], r["n_objects"], r["n_frames"], r["fps"], W, H)
+        try:
+            trace, frames = render_mjcf(r["mjcf"], r["n_objects"], r["n_frames"], r["fps"], W, H)
+        except (ValueError, SimulationError) as exc:  # this scene's MJCF or its simulation
+            failed.append({"scene_id": r["scene_id"], "error": str(exc).splitlines()[0]})
+            continue
         arrays["rgb"].append(frames.rgb)
         arrays["seg"].append(frames.seg)
         arrays["depth"].append(frames.depth.astype(np.float16))
         arrays["flow"].append(frames.flow.astype(np.float16))
         rows.append({"scene_id": r["scene_id"], "split": r["split"],
                      **trace_to_row(trace, frames.visible_pixels(r["n_objects"]))})
+    if not rows:
+        raise SimulationError(f"{shard}: no scene could be rendered, e.g. {failed[0] if failed else 'empty shard'}")
     ids = [r["scene_id"] for r in rows]
-    shards.write_arrays(shards.shard_path(video, i, "zarr"), {k: np.stack(v) for k, v in arrays.items()},
+    out_video, out_traces = shards.shard_path(video, i, "zarr"), shards.shard_path(traces, i, "parquet")
+    for path in (out_video, out_traces):  # what an earlier attempt of this task left (a killed worker)
+        shards.remove_stale_temps(path)
+    shards.write_arrays(out_video, {k: np.stack(v) for k, v in arrays.items()},
                         attrs={**attrs, "fps": int(table[0]["fps"])}, scene_ids=ids)
-    shards.write_table(shards.shard_path(traces, i, "parquet"), rows, schema=TRACES_SCHEMA,
+    shards.write_table(out_traces, rows, schema=TRACES_SCHEMA,
                        metadata={"units": "t s; qpos m + quaternion wxyz; qvel m/s, rad/s (world); "
                                           "contacts N; visible px", "params": {"render": p["render"]}})
-    return len(rows)
+    return failed
 
 
 def main() -> None:
@@ -61,14 +80,18 @@ def main() -> None:
     attrs = {"units": UNITS, "params": {"render": p["render"]}, "width": W, "height": H}
     params = {"render": p["render"]}
     tasks = [(str(s), i, str(video), str(traces), params) for i, s in enumerate(mjcf_shards)]
-    for _ in tqdm(parallel_map(render_shard, tasks, workers_from_params(p)), total=len(tasks),
-                  desc="render shards", unit="shard"):
-        pass
+    failed = []
+    for lost in tqdm(parallel_map(render_shard, tasks, compute_from_params(p)), total=len(tasks),
+                     desc="render shards", unit="shard"):
+        failed += lost
+    if failed:
+        print(f"render: {len(failed)} scene(s) failed and are left out (meta.json 'failed'): "
+              f"{', '.join(f['scene_id'] for f in failed[:10])}{' ...' if len(failed) > 10 else ''}")
     n = len(mjcf_shards)
-    shards.write_meta(video, {"shards": {"shard": n}, **attrs,
+    shards.write_meta(video, {"shards": {"shard": n}, **attrs, "failed": failed,
                               "features": {"rgb": "(N, T, H, W, 3) uint8", "seg": "(N, T, H, W) int8",
                                            "depth": "(N, T, H, W) float16", "flow": "(N, T-1, H, W, 2) float16"}})
-    shards.write_meta(traces, {"shards": {"shard": n}, "params": {"render": p["render"]}})
+    shards.write_meta(traces, {"shards": {"shard": n}, "params": {"render": p["render"]}, "failed": failed})
 
 
 if __name__ == "__main__":

@@ -5,7 +5,7 @@ Reads params ``sample`` (:class:`pipeline.sampler.SampleConfig`), ``seed``, ``si
 columns scene_id, split, seed (the scene's own seed), scene (canonical YAML), composition
 (comma-joined sorted shapes), n_objects; and meta.json (shard count, split counts, rejections).
 
-Scenes are drawn in chunks over ``compute.workers`` processes (``pipeline.parallel``); scene i
+Scenes are drawn in chunks on the ``compute`` backend (``pipeline.parallel``); scene i
 depends only on (seed, i), so the output is the same for any worker count.
 """
 
@@ -15,7 +15,7 @@ from tqdm import tqdm
 
 from pipeline import shards
 from pipeline.mjcf import SimOptions
-from pipeline.parallel import parallel_map, workers_from_params
+from pipeline.parallel import compute_from_params, parallel_map
 from pipeline.params import load_params, path_of
 from pipeline.sampler import SampleChunk, SampleConfig, sample_chunk, scene_seed
 from pipeline.scene import Decimals
@@ -36,7 +36,7 @@ def main() -> None:
     rejected: Counter[str] = Counter()
     tasks = [SampleChunk(cfg, seed, r.start, r.stop, decimals, options) for r in shards.chunked(cfg.n_scenes, CHUNK)]
     with tqdm(total=cfg.n_scenes, desc="sample_configs", unit="scene") as bar:
-        for scenes, chunk_rejected in parallel_map(sample_chunk, tasks, workers_from_params(p)):
+        for scenes, chunk_rejected in parallel_map(sample_chunk, tasks, compute_from_params(p)):
             for sid, split, scene in scenes:
                 i = len(rows)
                 rows.append({"scene_id": sid, "split": split, "seed": scene_seed(seed, i),
