@@ -7,11 +7,18 @@ Reads ``paths.mjcf`` and params ``render`` (width, height). Writes per mjcf shar
   ground-truth forward flow px, scene_id;
 * ``paths.traces``: Parquet shard, one row per scene (``pipeline.traces.TRACES_SCHEMA``).
 
+Every rollout goes through the physical sanity checks (``pipeline.sanity.rollout_problems``
+and MuJoCo's warnings): a scene that fails one is kept (the shards stay those of the sampled
+configs) and flagged, by scene id and check, in ``paths.traces``'s ``meta.json`` (``sanity``:
+scenes checked, flagged, counts per check); the stage prints the count.
+
 Shards are rendered over ``compute.workers`` processes (``pipeline.parallel``), each with one
 GL context reused for all its scenes (``pipeline.render.shared_gl``). A worker writes the
 shards it renders itself: sending ~1.8 MB of arrays per scene back to one writer process
 would make that process the bottleneck on 2 cores.
 """
+
+from collections import Counter
 
 import numpy as np
 from tqdm import tqdm
@@ -19,24 +26,30 @@ from tqdm import tqdm
 from pipeline import shards
 from pipeline.parallel import parallel_map, workers_from_params
 from pipeline.params import load_params, path_of
+from pipeline.mjcf import compile_model
 from pipeline.render import render_mjcf
+from pipeline.sanity import rollout_problems
 from pipeline.traces import TRACES_SCHEMA, trace_to_row
 
 UNITS = {"rgb": "uint8 RGB", "seg": "object index, -1 = floor/background", "depth": "m along the optical axis",
          "flow": "px, forward (u, v), ground truth"}
 
 
-def render_shard(task: tuple[str, int, str, str, dict]) -> int:
+def render_shard(task: tuple[str, int, str, str, dict]) -> dict[str, list[str]]:
     """Render mjcf shard ``(mjcf shard, index i, video dir, traces dir, params)`` and write
-    video and traces shard i. Returns the number of scenes."""
+    video and traces shard i. Returns ``{scene_id: [failed sanity checks]}`` for every scene
+    (empty list: all checks pass)."""
     shard, i, video, traces, p = task
     W, H = int(p["render"]["width"]), int(p["render"]["height"])
     attrs = {"units": UNITS, "params": {"render": p["render"]}, "width": W, "height": H}
     arrays = {k: [] for k in ("rgb", "seg", "depth", "flow")}
     rows = []
+    flags: dict[str, list[str]] = {}
     table = shards.read_table(shard).to_pylist()
     for r in table:
         trace, frames = render_mjcf(r["mjcf"], r["n_objects"], r["n_frames"], r["fps"], W, H)
+        flags[r["scene_id"]] = [*(["mujoco_warning"] if trace.warnings else []),
+                                *rollout_problems(compile_model(r["mjcf"]), trace.qpos, trace.qvel)]
         arrays["rgb"].append(frames.rgb)
         arrays["seg"].append(frames.seg)
         arrays["depth"].append(frames.depth.astype(np.float16))
@@ -49,7 +62,7 @@ def render_shard(task: tuple[str, int, str, str, dict]) -> int:
     shards.write_table(shards.shard_path(traces, i, "parquet"), rows, schema=TRACES_SCHEMA,
                        metadata={"units": "t s; qpos m + quaternion wxyz; qvel m/s, rad/s (world); "
                                           "contacts N; visible px", "params": {"render": p["render"]}})
-    return len(rows)
+    return flags
 
 
 def main() -> None:
@@ -61,14 +74,20 @@ def main() -> None:
     attrs = {"units": UNITS, "params": {"render": p["render"]}, "width": W, "height": H}
     params = {"render": p["render"]}
     tasks = [(str(s), i, str(video), str(traces), params) for i, s in enumerate(mjcf_shards)]
-    for _ in tqdm(parallel_map(render_shard, tasks, workers_from_params(p)), total=len(tasks),
-                  desc="render shards", unit="shard"):
-        pass
+    flags: dict[str, list[str]] = {}
+    for shard_flags in tqdm(parallel_map(render_shard, tasks, workers_from_params(p)), total=len(tasks),
+                            desc="render shards", unit="shard"):
+        flags.update(shard_flags)
+    flagged = {sid: checks for sid, checks in flags.items() if checks}
+    sanity = {"checked": len(flags), "flagged": len(flagged),
+              "by_check": dict(sorted(Counter(c for checks in flagged.values() for c in checks).items())),
+              "scenes": dict(sorted(flagged.items()))}
+    print(f"render: {len(flags)} scenes, {len(flagged)} flagged by the physical sanity checks {sanity['by_check']}")
     n = len(mjcf_shards)
     shards.write_meta(video, {"shards": {"shard": n}, **attrs,
                               "features": {"rgb": "(N, T, H, W, 3) uint8", "seg": "(N, T, H, W) int8",
                                            "depth": "(N, T, H, W) float16", "flow": "(N, T-1, H, W, 2) float16"}})
-    shards.write_meta(traces, {"shards": {"shard": n}, "params": {"render": p["render"]}})
+    shards.write_meta(traces, {"shards": {"shard": n}, "params": {"render": p["render"]}, "sanity": sanity})
 
 
 if __name__ == "__main__":
