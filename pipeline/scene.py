@@ -32,6 +32,10 @@ MAX_SCENE_BYTES = 1_000_000
 MAX_YAML_ALIASES = 64
 """Most YAML aliases (``*name``) in a scene file: each can expand a whole subtree (an 8-level
 "billion laughs" document of 931 bytes took 44 s and 1.45 GB)."""
+MAX_YAML_DEPTH = 32
+"""Deepest nesting of YAML collections in a scene file (a scene needs 4: root, objects, an
+object, its size); checked on libyaml's event stream before any Python object is built (996
+nested lists made the error formatter recurse past Python's limit)."""
 MAX_OBJECTS = 127
 """Most objects in a scene: segmentation masks are int8 object ids (-1 = background), so
 objects 128 and up would wrap around and never be seen."""
@@ -291,17 +295,13 @@ class Scene(_Strict):
         if len(text) > MAX_SCENE_BYTES:
             raise SceneError(f"{source}: <file>: must be at most {MAX_SCENE_BYTES} bytes, got {len(text)}")
         try:
-            if "*" in text:  # aliases expand before validation: a few bytes can mean gigabytes
-                n_alias = sum(isinstance(tok, yaml.AliasToken) for tok in yaml.scan(text, Loader=yaml.SafeLoader))
-                if n_alias > MAX_YAML_ALIASES:
-                    raise SceneError(f"{source}: <yaml>: must use at most {MAX_YAML_ALIASES} aliases (*name), "
-                                     f"got {n_alias}")
+            _check_structure(text, source)   # aliases and depth, before anything is constructed
             data = yaml.load(text, Loader=_LOADER)
         except yaml.YAMLError as exc:
             mark = getattr(exc, "problem_mark", None)
             where = f"line {mark.line + 1}" if mark is not None else "<yaml>"
             problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-            raise SceneError(f"{source}: {where}: malformed YAML: {problem}") from None
+            raise SceneError(f"{source}: {where}: must be well-formed YAML, got {problem[:120]}") from None
         except SceneError:
             raise
         except (ValueError, RecursionError) as exc:  # e.g. a 4,301-digit integer; nesting too deep
@@ -386,6 +386,31 @@ def load_scene(path: str | Path) -> Scene:
 
 
 # ---------------------------------------------------------------------- internals
+def _check_structure(text: str, source: str) -> None:
+    """Bound YAML alias use and nesting depth on libyaml's event stream (C, no objects built):
+    at most :data:`MAX_YAML_ALIASES` aliases and :data:`MAX_YAML_DEPTH` nested collections.
+
+    Raises:
+        SceneError: one line naming the bound; ``yaml.YAMLError`` for malformed text.
+    """
+    depth = n_alias = 0
+    loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+    for event in yaml.parse(text, Loader=loader):
+        if isinstance(event, (yaml.MappingStartEvent, yaml.SequenceStartEvent)):
+            depth += 1
+            if depth > MAX_YAML_DEPTH:
+                line = event.start_mark.line + 1 if event.start_mark else "?"
+                raise SceneError(f"{source}: line {line}: must nest at most {MAX_YAML_DEPTH} levels of "
+                                 f"lists/mappings, got more")
+        elif isinstance(event, (yaml.MappingEndEvent, yaml.SequenceEndEvent)):
+            depth -= 1
+        elif isinstance(event, yaml.AliasEvent):
+            n_alias += 1
+            if n_alias > MAX_YAML_ALIASES:
+                raise SceneError(f"{source}: <yaml>: must use at most {MAX_YAML_ALIASES} aliases (*name), "
+                                 f"got more")
+
+
 def _format_error(exc: ValidationError) -> str:
     """First pydantic error as ``objects[2].size.radius: must be > 0, got -1``."""
     err = exc.errors()[0]
@@ -431,6 +456,8 @@ def _format_error(exc: ValidationError) -> str:
         path = path + ".shape" if not path.endswith("shape") else path
     elif kind == "value_error":
         msg = msg.removeprefix("Value error, ")
+    elif msg.startswith("Input should be "):   # pydantic's type errors in the project's wording
+        msg = "must be " + msg.removeprefix("Input should be ")
     msg = msg[0].lower() + msg[1:] if msg else msg
     if "input" in err and kind not in ("missing", "union_tag_not_found") and not isinstance(err["input"], dict):
         inp = err["input"]
