@@ -46,6 +46,13 @@ MIN_MASS = 1e-6
 """Smallest object mass, kg (1 mg): MuJoCo rejects bodies with mass or inertia below
 ``mjMINVAL`` = 1e-15 at compile time (a 1e-20 kg sphere was a compile-error traceback)."""
 
+MAX_MASS = 1e6
+"""Largest object mass, kg (1,000 t): beyond it inertia overflows float64 with large sizes."""
+MIN_SIZE, MAX_SIZE = 1e-3, 100.0
+"""Object dimensions (radius, height, width, depth), m: at least 1 mm, so that the inertia of a
+1 mg object stays above MuJoCo's mjMINVAL (a box 1e-288 m wide was a compile-error traceback);
+at most 100 m, the bounding region of ``pipeline.sanity``."""
+
 SHAPES = ("sphere", "cylinder", "box")
 """Primitive shapes of scene language v1, in canonical order."""
 
@@ -104,19 +111,22 @@ class Camera(_Strict):
         return (0.0, -2.0, float(self.height))
 
 
+ObjectLength = Annotated[float, Field(ge=MIN_SIZE, le=MAX_SIZE, allow_inf_nan=False)]
+
+
 class SphereSize(_Strict):
-    radius: PositiveFloat
+    radius: ObjectLength
 
 
 class CylinderSize(_Strict):
-    radius: PositiveFloat
-    height: PositiveFloat
+    radius: ObjectLength
+    height: ObjectLength
 
 
 class BoxSize(_Strict):
-    width: PositiveFloat
-    depth: PositiveFloat
-    height: PositiveFloat
+    width: ObjectLength
+    depth: ObjectLength
+    height: ObjectLength
 
 
 class Material(_Strict):
@@ -141,7 +151,7 @@ def _check_unit_quaternion(q: tuple[float, ...]) -> tuple[float, ...]:
 
 
 class _ObjectBase(_Strict):
-    mass: Annotated[float, Field(ge=MIN_MASS, allow_inf_nan=False)]
+    mass: Annotated[float, Field(ge=MIN_MASS, le=MAX_MASS, allow_inf_nan=False)]
     position: Vec3
     orientation: tuple[FiniteFloat, FiniteFloat, FiniteFloat, FiniteFloat] = (1.0, 0.0, 0.0, 0.0)
     linear_velocity: Vec3 = (0.0, 0.0, 0.0)
@@ -502,7 +512,7 @@ def _vec(xs: Any, nd: int) -> str:
 def _dump(scene: Scene, d: Decimals) -> str:
     lines = [
         f"version: {scene.version}",
-        f"duration: {_num(scene.duration, d.duration)}",
+        f"duration: {_num(scene.duration, d.duration, positive=True)}",
         f"fps: {scene.fps}",
         f"gravity: {_num(scene.gravity, d.gravity)}",
         "camera:",
@@ -516,7 +526,7 @@ def _dump(scene: Scene, d: Decimals) -> str:
             f"  roll: {_num(cam.roll or 0.0, d.camera)}",
         ]
     else:
-        lines += [f"  height: {_num(cam.height, d.position)}", f"  pitch: {_num(cam.pitch, d.camera)}"]
+        lines += [f"  height: {_num(cam.height, d.position, positive=True)}", f"  pitch: {_num(cam.pitch, d.camera)}"]
     lines.append(f"  fov: {_num(cam.fov, d.camera)}")
     lines.append("objects:")
     for o in scene.objects:
