@@ -214,6 +214,11 @@ def check_document(content: bytes, folder: Path) -> tuple[str, str]:
         return "failure:round_trip", f"{type(exc).__name__}: {str(exc)[:200]}"
     try:
         compile_model(scene)
+    except SceneError as exc:  # e.g. an unknown effect name: checked when the MJCF is built, one line
+        msg = str(exc).replace("<scene>", str(path), 1)
+        if "\n" in msg or len(msg) > MAX_LINE or not LINE.match(msg):
+            return "failure:message", msg[:400]
+        return "error", msg
     except Exception as exc:  # noqa: BLE001
         return "failure:compile", f"{type(exc).__name__}: {str(exc)[:200]}"
     return "accepted", ""
@@ -239,7 +244,7 @@ def run(examples: int, seed: int | None = None) -> dict[str, Any]:
             if outcome == "error" and ": must " in detail:
                 counts["error_in_must_wording"] += 1
             if outcome.startswith("failure") and len(failures) < 20:
-                failures.append({"outcome": outcome, "detail": detail, "document": content[:200].decode("latin-1")})
+                failures.append({"outcome": outcome, "detail": detail, "document": content[:3000].decode("latin-1")})
             if dt > slowest[0]:
                 slowest[:] = [dt, content[:80].decode("latin-1")]
             if outcome == "error" and len(detail) > longest[0]:

@@ -21,7 +21,8 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator,
+                      model_validator)
 
 from pipeline.errors import UserError
 
@@ -65,9 +66,24 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
 
 
-PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
-FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+MIN_MAGNITUDE = 1e-300
+"""Smallest non-zero magnitude of a number in a scene: MuJoCo's XML reader refuses subnormal
+numbers (``5e-324`` as a density, ``1e-320`` as a position: "number is too large")."""
+
+
+def _not_subnormal(x: float) -> float:
+    if x != 0 and abs(x) < MIN_MAGNITUDE:
+        raise ValueError(f"must be 0 or of magnitude >= {MIN_MAGNITUDE:g} (MuJoCo reads no subnormal numbers)")
+    return x
+
+
+_Normal = AfterValidator(_not_subnormal)
+PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False), _Normal]
+NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False), _Normal]
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False), _Normal]
+Name = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$", max_length=64)]
+"""An effect or parameter name: an identifier (the library's names are; anything else could not
+be written back as plain canonical text)."""
 Vec3 = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
 
 
@@ -86,7 +102,7 @@ class Camera(_Strict):
     yaw: FiniteFloat | None = None
     pitch: Annotated[float, Field(ge=-89.0, le=89.0)] = 35.0
     roll: FiniteFloat | None = None
-    fov: Annotated[float, Field(gt=1.0, lt=179.0)] = 45.0
+    fov: Annotated[float, Field(ge=1.0, le=179.0)] = 45.0  # closed: a value rounds onto a bound
 
     @model_validator(mode="after")
     def _one_form(self) -> "Camera":
@@ -231,8 +247,8 @@ class Effect(_Strict):
     ``{effect: quadratic_drag, parameters: {density: 1.2}}``. Names and parameters are checked
     against the effect library (``pipeline.effects``) when the MJCF is built."""
 
-    effect: Annotated[str, Field(min_length=1)]
-    parameters: dict[str, FiniteFloat] = {}
+    effect: Name
+    parameters: dict[Name, FiniteFloat] = {}
 
 
 class Scene(_Strict):
@@ -466,6 +482,8 @@ def _format_error(exc: ValidationError) -> str:
         path = path + ".shape" if not path.endswith("shape") else path
     elif kind == "value_error":
         msg = msg.removeprefix("Value error, ")
+    elif kind == "string_pattern_mismatch":
+        msg = "must be an identifier (letters, digits, _; not starting with a digit)"
     elif msg.startswith("Input should be "):   # pydantic's type errors in the project's wording
         msg = "must be " + msg.removeprefix("Input should be ")
     msg = msg[0].lower() + msg[1:] if msg else msg
@@ -503,6 +521,21 @@ def _num(x: float, nd: int, positive: bool = False) -> str:
     if v == 0:
         v = 0.0  # no "-0.0"
     return repr(v)
+
+
+_YAML_WORDS = {"null", "true", "false", "yes", "no", "on", "off", "y", "n", "~"}
+
+
+def _name(text: str) -> str:
+    """A name (effect, parameter) as canonical YAML: bare when it is a plain identifier that YAML
+    reads back as the same string (``quadratic_drag``), else a double-quoted JSON string (a key
+    ``null`` was read back as None, a control character was refused)."""
+    import json
+    import re
+
+    if re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", text) and text.lower() not in _YAML_WORDS:
+        return text
+    return json.dumps(text)
 
 
 def _vec(xs: Any, nd: int) -> str:
@@ -557,8 +590,8 @@ def _dump(scene: Scene, d: Decimals) -> str:
     if scene.effects:
         lines.append("effects:")
         for e in scene.effects:
-            params = ", ".join(f"{k}: {_num(v, d.effect)}" for k, v in e.parameters.items())
-            lines.append(f"  - {{effect: {e.effect}, parameters: {{{params}}}}}")
+            params = ", ".join(f"{_name(k)}: {_num(v, d.effect)}" for k, v in e.parameters.items())
+            lines.append(f"  - {{effect: {_name(e.effect)}, parameters: {{{params}}}}}")
     else:
         lines.append("effects: []")
     return "\n".join(lines) + "\n"
