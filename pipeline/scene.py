@@ -334,6 +334,7 @@ class Scene(_Strict):
             first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             if "integer string conversion" in first:
                 first = "numbers must have at most 4300 digits"
+                raise SceneError(f"{source}: <yaml>: must have numbers of at most 4300 digits, got more") from None
             raise SceneError(f"{source}: <yaml>: cannot be read: {first[:160]}") from None
         try:
             return cls.from_dict(data, source)
@@ -470,15 +471,15 @@ def _format_error(exc: ValidationError) -> str:
         msg = f"must have {bound} {limit} items, got {ctx.get('actual_length')}"
         return f"{path}: {msg}"
     elif kind == "extra_forbidden":
-        msg = "unknown key"
+        msg = "must not be given (unknown key)"
     elif kind == "missing":
-        msg = "required field missing"
+        msg = "must be given (required field missing)"
     elif kind == "union_tag_invalid":  # the input is the whole object: quote the tag here
         tags = STATIC_SHAPES if str(err["loc"][0]) == "static" else SHAPES
         msg = f"unknown shape, must be one of {', '.join(tags)}, got {ctx.get('tag')!r}"
         path = path + ".shape" if not path.endswith("shape") else path
     elif kind == "union_tag_not_found":
-        msg = "required field missing (shape)"
+        msg = "must be given (required field missing: shape)"
         path = path + ".shape" if not path.endswith("shape") else path
     elif kind == "value_error":
         msg = msg.removeprefix("Value error, ")

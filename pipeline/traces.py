@@ -253,7 +253,7 @@ def simulate_cli(args: argparse.Namespace) -> int:
                 except ValidationError as exc:
                     err = exc.errors()[0]
                     where = ".".join(str(x) for x in (section, *err["loc"]))
-                    what = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
+                    what = "must not be given (unknown key)" if err["type"] == "extra_forbidden" else err["msg"]
                     return fail(f"{args.params}: {where}: {what}")
             options, events = SimOptions(**(p.get("sim") or {})), EventConfig(**(p.get("events") or {}))
             sanity = SanityConfig(**(p.get("sanity") or {}))

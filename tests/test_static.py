@@ -39,15 +39,15 @@ def scene_with(static, objects=None, **kw):
 
 # --------------------------------------------------------------------------- 1. validation
 @pytest.mark.parametrize("entry,message", [
-    ({**STATIC_BOX, "size": {"width": -1, "depth": 0.4, "height": 0.02}}, "<scene>: static[0].size.width: must be > 0"),
+    ({**STATIC_BOX, "size": {"width": -1, "depth": 0.4, "height": 0.02}}, "<scene>: static[0].size.width: must be >= 0.001"),
     ({**STATIC_BOX, "shape": "cone"}, "<scene>: static[0].shape: unknown shape, must be one of box, plane, got 'cone'"),
-    ({k: v for k, v in STATIC_BOX.items() if k != "shape"}, "<scene>: static[0].shape: required field missing"),
-    ({k: v for k, v in STATIC_BOX.items() if k != "position"}, "<scene>: static[0].position: required field missing"),
+    ({k: v for k, v in STATIC_BOX.items() if k != "shape"}, "<scene>: static[0].shape: must be given (required field missing: shape)"),
+    ({k: v for k, v in STATIC_BOX.items() if k != "position"}, "<scene>: static[0].position: must be given (required field missing)"),
     ({**STATIC_BOX, "orientation": [1, 1, 0, 0]}, "<scene>: static[0].orientation: must be a unit quaternion"),
-    ({**STATIC_BOX, "mass": 1.0}, "<scene>: static[0].mass: unknown key"),
+    ({**STATIC_BOX, "mass": 1.0}, "<scene>: static[0].mass: must not be given (unknown key)"),
     ({"shape": "plane", "size": {"width": 1.0, "depth": 1.0, "height": 0.1}, "position": [0, 0, 0]},
-     "<scene>: static[0].size.height: unknown key"),
-    ({"shape": "plane", "size": {"width": 1.0}, "position": [0, 0, 0]}, "<scene>: static[0].size.depth: required field missing"),
+     "<scene>: static[0].size.height: must not be given (unknown key)"),
+    ({"shape": "plane", "size": {"width": 1.0}, "position": [0, 0, 0]}, "<scene>: static[0].size.depth: must be given (required field missing)"),
     ({**STATIC_BOX, "position": [0, 0, float("nan")]}, "<scene>: static[0].position[2]: must be a finite number"),
 ])
 def test_bad_static_entries_give_one_line_naming_the_field(entry, message):
