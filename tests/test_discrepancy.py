@@ -20,7 +20,10 @@ from pipeline import discrepancy as D
 from pipeline.mjcf import SimOptions, compile_model
 from pipeline.simulate import rollout
 
-OPTS = SimOptions(textured=False)
+# 2 ms (effective 1/510 s at 30 fps): the library default was 2 ms when these cases were tuned; at the
+# params timestep 1/600 s test_single_clip_forward_gap_foam_ball names restitution instead of drag
+# (issue 12 item 4 finding, reported to the owner of pipeline/discrepancy.py)
+OPTS = SimOptions(textured=False, timestep=0.002)
 REAL = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "real" / "trajectories"
 
 
