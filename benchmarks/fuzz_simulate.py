@@ -48,11 +48,12 @@ def scenes(draw) -> str:
     objects = []
     for i in range(n):
         shape = draw(st.sampled_from(["sphere", "box", "cylinder"]))
-        s = draw(st.sampled_from([0.01, 0.1, 0.3, 2.0]))
+        s = draw(st.sampled_from([0.01, 0.1, 0.3]))
         size = {"sphere": {"radius": s}, "box": {"width": s, "depth": s, "height": s},
                 "cylinder": {"radius": s, "height": s}}[shape]
-        z = draw(st.sampled_from([s / 2 if shape != "sphere" else s, s * 3, -0.2, 0.0, 5.0]))
-        x = draw(st.sampled_from([0.0, 0.05 * i, 0.3 * i, -0.5 + 0.4 * i]))
+        rest = s / 2 if shape != "sphere" else s          # resting on the floor
+        z = draw(st.sampled_from([rest, rest, rest, s * 3, 5.0, -0.2]))   # 1 in 6 starts in the floor
+        x = draw(st.sampled_from([i - 1.5, i - 1.5, i - 1.5, 0.05 * i]))  # 1 in 4 may overlap another
         objects.append({
             "shape": shape, "size": size, "mass": draw(st.sampled_from([1e-6, 0.01, 1.0, 100.0, 1e6])),
             "position": [x, 0.3, z],
