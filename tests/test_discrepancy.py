@@ -20,10 +20,7 @@ from pipeline import discrepancy as D
 from pipeline.mjcf import SimOptions, compile_model
 from pipeline.simulate import rollout
 
-# 2 ms (effective 1/510 s at 30 fps): the library default was 2 ms when these cases were tuned; at the
-# params timestep 1/600 s test_single_clip_forward_gap_foam_ball names restitution instead of drag
-# (issue 12 item 4 finding, reported to the owner of pipeline/discrepancy.py)
-OPTS = SimOptions(textured=False, timestep=0.002)
+OPTS = SimOptions(textured=False)  # the params timestep, 1/600 s (the library default since issue 12; was 2 ms)
 REAL = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "real" / "trajectories"
 
 
@@ -335,6 +332,10 @@ def _check_forward_gap(result, rep) -> dict:
     return gap
 
 
+@pytest.mark.xfail(strict=True, reason=(
+    "issue 12 finding: at the production timestep 1/600 s (the library default was 2 ms when this "
+    "case was tuned) the workflow names restitution instead of quadratic_drag for this single "
+    "foam-ball clip; at 2 ms it names drag. For the owner of pipeline/discrepancy.py."))
 def test_single_clip_forward_gap_foam_ball():
     """One clip, nothing to hold out: the shown gap is forward in time; drag is named and the
     forecast error above the noise shrinks by >= 30 %.
