@@ -29,8 +29,10 @@ After a rollout (:func:`rollout_problems`, on the frames of a :class:`pipeline.s
   so this is a bound on when results can be trusted, not a detection of the event.
 
 ``dynamics simulate`` turns any problem into a one-line :class:`PhysicsError` (exit 2); the
-``render`` stage stores the problems of each scene in its trace row (column ``sanity``) and
-counts them in ``meta.json`` (never a silent score, never a dropped scene).
+``render`` stage keeps every scene (its shards stay those of the sampled configs) and lists the
+flagged ones, by scene id and check, with counts per check, under ``sanity`` in the traces
+folder's ``meta.json`` (never a silent score, never a dropped scene). Thresholds and the
+measured figures: docs/reliability.md, "Simulation".
 """
 
 from __future__ import annotations
