@@ -24,6 +24,8 @@ Static geoms get the floor's contact parameters (``priority=0``, ``condim=3``,
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -43,12 +45,23 @@ OBJECT_COLOURS = [
 ]
 
 
+DEFAULT_TIMESTEP = 1.0 / 600.0
+"""Physics timestep, s: the params value ``sim.timestep`` (1/600 s, 20 steps per 30 fps frame,
+10 per 60 fps frame). ``dynamics simulate``, the stages and the library all default to it
+(``tests/test_physics.py`` checks that params.yaml agrees)."""
+
+
 class SimOptions(BaseModel):
-    """Simulation options (params section ``sim``)."""
+    """Simulation options (params section ``sim``).
+
+    ``timestep`` is an upper bound: a scene whose frame interval ``1 / fps`` is not a whole
+    number of steps is simulated at the largest smaller timestep that divides it
+    (:func:`frame_timestep`), so that every frame is a state at its stamped time.
+    """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    timestep: float = Field(0.002, gt=0, description="s")
+    timestep: float = Field(DEFAULT_TIMESTEP, gt=0, le=0.1, allow_inf_nan=False, description="s")
     integrator: str = "implicitfast"
     floor_friction: float = Field(0.5, ge=0)
     floor_solref: tuple[float, float] = (0.02, 1.0)
@@ -95,8 +108,40 @@ def initial_state(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
     return np.asarray(qpos, dtype=np.float64), np.asarray(qvel, dtype=np.float64)
 
 
+def steps_per_frame(fps: float, timestep: float) -> int:
+    """Physics steps per video frame: ``ceil(1 / (fps * timestep))`` (a ratio within 1e-6 of an
+    integer counts as that integer, so 30 fps at 1/600 s gives 20)."""
+    ratio = 1.0 / (float(fps) * float(timestep))
+    return max(1, math.ceil(ratio - 1e-6))
+
+
+def frame_timestep(fps: float, timestep: float) -> float:
+    """The timestep a scene at ``fps`` is simulated with, s (time stamps that match states).
+
+    Frame k is the state after ``k * steps_per_frame(fps, timestep)`` steps, so its time stamp
+    ``k / fps`` is exact only if the frame interval is a whole number of steps. When it is
+    (within 1e-6 relative), ``timestep`` is returned unchanged, bit for bit (30 and 60 fps at
+    the default 1/600 s); otherwise the timestep is lowered to ``1 / (fps * n)`` with
+    ``n = steps_per_frame(fps, timestep)``, the largest timestep not above the configured one
+    that divides the frame interval (e.g. 25 fps at 1/600 s: 1/625 s; 240 fps: 1/720 s). A
+    smaller step never makes the integrator less stable.
+
+    Args:
+        fps: frames per second, > 0.
+        timestep: configured physics timestep (params ``sim.timestep``), s.
+    Returns:
+        the timestep to simulate with, s.
+    """
+    n = steps_per_frame(fps, timestep)
+    if abs(n * float(fps) * float(timestep) - 1.0) <= 1e-6:
+        return float(timestep)
+    return 1.0 / (float(fps) * n)
+
+
 def build_mjcf(scene: Scene, options: SimOptions | None = None) -> mjcf.RootElement:
     """Build the MJCF element tree of a validated scene.
+
+    The MJCF ``timestep`` is :func:`frame_timestep` of the scene's fps and ``options.timestep``.
 
     Raises:
         SceneError: an effect in ``scene.effects`` is unknown or has bad parameters.
@@ -104,7 +149,7 @@ def build_mjcf(scene: Scene, options: SimOptions | None = None) -> mjcf.RootElem
     opt = options or SimOptions()
     root = mjcf.RootElement(model="scene")
     root.compiler.angle = "radian"
-    root.option.timestep = opt.timestep
+    root.option.timestep = frame_timestep(scene.fps, opt.timestep)  # frames fall on steps
     root.option.integrator = opt.integrator
     root.option.gravity = [0.0, 0.0, -scene.gravity]
     glob = getattr(root.visual, "global")

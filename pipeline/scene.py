@@ -21,7 +21,8 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
+from pydantic import (AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator,
+                      model_validator)
 
 from pipeline.errors import UserError
 
@@ -32,6 +33,10 @@ MAX_SCENE_BYTES = 1_000_000
 MAX_YAML_ALIASES = 64
 """Most YAML aliases (``*name``) in a scene file: each can expand a whole subtree (an 8-level
 "billion laughs" document of 931 bytes took 44 s and 1.45 GB)."""
+MAX_YAML_DEPTH = 32
+"""Deepest nesting of YAML collections in a scene file (a scene needs 4: root, objects, an
+object, its size); checked on libyaml's event stream before any Python object is built (996
+nested lists made the error formatter recurse past Python's limit)."""
 MAX_OBJECTS = 127
 """Most objects in a scene: segmentation masks are int8 object ids (-1 = background), so
 objects 128 and up would wrap around and never be seen."""
@@ -41,6 +46,13 @@ MAX_FRAMES = 10_000
 MIN_MASS = 1e-6
 """Smallest object mass, kg (1 mg): MuJoCo rejects bodies with mass or inertia below
 ``mjMINVAL`` = 1e-15 at compile time (a 1e-20 kg sphere was a compile-error traceback)."""
+
+MAX_MASS = 1e6
+"""Largest object mass, kg (1,000 t): beyond it inertia overflows float64 with large sizes."""
+MIN_SIZE, MAX_SIZE = 1e-3, 100.0
+"""Object dimensions (radius, height, width, depth), m: at least 1 mm, so that the inertia of a
+1 mg object stays above MuJoCo's mjMINVAL (a box 1e-288 m wide was a compile-error traceback);
+at most 100 m, the bounding region of ``pipeline.sanity``."""
 
 SHAPES = ("sphere", "cylinder", "box")
 """Primitive shapes of scene language v1, in canonical order."""
@@ -54,9 +66,24 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, validate_default=True)
 
 
-PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
-FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+MIN_MAGNITUDE = 1e-300
+"""Smallest non-zero magnitude of a number in a scene: MuJoCo's XML reader refuses subnormal
+numbers (``5e-324`` as a density, ``1e-320`` as a position: "number is too large")."""
+
+
+def _not_subnormal(x: float) -> float:
+    if x != 0 and abs(x) < MIN_MAGNITUDE:
+        raise ValueError(f"must be 0 or of magnitude >= {MIN_MAGNITUDE:g} (MuJoCo reads no subnormal numbers)")
+    return x
+
+
+_Normal = AfterValidator(_not_subnormal)
+PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False), _Normal]
+NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False), _Normal]
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False), _Normal]
+Name = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$", max_length=64)]
+"""An effect or parameter name: an identifier (the library's names are; anything else could not
+be written back as plain canonical text)."""
 Vec3 = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
 
 
@@ -75,7 +102,7 @@ class Camera(_Strict):
     yaw: FiniteFloat | None = None
     pitch: Annotated[float, Field(ge=-89.0, le=89.0)] = 35.0
     roll: FiniteFloat | None = None
-    fov: Annotated[float, Field(gt=1.0, lt=179.0)] = 45.0
+    fov: Annotated[float, Field(ge=1.0, le=179.0)] = 45.0  # closed: a value rounds onto a bound
 
     @model_validator(mode="after")
     def _one_form(self) -> "Camera":
@@ -100,19 +127,22 @@ class Camera(_Strict):
         return (0.0, -2.0, float(self.height))
 
 
+ObjectLength = Annotated[float, Field(ge=MIN_SIZE, le=MAX_SIZE, allow_inf_nan=False)]
+
+
 class SphereSize(_Strict):
-    radius: PositiveFloat
+    radius: ObjectLength
 
 
 class CylinderSize(_Strict):
-    radius: PositiveFloat
-    height: PositiveFloat
+    radius: ObjectLength
+    height: ObjectLength
 
 
 class BoxSize(_Strict):
-    width: PositiveFloat
-    depth: PositiveFloat
-    height: PositiveFloat
+    width: ObjectLength
+    depth: ObjectLength
+    height: ObjectLength
 
 
 class Material(_Strict):
@@ -137,7 +167,7 @@ def _check_unit_quaternion(q: tuple[float, ...]) -> tuple[float, ...]:
 
 
 class _ObjectBase(_Strict):
-    mass: Annotated[float, Field(ge=MIN_MASS, allow_inf_nan=False)]
+    mass: Annotated[float, Field(ge=MIN_MASS, le=MAX_MASS, allow_inf_nan=False)]
     position: Vec3
     orientation: tuple[FiniteFloat, FiniteFloat, FiniteFloat, FiniteFloat] = (1.0, 0.0, 0.0, 0.0)
     linear_velocity: Vec3 = (0.0, 0.0, 0.0)
@@ -217,8 +247,8 @@ class Effect(_Strict):
     ``{effect: quadratic_drag, parameters: {density: 1.2}}``. Names and parameters are checked
     against the effect library (``pipeline.effects``) when the MJCF is built."""
 
-    effect: Annotated[str, Field(min_length=1)]
-    parameters: dict[str, FiniteFloat] = {}
+    effect: Name
+    parameters: dict[Name, FiniteFloat] = {}
 
 
 class Scene(_Strict):
@@ -291,23 +321,20 @@ class Scene(_Strict):
         if len(text) > MAX_SCENE_BYTES:
             raise SceneError(f"{source}: <file>: must be at most {MAX_SCENE_BYTES} bytes, got {len(text)}")
         try:
-            if "*" in text:  # aliases expand before validation: a few bytes can mean gigabytes
-                n_alias = sum(isinstance(tok, yaml.AliasToken) for tok in yaml.scan(text, Loader=yaml.SafeLoader))
-                if n_alias > MAX_YAML_ALIASES:
-                    raise SceneError(f"{source}: <yaml>: must use at most {MAX_YAML_ALIASES} aliases (*name), "
-                                     f"got {n_alias}")
+            _check_structure(text, source)   # aliases and depth, before anything is constructed
             data = yaml.load(text, Loader=_LOADER)
         except yaml.YAMLError as exc:
             mark = getattr(exc, "problem_mark", None)
             where = f"line {mark.line + 1}" if mark is not None else "<yaml>"
             problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-            raise SceneError(f"{source}: {where}: malformed YAML: {problem}") from None
+            raise SceneError(f"{source}: {where}: must be well-formed YAML, got {problem[:120]}") from None
         except SceneError:
             raise
         except (ValueError, RecursionError) as exc:  # e.g. a 4,301-digit integer; nesting too deep
             first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             if "integer string conversion" in first:
                 first = "numbers must have at most 4300 digits"
+                raise SceneError(f"{source}: <yaml>: must have numbers of at most 4300 digits, got more") from None
             raise SceneError(f"{source}: <yaml>: cannot be read: {first[:160]}") from None
         try:
             return cls.from_dict(data, source)
@@ -386,6 +413,31 @@ def load_scene(path: str | Path) -> Scene:
 
 
 # ---------------------------------------------------------------------- internals
+def _check_structure(text: str, source: str) -> None:
+    """Bound YAML alias use and nesting depth on libyaml's event stream (C, no objects built):
+    at most :data:`MAX_YAML_ALIASES` aliases and :data:`MAX_YAML_DEPTH` nested collections.
+
+    Raises:
+        SceneError: one line naming the bound; ``yaml.YAMLError`` for malformed text.
+    """
+    depth = n_alias = 0
+    loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+    for event in yaml.parse(text, Loader=loader):
+        if isinstance(event, (yaml.MappingStartEvent, yaml.SequenceStartEvent)):
+            depth += 1
+            if depth > MAX_YAML_DEPTH:
+                line = event.start_mark.line + 1 if event.start_mark else "?"
+                raise SceneError(f"{source}: line {line}: must nest at most {MAX_YAML_DEPTH} levels of "
+                                 f"lists/mappings, got more")
+        elif isinstance(event, (yaml.MappingEndEvent, yaml.SequenceEndEvent)):
+            depth -= 1
+        elif isinstance(event, yaml.AliasEvent):
+            n_alias += 1
+            if n_alias > MAX_YAML_ALIASES:
+                raise SceneError(f"{source}: <yaml>: must use at most {MAX_YAML_ALIASES} aliases (*name), "
+                                 f"got more")
+
+
 def _format_error(exc: ValidationError) -> str:
     """First pydantic error as ``objects[2].size.radius: must be > 0, got -1``."""
     err = exc.errors()[0]
@@ -419,18 +471,22 @@ def _format_error(exc: ValidationError) -> str:
         msg = f"must have {bound} {limit} items, got {ctx.get('actual_length')}"
         return f"{path}: {msg}"
     elif kind == "extra_forbidden":
-        msg = "unknown key"
+        msg = "must not be given (unknown key)"
     elif kind == "missing":
-        msg = "required field missing"
+        msg = "must be given (required field missing)"
     elif kind == "union_tag_invalid":  # the input is the whole object: quote the tag here
         tags = STATIC_SHAPES if str(err["loc"][0]) == "static" else SHAPES
         msg = f"unknown shape, must be one of {', '.join(tags)}, got {ctx.get('tag')!r}"
         path = path + ".shape" if not path.endswith("shape") else path
     elif kind == "union_tag_not_found":
-        msg = "required field missing (shape)"
+        msg = "must be given (required field missing: shape)"
         path = path + ".shape" if not path.endswith("shape") else path
     elif kind == "value_error":
         msg = msg.removeprefix("Value error, ")
+    elif kind == "string_pattern_mismatch":
+        msg = "must be an identifier (letters, digits, _; not starting with a digit)"
+    elif msg.startswith("Input should be "):   # pydantic's type errors in the project's wording
+        msg = "must be " + msg.removeprefix("Input should be ")
     msg = msg[0].lower() + msg[1:] if msg else msg
     if "input" in err and kind not in ("missing", "union_tag_not_found") and not isinstance(err["input"], dict):
         inp = err["input"]
@@ -468,6 +524,21 @@ def _num(x: float, nd: int, positive: bool = False) -> str:
     return repr(v)
 
 
+_YAML_WORDS = {"null", "true", "false", "yes", "no", "on", "off", "y", "n", "~"}
+
+
+def _name(text: str) -> str:
+    """A name (effect, parameter) as canonical YAML: bare when it is a plain identifier that YAML
+    reads back as the same string (``quadratic_drag``), else a double-quoted JSON string (a key
+    ``null`` was read back as None, a control character was refused)."""
+    import json
+    import re
+
+    if re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", text) and text.lower() not in _YAML_WORDS:
+        return text
+    return json.dumps(text)
+
+
 def _vec(xs: Any, nd: int) -> str:
     return "[" + ", ".join(_num(x, nd) for x in xs) + "]"
 
@@ -475,7 +546,7 @@ def _vec(xs: Any, nd: int) -> str:
 def _dump(scene: Scene, d: Decimals) -> str:
     lines = [
         f"version: {scene.version}",
-        f"duration: {_num(scene.duration, d.duration)}",
+        f"duration: {_num(scene.duration, d.duration, positive=True)}",
         f"fps: {scene.fps}",
         f"gravity: {_num(scene.gravity, d.gravity)}",
         "camera:",
@@ -489,7 +560,7 @@ def _dump(scene: Scene, d: Decimals) -> str:
             f"  roll: {_num(cam.roll or 0.0, d.camera)}",
         ]
     else:
-        lines += [f"  height: {_num(cam.height, d.position)}", f"  pitch: {_num(cam.pitch, d.camera)}"]
+        lines += [f"  height: {_num(cam.height, d.position, positive=True)}", f"  pitch: {_num(cam.pitch, d.camera)}"]
     lines.append(f"  fov: {_num(cam.fov, d.camera)}")
     lines.append("objects:")
     for o in scene.objects:
@@ -520,8 +591,8 @@ def _dump(scene: Scene, d: Decimals) -> str:
     if scene.effects:
         lines.append("effects:")
         for e in scene.effects:
-            params = ", ".join(f"{k}: {_num(v, d.effect)}" for k, v in e.parameters.items())
-            lines.append(f"  - {{effect: {e.effect}, parameters: {{{params}}}}}")
+            params = ", ".join(f"{_name(k)}: {_num(v, d.effect)}" for k, v in e.parameters.items())
+            lines.append(f"  - {{effect: {_name(e.effect)}, parameters: {{{params}}}}}")
     else:
         lines.append("effects: []")
     return "\n".join(lines) + "\n"

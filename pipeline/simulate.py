@@ -1,7 +1,9 @@
 """Rollouts and per-frame traces (DESIGN.md §3).
 
 A rollout starts from the MJCF keyframe ``init`` and records, at every video frame
-``t_k = k / fps`` (k = 0 .. n_frames-1), each object's pose and world-frame velocity, plus
+``t_k = k / fps`` (k = 0 .. n_frames-1), each object's pose and world-frame velocity (the state
+after exactly ``k * steps_per_frame`` physics steps: ``pipeline.mjcf.frame_timestep`` makes the
+frame interval a whole number of steps, so each row is the state at its stamped time), plus
 every contact that occurred since the previous frame (collisions are often shorter than a
 frame, so contacts are gathered at every physics step, not only at frame times).
 """
@@ -39,6 +41,8 @@ class Trace:
             the world frame.
         contacts: T lists of :class:`Contact` (contacts during (t_{k-1}, t_k]).
         names: n object names.
+        warnings: MuJoCo's warnings raised during the rollout (:func:`mujoco_warnings`), e.g.
+            ``BADQACC x1`` (MuJoCo then resets the state silently); empty when none.
     """
 
     t: np.ndarray
@@ -46,6 +50,7 @@ class Trace:
     qvel: np.ndarray
     contacts: list[list[Contact]] = field(default_factory=list)
     names: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def position(self) -> np.ndarray:
@@ -71,6 +76,20 @@ def check_rollout(data: mujoco.MjData, trace: "Trace") -> None:
         raise SimulationError(f"simulation diverged: MuJoCo reset an unstable state {bad} time(s)")
     if not (np.isfinite(trace.qpos).all() and np.isfinite(trace.qvel).all()):
         raise SimulationError("simulation diverged: non-finite state")
+
+
+def mujoco_warnings(data: mujoco.MjData) -> list[str]:
+    """MuJoCo's own warnings counted in ``data`` (``mjData.warning``; MuJoCo docs, "mjtWarning"):
+    bad qacc/qpos/qvel (after which MuJoCo resets the state silently), contact or constraint
+    buffer overflow, ... as ``["BADQACC x1", ...]``."""
+    out = []
+    for name, w in mujoco.mjtWarning.__members__.items():
+        if name == "mjNWARNING":
+            continue
+        info = data.warning[int(w)]
+        if info.number > 0:
+            out.append(f"{name.removeprefix('mjWARN_')} x{info.number}")
+    return out
 
 
 def frame_times(n_frames: int, fps: float) -> np.ndarray:
@@ -109,8 +128,10 @@ def rollout(
 ) -> Trace:
     """Simulate from the ``init`` keyframe and sample states at the video frame times.
 
-    The physics step count to frame k is ``round(t_k / timestep)``, so frame times are exact
-    to half a timestep even when ``1 / (fps * timestep)`` is not an integer.
+    Frame k is the state after ``round(t_k / timestep)`` physics steps. For a model built by
+    ``pipeline.mjcf`` the timestep divides the frame interval (``pipeline.mjcf.frame_timestep``),
+    so that count is exactly ``k * steps_per_frame`` and the state is the one at ``t_k``; MJCF
+    text from elsewhere whose timestep does not divide it is off by at most half a timestep.
 
     Args:
         model: compiled scene model (``pipeline.mjcf.compile_model``).
@@ -118,8 +139,9 @@ def rollout(
         n_frames: number of frames T.
         fps: frames per second.
         data: optional ``MjData`` to reuse.
+        record_contacts: gather contacts at every step (False: step in one call, faster).
     Returns:
-        :class:`Trace` with T frames.
+        :class:`Trace` with T frames (and MuJoCo's warnings).
     """
     data = data or mujoco.MjData(model)
     reset_to_scene(model, data)
@@ -160,7 +182,7 @@ def rollout(
                 seen.setdefault((a, b), Contact(a, b, tuple(float(x) for x in con.pos), float(force[0])))
         qpos[k], qvel[k] = read_state(model, data, n_objects)
         contacts.append(list(seen.values()))
-    return Trace(times, qpos, qvel, contacts, names)
+    return Trace(times, qpos, qvel, contacts, names, mujoco_warnings(data))
 
 
 def simulate(scene: Scene, options: SimOptions | None = None) -> tuple[mujoco.MjModel, Trace]:

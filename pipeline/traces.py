@@ -24,7 +24,7 @@ import io
 import json
 import sys
 from pathlib import Path
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
 import pyarrow as pa
@@ -34,6 +34,9 @@ from pipeline.events import EventConfig, events_to_json, events_to_text, extract
 from pipeline.mjcf import SimOptions, compile_model
 from pipeline.scene import Scene, SceneError, load_scene
 from pipeline.simulate import Contact, Trace
+
+if TYPE_CHECKING:
+    from pipeline.sanity import SanityConfig
 
 TRACES_SCHEMA = pa.schema([
     ("scene_id", pa.string()),
@@ -108,36 +111,36 @@ def object_frame_table(trace: Trace) -> pa.Table:
 
 
 # --------------------------------------------------------------------------- dynamics simulate
-def check_stable(trace, data) -> None:
+def check_stable(trace, data=None) -> None:
     """Raise when the simulation is not to be trusted: a non-finite state, or one of MuJoCo's
-    own warnings (``mjData.warning``: bad qacc, which makes MuJoCo reset the state silently,
+    own warnings (``Trace.warnings``: bad qacc, which makes MuJoCo reset the state silently,
     contact or constraint buffer overflow, ...; MuJoCo docs, "mjtWarning").
 
     Raises:
         SceneError: ``<scene>: simulation: must stay stable, got ...`` (one line).
     """
-    import mujoco
+    from pipeline.simulate import mujoco_warnings
 
     problems = []
     bad = ~np.isfinite(trace.qpos).all(axis=(1, 2))
     if bad.any():
         problems.append(f"a non-finite state from frame {int(np.argmax(bad))}")
-    for name, w in mujoco.mjtWarning.__members__.items():
-        if name == "mjNWARNING":
-            continue
-        info = data.warning[int(w)]
-        if info.number > 0:
-            problems.append(f"MuJoCo warning {name.removeprefix('mjWARN_')} x{info.number}")
+    problems += [f"MuJoCo warning {w}" for w in (mujoco_warnings(data) if data is not None else trace.warnings)]
     if problems:
         raise SceneError("<scene>: simulation: must stay stable (MuJoCo), got " + "; ".join(problems))
 
 
 def write_simulation(scene: Scene, out_dir: str | Path, width: int = 480, height: int = 320,
-                     options: SimOptions | None = None, events: EventConfig | None = None) -> dict[str, Path]:
+                     options: SimOptions | None = None, events: EventConfig | None = None,
+                     sanity: "SanityConfig | None" = None, source: str = "<scene>") -> dict[str, Path]:
     """Simulate and render a scene and write what ``dynamics simulate`` promises.
 
-    The scene is compiled before anything is written, so a bad ``effects`` block raises
-    with ``out_dir`` untouched.
+    The scene is compiled and checked before anything is written (``pipeline.sanity``: step
+    budget and initial interpenetration before the rollout; stability, energy, bounding region,
+    sinking and per-step travel after it), so a bad scene raises with ``out_dir`` untouched.
+    The timestep is ``options.timestep`` (params ``sim.timestep``, 1/600 s by default), lowered
+    where needed so that the frame interval is a whole number of steps
+    (``pipeline.mjcf.frame_timestep``); ``trace.parquet`` metadata records the one used.
 
     Args:
         scene: validated scene.
@@ -145,11 +148,16 @@ def write_simulation(scene: Scene, out_dir: str | Path, width: int = 480, height
         width, height: render size, px.
         options: simulation options (params ``sim``).
         events: event thresholds (params ``events``).
+        sanity: thresholds of the physical checks (params ``sanity``).
+        source: scene file name for messages.
     Returns:
         name -> path of ``trace``, ``rgb``, ``masks``, ``masks_preview``, ``events``.
     Raises:
-        SceneError: the scene's effects are unknown or out of range.
+        SceneError: the scene's effects are unknown or out of range, or the simulation is
+            unstable (MuJoCo).
+        pipeline.sanity.PhysicsError: a failed physical check (one line naming the check).
     """
+    from pipeline import sanity as checks
     from pipeline.render import FrameRenderer
     from pipeline.simulate import rollout
     from pipeline.viz import mask_overlay, side_by_side_mp4
@@ -158,9 +166,11 @@ def write_simulation(scene: Scene, out_dir: str | Path, width: int = 480, height
 
     options = options or SimOptions()
     model = compile_model(scene, options)
+    checks.check_initial(scene, model, sanity, source)
     data = mujoco.MjData(model)
     trace = rollout(model, len(scene.objects), scene.n_frames, scene.fps, data=data)
-    check_stable(trace, data)
+    check_stable(trace)
+    checks.raise_problems(checks.rollout_problems(model, trace.qpos, trace.qvel, sanity), source)
     with FrameRenderer(model, width, height) as renderer:
         frames = renderer.render(trace.qpos, rgb=True, seg=True, depth=False, flow=False)
     visible = frames.visible_pixels(len(scene.objects))
@@ -172,7 +182,8 @@ def write_simulation(scene: Scene, out_dir: str | Path, width: int = 480, height
     paths = {"trace": out / "trace.parquet", "rgb": out / "rgb.mp4", "masks": out / "masks.npz",
              "masks_preview": out / "masks.mp4", "events": out / "events.json"}
     shards.write_table(paths["trace"], object_frame_table(trace),
-                       metadata={"units": UNITS, "scene": scene.to_yaml(), "sim": options.model_dump()})
+                       metadata={"units": UNITS, "scene": scene.to_yaml(), "sim": options.model_dump(),
+                                 "timestep": float(model.opt.timestep)})
     side_by_side_mp4(paths["rgb"], [frames.rgb], [""], scene.fps)
     buf = io.BytesIO()
     np.savez_compressed(buf, seg=frames.seg, names=np.asarray(scene.object_names))
@@ -198,7 +209,12 @@ def add_simulate_arguments(parser: argparse.ArgumentParser) -> argparse.Argument
     parser.add_argument("--width", type=int, default=480, help="render width, px (default 480)")
     parser.add_argument("--height", type=int, default=320, help="render height, px (default 320)")
     parser.add_argument("--params", type=Path, default=None,
-                        help="params.yaml whose `sim` and `events` sections to use (default: built-in defaults)")
+                        help="params.yaml whose `sim`, `events` and `sanity` sections to use (default: built-in "
+                             "defaults, the same values as the project's params.yaml)")
+    parser.add_argument("--resolve-overlaps", action="store_true",
+                        help="separate objects that start interpenetrating (each other, the floor, static geometry) "
+                             "by moving them apart along the contact normal, and say so on stderr; without it "
+                             "such a scene is refused with the pair and the depth")
     return parser
 
 
@@ -215,6 +231,8 @@ def simulate_cli(args: argparse.Namespace) -> int:
     except ImportError:  # pragma: no cover
         pass
 
+    from pipeline.sanity import PhysicsError, SanityConfig, resolve_overlaps
+
     for name, value in (("width", args.width), ("height", args.height)):
         if not MIN_SIZE <= value <= MAX_SIZE:
             return fail(f"--{name}: must be in {MIN_SIZE}..{MAX_SIZE} px, got {value}")
@@ -222,26 +240,32 @@ def simulate_cli(args: argparse.Namespace) -> int:
         return fail(f"{args.out}: --out: must be a folder (or not exist yet), got an existing file")
     try:
         scene = load_scene(args.scene)
-        options, events = SimOptions(), EventConfig()
+        options, events, sanity = SimOptions(), EventConfig(), SanityConfig()
         if args.params is not None:
             from pydantic import ValidationError
 
             from pipeline.params import load_params
 
             p = load_params(args.params)
-            for section, cls in (("sim", SimOptions), ("events", EventConfig)):
+            for section, cls in (("sim", SimOptions), ("events", EventConfig), ("sanity", SanityConfig)):
                 try:
                     cls(**(p.get(section) or {}))
                 except ValidationError as exc:
                     err = exc.errors()[0]
                     where = ".".join(str(x) for x in (section, *err["loc"]))
-                    what = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
+                    what = "must not be given (unknown key)" if err["type"] == "extra_forbidden" else err["msg"]
                     return fail(f"{args.params}: {where}: {what}")
             options, events = SimOptions(**(p.get("sim") or {})), EventConfig(**(p.get("events") or {}))
+            sanity = SanityConfig(**(p.get("sanity") or {}))
         # the offscreen buffer must hold the image (MuJoCo's default here is 640 px)
         options = options.model_copy(update={"offscreen_size": max(options.offscreen_size, args.width, args.height)})
-        paths = write_simulation(scene, args.out, args.width, args.height, options, events)
-    except SceneError as exc:
+        if args.resolve_overlaps:
+            scene, moves = resolve_overlaps(scene, options, sanity)
+            for move in moves:
+                print(f"warning: {args.scene}: --resolve-overlaps: {move}", file=sys.stderr)
+        paths = write_simulation(scene, args.out, args.width, args.height, options, events, sanity,
+                                 source=str(args.scene))
+    except (SceneError, PhysicsError) as exc:
         msg = str(exc)
         if msg.startswith("<scene>: "):  # raised while building the MJCF (effects)
             msg = f"{args.scene}: {msg.removeprefix('<scene>: ')}"

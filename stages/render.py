@@ -16,7 +16,14 @@ arrays per scene back to one writer process would make that process the bottlene
 A scene whose MJCF does not compile or whose simulation diverges is left out of the shards and
 listed by id in ``meta.json`` of both outputs (``failed``: [{scene_id, error}]), never dropped
 silently; the stage fails only when no scene at all could be rendered.
+
+Every rendered rollout goes through the physical sanity checks (``pipeline.sanity.rollout_problems``
+and MuJoCo's warnings): a scene that fails one is kept and flagged, by scene id and check, in
+``paths.traces``'s ``meta.json`` (``sanity``: scenes checked, flagged, counts per check); the
+stage prints the count.
 """
+
+from collections import Counter
 
 import numpy as np
 from tqdm import tqdm
@@ -24,7 +31,9 @@ from tqdm import tqdm
 from pipeline import shards
 from pipeline.parallel import compute_from_params, parallel_map
 from pipeline.params import load_params, path_of
+from pipeline.mjcf import compile_model
 from pipeline.render import render_mjcf
+from pipeline.sanity import rollout_problems
 from pipeline.simulate import SimulationError
 from pipeline.traces import TRACES_SCHEMA, trace_to_row
 
@@ -32,18 +41,20 @@ UNITS = {"rgb": "uint8 RGB", "seg": "object index, -1 = floor/background", "dept
          "flow": "px, forward (u, v), ground truth"}
 
 
-def render_shard(task: tuple[str, int, str, str, dict]) -> list[dict]:
+def render_shard(task: tuple[str, int, str, str, dict]) -> tuple[list[dict], dict[str, list[str]]]:
     """Render mjcf shard ``(mjcf shard, index i, video dir, traces dir, params)`` and write
     video and traces shard i (without the scenes that failed).
 
     Returns:
-        the failed scenes, ``[{scene_id, error}]`` (error: one line).
+        ``(failed, flags)``: the failed scenes ``[{scene_id, error}]`` (error: one line), and
+        ``{scene_id: [failed sanity checks]}`` for every rendered scene (empty: all pass).
     """
     shard, i, video, traces, p = task
     W, H = int(p["render"]["width"]), int(p["render"]["height"])
     attrs = {"units": UNITS, "params": {"render": p["render"]}, "width": W, "height": H}
     arrays = {k: [] for k in ("rgb", "seg", "depth", "flow")}
     rows, failed = [], []
+    flags: dict[str, list[str]] = {}
     table = shards.read_table(shard).to_pylist()
     for r in table:
         try:
@@ -51,6 +62,8 @@ def render_shard(task: tuple[str, int, str, str, dict]) -> list[dict]:
         except (ValueError, SimulationError) as exc:  # this scene's MJCF or its simulation
             failed.append({"scene_id": r["scene_id"], "error": str(exc).splitlines()[0]})
             continue
+        flags[r["scene_id"]] = [*(["mujoco_warning"] if trace.warnings else []),
+                                *rollout_problems(compile_model(r["mjcf"]), trace.qpos, trace.qvel)]
         arrays["rgb"].append(frames.rgb)
         arrays["seg"].append(frames.seg)
         arrays["depth"].append(frames.depth.astype(np.float16))
@@ -68,7 +81,7 @@ def render_shard(task: tuple[str, int, str, str, dict]) -> list[dict]:
     shards.write_table(out_traces, rows, schema=TRACES_SCHEMA,
                        metadata={"units": "t s; qpos m + quaternion wxyz; qvel m/s, rad/s (world); "
                                           "contacts N; visible px", "params": {"render": p["render"]}})
-    return failed
+    return failed, flags
 
 
 def main() -> None:
@@ -80,18 +93,26 @@ def main() -> None:
     attrs = {"units": UNITS, "params": {"render": p["render"]}, "width": W, "height": H}
     params = {"render": p["render"]}
     tasks = [(str(s), i, str(video), str(traces), params) for i, s in enumerate(mjcf_shards)]
-    failed = []
-    for lost in tqdm(parallel_map(render_shard, tasks, compute_from_params(p)), total=len(tasks),
-                     desc="render shards", unit="shard"):
+    failed: list[dict] = []
+    flags: dict[str, list[str]] = {}
+    for lost, shard_flags in tqdm(parallel_map(render_shard, tasks, compute_from_params(p)), total=len(tasks),
+                                  desc="render shards", unit="shard"):
         failed += lost
+        flags.update(shard_flags)
     if failed:
         print(f"render: {len(failed)} scene(s) failed and are left out (meta.json 'failed'): "
               f"{', '.join(f['scene_id'] for f in failed[:10])}{' ...' if len(failed) > 10 else ''}")
+    flagged = {sid: checks for sid, checks in flags.items() if checks}
+    sanity = {"checked": len(flags), "flagged": len(flagged),
+              "by_check": dict(sorted(Counter(c for checks in flagged.values() for c in checks).items())),
+              "scenes": dict(sorted(flagged.items()))}
+    print(f"render: {len(flags)} scenes, {len(flagged)} flagged by the physical sanity checks {sanity['by_check']}")
     n = len(mjcf_shards)
     shards.write_meta(video, {"shards": {"shard": n}, **attrs, "failed": failed,
                               "features": {"rgb": "(N, T, H, W, 3) uint8", "seg": "(N, T, H, W) int8",
                                            "depth": "(N, T, H, W) float16", "flow": "(N, T-1, H, W, 2) float16"}})
-    shards.write_meta(traces, {"shards": {"shard": n}, "params": {"render": p["render"]}, "failed": failed})
+    shards.write_meta(traces, {"shards": {"shard": n}, "params": {"render": p["render"]}, "failed": failed,
+                               "sanity": sanity})
 
 
 if __name__ == "__main__":

@@ -44,7 +44,8 @@ def test_free_fall_follows_parabola_within_1mm():
 def test_free_fall_default_timestep_is_semi_implicit_euler():
     # MuJoCo's Euler/implicitfast integrators update v then x (semi-implicit Euler):
     # z_n = h - g dt^2 n (n + 1) / 2 = h - g t^2 / 2 - g t dt / 2, exactly. At the default
-    # dt = 2 ms the lag behind the parabola is g t dt / 2 = 3.9 mm at 0.4 s, 9.8 mm at 1 s.
+    # dt = 1/600 s (params sim.timestep) the lag behind the parabola is g t dt / 2 = 3.3 mm at
+    # 0.4 s, 8.2 mm at 1 s.
     h, dt = 2.0, SimOptions().timestep
     scene = make_scene([sphere(0.05, (0, 0, h))], duration=0.42, fps=50)
     _, trace = simulate(scene)

@@ -83,8 +83,8 @@ def test_simulate_command_writes_everything(tmp_path):
 
 
 @pytest.mark.parametrize("edit,message", [
-    (("radius: 0.1", "radius: -1.0"), "objects[0].size.radius: must be > 0"),
-    (("mass: 1.0", "mass: 1.0\n    colour: red"), "objects[1].colour: unknown key"),
+    (("radius: 0.1", "radius: -1.0"), "objects[0].size.radius: must be >= 0.001"),
+    (("mass: 1.0", "mass: 1.0\n    colour: red"), "objects[1].colour: must not be given (unknown key)"),
     (("camera:", "effects: [{effect: no_such_effect}]\ncamera:"), "effects[0].effect: unknown effect"),
 ])
 def test_simulate_command_rejects_bad_scenes_with_one_line(tmp_path, capsys, edit, message):
@@ -108,7 +108,7 @@ def test_simulate_command_rejects_bad_options_with_one_line(tmp_path, capsys, ca
     args, needle = {
         "width0": (["--out", str(out), "--width", "0"], "--width: must be in 2..4096 px, got 0"),
         "out_is_file": (["--out", str(tmp_path / "file")], "--out: must be a folder"),
-        "unknown_sim_key": (["--out", str(out), "--params", str(tmp_path / "p.yaml")], "sim.foo: unknown key"),
+        "unknown_sim_key": (["--out", str(out), "--params", str(tmp_path / "p.yaml")], "sim.foo: must not be given (unknown key)"),
     }[case]
     (tmp_path / "file").write_text("keep me")
     (tmp_path / "p.yaml").write_text("sim: {timestep: 0.002, foo: 1}\n")
