@@ -18,6 +18,12 @@ import numpy as np
 import pytest
 
 from pipeline import discrepancy as D
+from pipeline import effects as fx
+from pipeline.discrepancy.benchmark import _bench_summary, _trial_job
+from pipeline.discrepancy.cli import _main
+from pipeline.discrepancy.clip_model import _clip_scene, _sample_rollout
+from pipeline.discrepancy.profile import _fmt_interval, _profile_candidate
+from pipeline.discrepancy.readers import _typical_acceleration
 from pipeline.mjcf import SimOptions, compile_model
 from pipeline.simulate import rollout
 
@@ -93,7 +99,7 @@ def test_bad_tracker_file_and_objects(tmp_path):
 
 def test_cli_reports_bad_input_in_one_line(tmp_path, capsys):
     path = _table_csv(tmp_path / "bad.csv", _fall(), "clip,object,t,x,y")
-    assert D._main(["run", str(path), "--out", str(tmp_path / "out")]) == 2
+    assert _main(["run", str(path), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip()
     assert err == f"error: {path}: column z: required column missing (have: clip, object, t, x, y)"
 
@@ -154,14 +160,14 @@ def test_plausible_tracks_near_the_limits_pass(tmp_path):
     (tmp_path / "high.txt").write_text("t\ty\tx\n" + "\n".join(f"{k / 30}\t{20.0}\t{0.01 * k}" for k in range(8)))
     (clip,) = D.read_trajectories(tmp_path / "high.txt")
     # measured typical acceleration of the noisy 240 Hz fall: g to 1 m/s^2 (the check's margin is 2 g)
-    np.testing.assert_allclose(D._typical_acceleration(np.array([r[2] for r in noisy]),
+    np.testing.assert_allclose(_typical_acceleration(np.array([r[2] for r in noisy]),
                                                        np.array([r[3:] for r in noisy], float))[2], -9.81, atol=1.0)
 
 
 def test_cli_time_in_ms_is_one_line_not_minutes(tmp_path, capsys):
     """``dynamics discrepancy`` on ms times: exit 2 with one line (it ran for over 5 minutes)."""
     path = _table_csv(tmp_path / "ms.csv", [(r[0], r[1], r[2] * 1000, *r[3:]) for r in _fall(30)])
-    assert D._main(["run", str(path), "--out", str(tmp_path / "out")]) == 2
+    assert _main(["run", str(path), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"error: {path}: column t: ") and "milliseconds" in err[0]
     assert not (tmp_path / "out").exists()
@@ -170,7 +176,7 @@ def test_cli_time_in_ms_is_one_line_not_minutes(tmp_path, capsys):
 def test_cli_unknown_candidate_in_one_line(tmp_path, capsys):
     """Issue 12: `--candidates antigravity` printed only a pydantic URL."""
     path = _table_csv(tmp_path / "ok.csv", _fall(), "clip,object,t,x,y,z")
-    assert D._main(["run", str(path), "--out", str(tmp_path / "out"), "--candidates", "antigravity"]) == 2
+    assert _main(["run", str(path), "--out", str(tmp_path / "out"), "--candidates", "antigravity"]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("error: --candidates: unknown effect 'antigravity', must be one of quadratic_drag"), err
     assert "\n" not in err and "pydantic" not in err
@@ -197,7 +203,7 @@ def test_fast_rollout_equals_the_mujoco_bridge():
         nuis[:, 12] = 1e-6
         model = D.ClipModel(clip, tuple(effects), OPTS, threads=2)
         fast = model.simulate(nuis, effects)
-        scene = D._clip_scene(clip, nuis, effects, model.qref)
+        scene = _clip_scene(clip, nuis, effects, model.qref)
         slow = rollout(compile_model(scene, OPTS), 1, len(clip.times), 50, record_contacts=False)
         np.testing.assert_allclose(fast[..., :3], slow.qpos[..., :3], atol=1e-9)
 
@@ -233,7 +239,7 @@ def hidden_trials():
 
     args = [(seed, effect, FAST_CFG, FAST_HIDDEN, OPTS) for effect, seed in PLAN.items()]
     with mp.get_context("spawn").Pool(2) as pool:
-        results = pool.map(D._trial_job, args)
+        results = pool.map(_trial_job, args)
     return {effect: r for effect, r in zip(PLAN, results)}
 
 
@@ -312,7 +318,7 @@ def _foam_drop(seed: int = 0, noise: float = 0.003, fps: int = 30, density: floa
                                                        "damping": 0.0}}],
                              "effects": [{"effect": "quadratic_drag", "parameters": {"density": density}}]})
     model = compile_model(scene, OPTS)
-    q = D._sample_rollout(model, mujoco.MjData(model), 1, times)[:, 0]
+    q = _sample_rollout(model, mujoco.MjData(model), 1, times)[:, 0]
     keep = q[:, 2] > r + 0.01                                   # free flight: stop before the floor
     t = times[keep]
     pos = q[keep, :3] + np.random.default_rng(seed).normal(0.0, noise, (len(t), 3))
@@ -439,7 +445,7 @@ def test_adding_a_nested_effect_never_worsens_the_fit():
     on no-effect data it ended up to 7.6 mm worse than the base (magnus_lift)."""
     cfg = D.DiscrepancyConfig(threads=1)
     hidden = D.HiddenConfig(n_clips=2, duration=0.4, fps=30, kinds=("throw", "spin_slide"))
-    nested = [e for e in cfg.candidates if D.fx.REGISTRY[e].nested]
+    nested = [e for e in cfg.candidates if fx.REGISTRY[e].nested]
     assert set(nested) == {"quadratic_drag", "floor_tilt", "magnus_lift", "torsional_friction"}
     for seed, effect in NESTED_DATA:
         cols, _ = D.generate_hidden(seed, hidden, OPTS_2MS, effect=effect)
@@ -450,7 +456,7 @@ def test_adding_a_nested_effect_never_worsens_the_fit():
             screen = ws.fit_each(idx, [D.initial_nuisance(c) for c in ws.clips], {})
             assert base.status > 0 and base.converged, base.optimizer()
             for name in nested:
-                joint, _, _ = D._profile_candidate(ws, idx, base, name, screen)
+                joint, _, _ = _profile_candidate(ws, idx, base, name, screen)
                 assert joint.rss <= base.rss * (1 + NESTED_REL) + NESTED_ABS, (seed, effect, name, joint.rss, base.rss)
                 assert joint.status >= 0 and name in joint.effects
 
@@ -482,7 +488,7 @@ def test_profile_interval_open_when_unidentifiable():
     assert lo is None or hi is None, (lo, hi, how)
     assert lo not in (0.0, 50.0) and hi not in (0.0, 50.0)
     assert "open" in how
-    assert "open)" in D._fmt_interval([0.41, None]) and D._fmt_interval([0.41, None]) == "[0.41, open)"
+    assert "open)" in _fmt_interval([0.41, None]) and _fmt_interval([0.41, None]) == "[0.41, open)"
 
 
 # ----------------------------------------------------------------------------- speed (issue 10, item 4)
@@ -517,7 +523,7 @@ def test_clip_pool_gives_the_same_fit_to_the_last_bit():
     """Per-clip fits in two worker processes (spawn) equal the in-process fits bit for bit."""
     cols, _ = D.generate_hidden(2002, D.HiddenConfig(n_clips=2, duration=0.5), OPTS, effect="wind")
     clips = D.clips_from_columns(cols, "hidden")
-    eff = {"wind": {**D.fx.REGISTRY["wind"].defaults(), "wind_x": 1.0, "wind_y": -0.5}}
+    eff = {"wind": {**fx.REGISTRY["wind"].defaults(), "wind_x": 1.0, "wind_y": -0.5}}
     fits = []
     for workers in (1, 2):
         ws = D.Workspace(clips, D.DiscrepancyConfig(threads=1), OPTS)
@@ -537,7 +543,7 @@ def test_benchmark_scores_the_exact_set_and_the_noise_floor():
     trials = [{"correct": ["wind"] == ["wind"], "shrink": 0.9, "excess_shrink": 0.95, "gap_after": 0.0012, "noise": 0.001},
               {"correct": ["wind", "floor_tilt"] == ["wind"], "shrink": 0.8, "excess_shrink": 0.85,
                "gap_after": 0.002, "noise": 0.001}]
-    s = D._bench_summary(trials)
+    s = _bench_summary(trials)
     assert s["naming_accuracy"] == 0.5
     assert s["gap_within_1p5_noise"] == 0.5
     assert s["median_shrink"] == pytest.approx(0.85)

@@ -1,0 +1,185 @@
+"""The hidden-effect benchmark: naming accuracy, false positives and gap shrink over trials
+with a known hidden effect (``dynamics discrepancy-benchmark``)."""
+
+from __future__ import annotations
+
+import json
+import time
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from pipeline import effects as fx
+from pipeline.discrepancy.config import DiscrepancyConfig
+from pipeline.discrepancy.hidden import HiddenConfig, generate_hidden
+from pipeline.discrepancy.readers import clips_from_columns
+from pipeline.discrepancy.workflow import run_workflow
+from pipeline.mjcf import SimOptions
+from pipeline.parallel import ComputeConfig, parallel_map
+
+
+def run_trial(seed: int, effect: str, cfg: DiscrepancyConfig | None = None, hidden: HiddenConfig | None = None,
+              options: SimOptions | None = None) -> dict[str, Any]:
+    """One hidden-effect trial: generate data with ``effect`` (``none`` or a name) at a
+    random strength, run the workflow on the measurements only, compare with the truth.
+
+    Returns:
+        ``{seed, truth, truth_parameters, named, named_parameters, correct, gap_before,
+        gap_after, shrink, runtime_s}``.
+    """
+    t0 = time.perf_counter()
+    cols, truth = generate_hidden(seed, hidden, options, effect=effect)
+    clips = clips_from_columns(cols, f"<hidden seed {seed}>")
+    result = run_workflow(clips, cfg, options)                  # never sees ``truth``
+    named = [n["effect"] for n in result.named]
+    expected = [truth["effect"]] if truth["effect"] else []
+    gap = result.gap
+    return {"seed": seed, "truth": truth["effect"], "truth_parameters": truth["parameters"], "named": named,
+            "named_parameters": {n["effect"]: n["parameters"] for n in result.named},
+            "named_ci": {n["effect"]: n["ci"] for n in result.named},
+            "correct": named == expected, "gap_before": gap["before"], "gap_after": gap["after"],
+            "shrink": gap["shrink"], "noise": gap["noise"], "excess_shrink": gap["excess_shrink"],
+            "runtime_s": time.perf_counter() - t0}
+
+
+def _trial_job(args: tuple) -> dict[str, Any]:
+    seed, effect, cfg, hidden, options = args
+    return run_trial(seed, effect, cfg, hidden, options)
+
+
+def run_benchmark(trials: int, null_trials: int, seed: int = 1000, jobs: int | ComputeConfig = 1,
+                  cfg: DiscrepancyConfig | None = None, hidden: HiddenConfig | None = None,
+                  options: SimOptions | None = None, log=None, single_trials: int = 0,
+                  single_duration: float = 1.5) -> dict[str, Any]:
+    """Naming accuracy over hidden-effect trials and false-positive rate over no-effect trials.
+
+    Effect trials cycle through the library (so each effect gets ``trials / 6`` trials), each
+    with a fresh seed (``seed + i``) and a random strength; no-effect trials use seeds after
+    them.
+
+    Args:
+        trials: number of trials with a hidden effect.
+        null_trials: number of trials without one.
+        seed: first seed.
+        jobs: local worker processes, or a :class:`pipeline.parallel.ComputeConfig` (e.g. Ray).
+        cfg, hidden, options: workflow, data and simulation settings.
+        log: optional ``print``-like callable (one line per finished trial).
+        single_trials: further trials with a hidden effect (cycling the library) on ONE clip
+            of ``single_duration`` s (the shown gap is then the forward gap), seeds after the
+            no-effect trials; scored apart (``summary["single"]``, ``per_effect_single``).
+
+    Naming is scored as the exact set: a trial is correct when the named effects are exactly
+    the hidden one (or none), so an extra effect is a miss. ``gap_within_1p5_noise`` is the
+    fraction of effect trials whose shown gap after naming is at most 1.5x the noise floor
+    (the pooled noise estimate).
+
+    Returns:
+        ``{summary: {...}, per_effect: {...}, per_effect_single: {...}, trials: [...]}``
+        (each trial has ``group``: ``effect``, ``null`` or ``single``).
+    """
+    names = list(fx.REGISTRY)
+    hidden = hidden or HiddenConfig()
+    single = hidden.model_copy(update={"n_clips": 1, "duration": single_duration})
+    plan = [(seed + i, names[i % len(names)], hidden) for i in range(trials)]
+    plan += [(seed + trials + i, "none", hidden) for i in range(null_trials)]
+    plan += [(seed + trials + null_trials + i, names[i % len(names)], single) for i in range(single_trials)]
+    cfg = cfg or DiscrepancyConfig()
+    compute = jobs if isinstance(jobs, ComputeConfig) else ComputeConfig(workers=jobs)
+    if compute.backend == "ray" or compute.n_workers > 1:  # one rollout thread per worker process
+        cfg = cfg.model_copy(update={"threads": 1, "workers": 1})
+    args = [(s, e, cfg, h, options) for s, e, h in plan]
+    t0 = time.perf_counter()
+    results = []
+    for r in parallel_map(_trial_job, args, compute):  # one trial per task: each takes seconds
+        results.append(r)
+        if log:
+            log(f"[{len(results)}/{len(args)}] seed {r['seed']}: truth {r['truth']}, named {r['named']}, "
+                f"gap {r['gap_before'] * 1e3:.2f} -> {r['gap_after'] * 1e3:.2f} mm")
+    results.sort(key=lambda r: r["seed"])
+    first_single = seed + trials + null_trials
+    for r in results:
+        r["group"] = "single" if r["seed"] >= first_single else ("effect" if r["truth"] else "null")
+    eff = [r for r in results if r["group"] == "effect"]
+    null = [r for r in results if r["group"] == "null"]
+    one = [r for r in results if r["group"] == "single"]
+    summary = {**_bench_summary(eff), "effect_trials": len(eff), "null_trials": len(null),
+               "false_positive_rate": sum(bool(r["named"]) for r in null) / len(null) if null else None,
+               "runtime_s": time.perf_counter() - t0, "jobs": jobs if isinstance(jobs, int) else compute.model_dump(),
+               "first_seed": seed,
+               "single": {**_bench_summary(one), "trials": len(one), "duration_s": single_duration}}
+    return {"summary": summary, "per_effect": _per_effect(eff, names), "per_effect_single": _per_effect(one, names),
+            "trials": results, "config": json.loads(cfg.model_dump_json()),
+            "hidden": json.loads(hidden.model_dump_json())}
+
+
+def _bench_summary(rs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Accuracy (exact set), gap-shrink figures and the fraction of trials whose shown gap after
+    naming is within 1.5x the noise floor, over trials ``rs`` (``None`` where empty)."""
+    if not rs:
+        return {"naming_accuracy": None, "shrink_at_least_50pct": None, "median_shrink": None,
+                "excess_shrink_at_least_50pct": None, "median_excess_shrink": None, "gap_within_1p5_noise": None}
+    n = len(rs)
+    return {"naming_accuracy": sum(r["correct"] for r in rs) / n,
+            "shrink_at_least_50pct": sum(r["shrink"] >= 0.5 for r in rs) / n,
+            "median_shrink": float(np.median([r["shrink"] for r in rs])),
+            "excess_shrink_at_least_50pct": sum(r["excess_shrink"] >= 0.5 for r in rs) / n,
+            "median_excess_shrink": float(np.median([r["excess_shrink"] for r in rs])),
+            "gap_within_1p5_noise": sum(r["gap_after"] <= 1.5 * r["noise"] for r in rs) / n}
+
+
+def _per_effect(rs: Sequence[Mapping[str, Any]], names: Sequence[str]) -> dict[str, dict[str, Any]]:
+    per = {}
+    for name in names:
+        sub = [r for r in rs if r["truth"] == name]
+        if sub:
+            per[name] = {"trials": len(sub), "correct": sum(r["correct"] for r in sub),
+                         "accuracy": sum(r["correct"] for r in sub) / len(sub),
+                         "median_shrink": float(np.median([r["shrink"] for r in sub])),
+                         "min_shrink": float(np.min([r["shrink"] for r in sub])),
+                         "gap_within_1p5_noise": sum(r["gap_after"] <= 1.5 * r["noise"] for r in sub) / len(sub)}
+    return per
+
+
+def benchmark_markdown(bench: Mapping[str, Any], command: str = "") -> str:
+    """Markdown summary of :func:`run_benchmark`."""
+    s = bench["summary"]
+    pct = lambda x: "—" if x is None else f"{100 * x:.1f} %"  # noqa: E731
+    lines = ["# Discrepancy workflow: hidden-effect benchmark", "",
+             f"Each trial generates measured trajectories ({bench['hidden']['n_clips']} clips of {bench['hidden']['duration']:g} s, "
+             f"noise {bench['hidden']['noise_position'] * 1e3:g} mm / {bench['hidden']['noise_angle']:g}°) with one effect from the library "
+             "at a random strength (or none), runs the workflow without telling it, and checks what it names.", ""]
+    if command:
+        lines += ["```", command, "```", ""]
+    lines += ["| metric | value |", "|---|---|",
+              f"| naming accuracy ({s['effect_trials']} trials with a hidden effect) | {pct(s['naming_accuracy'])} |",
+              f"| false-positive rate ({s['null_trials']} trials without) | {pct(s['false_positive_rate'])} |",
+              f"| held-out gap shrink >= 50 % (effect trials) | {pct(s['shrink_at_least_50pct'])} |",
+              f"| held-out gap above the noise shrink >= 50 % | {pct(s.get('excess_shrink_at_least_50pct'))} |",
+              f"| median held-out gap shrink | {pct(s['median_shrink'])} |",
+              f"| median shrink of the gap above the noise | {pct(s.get('median_excess_shrink'))} |",
+              f"| held-out gap after naming within 1.5x the noise floor | {pct(s.get('gap_within_1p5_noise'))} |"]
+    one = s.get("single") or {}
+    if one.get("trials"):
+        lines += [f"| single clip ({one['trials']} trials, 1 clip of {one['duration_s']:g} s, forward gap): naming accuracy | "
+                  f"{pct(one['naming_accuracy'])} |",
+                  f"| single clip: median forward-gap shrink / above the noise | {pct(one['median_shrink'])} / "
+                  f"{pct(one['median_excess_shrink'])} |",
+                  f"| single clip: forward gap after naming within 1.5x the noise floor | {pct(one['gap_within_1p5_noise'])} |"]
+    lines += [f"| runtime | {s['runtime_s'] / 60:.1f} min ({s['jobs']} jobs) |", "",
+              "Naming is scored as the exact set of named effects (an extra effect is a miss).", ""]
+    for title, per in (("", bench["per_effect"]), ("single clip ", bench.get("per_effect_single") or {})):
+        if not per:
+            continue
+        lines += [f"| {title}effect | trials | correct | accuracy | median shrink | min shrink | gap ≤ 1.5x noise |",
+                  "|---|---|---|---|---|---|---|"]
+        for name, p in per.items():
+            lines.append(f"| {name} | {p['trials']} | {p['correct']} | {pct(p['accuracy'])} | {pct(p['median_shrink'])} | "
+                         f"{pct(p['min_shrink'])} | {pct(p.get('gap_within_1p5_noise'))} |")
+        lines.append("")
+    wrong = [r for r in bench["trials"] if not r["correct"]]
+    if wrong:
+        lines += ["", "Misnamed trials:", "", "| seed | group | truth | named | gap before → after (mm) |", "|---|---|---|---|---|"]
+        for r in wrong:
+            lines.append(f"| {r['seed']} | {r.get('group', '')} | {r['truth'] or 'none'} | {', '.join(r['named']) or 'none'} | "
+                         f"{r['gap_before'] * 1e3:.2f} → {r['gap_after'] * 1e3:.2f} |")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,196 @@
+"""Command line of the workflow: ``dynamics discrepancy`` and ``dynamics discrepancy-benchmark``
+(also ``python -m pipeline.discrepancy run|benchmark``), and the typed configs of params.yaml."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+from pydantic import ValidationError
+
+from pipeline import effects as fx
+from pipeline import infer_tracks
+from pipeline.discrepancy.benchmark import benchmark_markdown, run_benchmark
+from pipeline.discrepancy.config import DiscrepancyConfig
+from pipeline.discrepancy.hidden import HiddenConfig
+from pipeline.discrepancy.readers import clips_from_infer_dir, read_trajectories
+from pipeline.discrepancy.report import write_report
+from pipeline.discrepancy.trajectories import DiscrepancyInputError
+from pipeline.discrepancy.workflow import run_workflow
+from pipeline.mjcf import SimOptions
+from pipeline.params import load_params
+from pipeline.parallel import ComputeConfig
+from pipeline.shards import write_json, write_text
+
+
+def load_config(params: Mapping[str, Any] | None) -> tuple[DiscrepancyConfig, HiddenConfig, SimOptions]:
+    """Typed configs from a params dict (sections ``discrepancy``, ``measure_hidden``,
+    ``sim``; missing sections take the defaults).
+
+    Raises:
+        DiscrepancyInputError: a section fails validation (one line naming the key).
+    """
+    params = params or {}
+    out = []
+    for key, cls in (("discrepancy", DiscrepancyConfig), ("measure_hidden", HiddenConfig), ("sim", SimOptions)):
+        try:
+            out.append(cls(**(params.get(key) or {})))
+        except (ValidationError, ValueError) as exc:
+            msg = str(exc).splitlines()
+            if isinstance(exc, ValidationError):
+                err = exc.errors()[0]
+                msg = [f"{'.'.join(map(str, err['loc']))}: {err['msg']}"]
+            raise DiscrepancyInputError(f"params.yaml: {key}: {msg[0]}") from None
+    return out[0], out[1], out[2]
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Arguments of ``dynamics discrepancy``."""
+    parser.add_argument("trajectories", nargs="+", metavar="TRAJECTORIES",
+                        help="trajectory files (CSV/Parquet with clip, object, t, x, y, z [m, s, z up]; or 2-D Tracker "
+                             "exports with t and x, y [y up]) or directories of them; or ONE output folder of "
+                             "`dynamics infer` (scene.yaml + tracks.csv): where does its re-simulation leave the video")
+    parser.add_argument("--out", required=True, help="output directory (report, plots, extended scenes, .rrd)")
+    parser.add_argument("--objects", default=None,
+                        help="object sizes/masses: YAML/JSON file or inline YAML "
+                             "'{CLIP: {OBJECT: {shape: sphere, radius: 0.02, mass: 0.0027}}}' ('*' = any)")
+    parser.add_argument("--candidates", default=None,
+                        help=f"comma-separated effects to try (default: all: {','.join(fx.REGISTRY)})")
+    parser.add_argument("--max-effects", type=int, default=None, help="most effects named (greedy forward selection)")
+    parser.add_argument("--bic-threshold", type=float, default=None, help="BIC drop needed to name an effect")
+    parser.add_argument("--heldout-threshold", type=float, default=None, help="held-out chi-square drop needed")
+    parser.add_argument("--params", default=None,
+                        help="params.yaml to read sections discrepancy and sim from (default: ./params.yaml if present)")
+    parser.add_argument("--no-recording", action="store_true", help="skip the rerun recording")
+    parser.add_argument("--quiet", action="store_true", help="no progress lines")
+
+
+def _config_from_args(args: argparse.Namespace) -> tuple[DiscrepancyConfig, HiddenConfig, SimOptions]:
+    path = getattr(args, "params", None)
+    params = {}
+    if path or Path("params.yaml").exists():
+        params = load_params(path or "params.yaml")
+    cfg, hidden, sim = load_config(params)
+    update: dict[str, Any] = {}
+    if getattr(args, "candidates", None):
+        update["candidates"] = tuple(c.strip() for c in args.candidates.split(",") if c.strip())
+    for key in ("max_effects", "bic_threshold", "heldout_threshold"):
+        if getattr(args, key, None) is not None:
+            update[key] = getattr(args, key)
+    if getattr(args, "no_recording", False):
+        update["recording"] = False
+    if update:
+        try:
+            cfg = DiscrepancyConfig(**{**cfg.model_dump(), **update})
+        except ValidationError as exc:
+            err = exc.errors()[0]
+            field = str(err["loc"][0]) if err.get("loc") else "candidates"
+            msg = str(err.get("msg", "invalid")).removeprefix("Value error, ").removeprefix(f"{field}: ")
+            raise DiscrepancyInputError(f"--{field.replace('_', '-')}: {msg}") from None
+        except ValueError as exc:
+            raise DiscrepancyInputError(f"--candidates: {str(exc).splitlines()[0].strip()}") from None
+    return cfg, hidden, sim
+
+
+def main_cli(args: argparse.Namespace) -> int:
+    """``dynamics discrepancy TRAJECTORIES... --out DIR``: run the workflow and write the report.
+
+    Raises:
+        DiscrepancyInputError: bad trajectories, objects or options (the CLI prints it, exit 2).
+    """
+    cfg, _, sim = _config_from_args(args)
+    say = None if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
+    video, gravity = None, 9.81
+    if any(infer_tracks.is_infer_dir(t) for t in args.trajectories):
+        if len(args.trajectories) != 1:
+            raise DiscrepancyInputError(f"{args.trajectories[0]}: a `dynamics infer` folder must be the only input")
+        clips, video, gravity = clips_from_infer_dir(args.trajectories[0], cfg.default_object)
+        g = video["resimulation_gap"]
+        print(f"video reconstruction {args.trajectories[0]}: the re-simulated scene leaves "
+              f"{g['rmse_m'] * 1e3:.2f} mm ({g['rmse_px']:.1f} px) RMSE on the observed tracks "
+              f"(axes {video['camera_axes']})")
+    else:
+        clips = read_trajectories(args.trajectories, args.objects, cfg.default_object)
+    result = run_workflow(clips, cfg, sim, gravity=gravity, log=say)
+    rep = write_report(result, args.out, video=video)
+    named = ", ".join(f"{n['effect']} ({', '.join(f'{k}={v:.4g}' for k, v in n['parameters'].items())})"
+                      for n in rep["named"]) or "none"
+    print(f"named: {named}")
+    g = rep["gap"]
+    print(f"{g.get('label', 'held-out gap')}: {g['before'] * 1e3:.2f} mm -> {g['after'] * 1e3:.2f} mm "
+          f"(noise floor {rep['noise_floor'] * 1e3:.2f} mm; above the noise {g['excess_before'] * 1e3:.2f} -> "
+          f"{g['excess_after'] * 1e3:.2f} mm, shrink {100 * g['excess_shrink']:.0f} %; {g.get('why', '')})")
+    ins = rep["in_sample"]
+    print(f"in-sample RMSE: {ins['before'] * 1e3:.2f} mm (k={ins['k_before']}) -> {ins['after'] * 1e3:.2f} mm "
+          f"(k={ins['k_after']})")
+    print(f"report: {Path(args.out) / 'discrepancy.md'}")
+    return 0
+
+
+def add_benchmark_arguments(parser: argparse.ArgumentParser) -> None:
+    """Arguments of ``dynamics discrepancy-benchmark`` (:func:`benchmark_cli`)."""
+    parser.add_argument("--trials", type=int, default=60, help="trials with a hidden effect (cycling the library)")
+    parser.add_argument("--null-trials", type=int, default=12, help="trials without an effect")
+    parser.add_argument("--single-trials", type=int, default=12,
+                        help="trials with a hidden effect on ONE clip (forward gap), scored apart")
+    parser.add_argument("--single-duration", type=float, default=1.5, help="s, length of the single clip")
+    parser.add_argument("--seed", type=int, default=1000, help="first seed")
+    parser.add_argument("--jobs", type=int, default=1, help="worker processes (Ray: tasks in flight)")
+    parser.add_argument("--backend", choices=("local", "ray"), default="local", help="pipeline.parallel backend")
+    parser.add_argument("--address", default=None, help="Ray address (auto, ray://host:port); default: local Ray")
+    parser.add_argument("--out", default="reports/discrepancy_benchmark.json",
+                        help="JSON output (.md written beside it)")
+    parser.add_argument("--params", default=None, help="params.yaml (sections discrepancy, measure_hidden, sim)")
+
+
+def benchmark_cli(args: argparse.Namespace) -> int:
+    """``dynamics discrepancy-benchmark [--trials N ...]``: run :func:`run_benchmark` and write
+    its JSON (``--out``) and Markdown summary (beside it, ``.md``); the JSON records the
+    command (``command``).
+
+    Raises:
+        DiscrepancyInputError: bad params or options (the CLI prints it, exit 2).
+    """
+    cfg, hidden, sim = _config_from_args(args)
+    jobs = args.jobs if args.backend == "local" else ComputeConfig(backend="ray", address=args.address,
+                                                                        workers=args.jobs)
+    bench = run_benchmark(args.trials, args.null_trials, args.seed, jobs, cfg, hidden, sim,
+                          log=lambda m: print(m, flush=True), single_trials=args.single_trials,
+                          single_duration=args.single_duration)
+    out = Path(args.out)
+    command = "dynamics discrepancy-benchmark " + " ".join(
+        f"--{k.replace('_', '-')} {v}" for k, v in (("trials", args.trials), ("null_trials", args.null_trials),
+                                                   ("single_trials", args.single_trials),
+                                                   ("single_duration", args.single_duration),
+                                                   ("seed", args.seed), ("jobs", args.jobs), ("out", args.out)))
+    bench["command"] = command
+    write_json(out, bench)
+    write_text(out.with_suffix(".md"), benchmark_markdown(bench, command))
+    s = bench["summary"]
+    print(f"naming accuracy {s['naming_accuracy']:.3f} over {s['effect_trials']} trials; false-positive rate "
+          f"{s['false_positive_rate']:.3f} over {s['null_trials']}; wrote {out}")
+    return 0
+
+
+def _main(argv: Sequence[str] | None = None) -> int:
+    """``python -m pipeline.discrepancy {run,benchmark} ...``: the same functions as ``dynamics
+    discrepancy`` (:func:`main_cli`) and ``dynamics discrepancy-benchmark`` (:func:`benchmark_cli`);
+    a :class:`DiscrepancyInputError` prints one line and returns 2."""
+    parser = argparse.ArgumentParser(prog="python -m pipeline.discrepancy",
+                                     description="Discrepancy workflow (DESIGN.md §8): find -> name -> add -> show.")
+    sub = parser.add_subparsers(dest="command", required=True)
+    run = sub.add_parser("run", help="the workflow on trajectories (same as `dynamics discrepancy`)")
+    add_arguments(run)
+    run.set_defaults(func=main_cli)
+    bench = sub.add_parser("benchmark", help="naming accuracy on hidden-effect data "
+                                             "(same as `dynamics discrepancy-benchmark`)")
+    add_benchmark_arguments(bench)
+    bench.set_defaults(func=benchmark_cli)
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except DiscrepancyInputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2

@@ -1,0 +1,245 @@
+"""A clip's base model in MuJoCo: the per-object parameters (:data:`NUISANCE`), the scene built
+from them, the compiled-once model rolled out in place (:class:`ClipModel`) and the
+noise-normalised residuals against the measurements (:func:`clip_residuals`)."""
+
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass
+from types import SimpleNamespace
+from typing import Any, Mapping, Sequence
+
+import mujoco
+import numpy as np
+from mujoco import rollout as mj_rollout
+
+from pipeline import effects as fx
+from pipeline.discrepancy.trajectories import Clip
+from pipeline.mjcf import SimOptions, initial_state
+from pipeline.discrepancy.quaternions import quat_conj, quat_mul, quat_to_mat, quat_to_rotvec, rotvec_to_quat
+from pipeline.scene import Scene
+from pipeline.simulate import reset_to_scene
+
+
+NUISANCE = ("px", "py", "pz", "vx", "vy", "vz", "rx", "ry", "rz", "wx", "wy", "wz",
+            "damping", "friction")
+"""Per-object base-model parameters fitted per clip: initial position (m), orientation
+perturbation (rotation vector, rad, body frame, relative to the reference orientation),
+linear velocity (m/s, world), angular velocity (rad/s, world), ``material.damping``
+(freejoint damping, N s/m) and ``material.sliding_friction``."""
+_P, _V, _R, _W, _D, _F = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), 12, 13
+
+
+def _sample_rollout(model: mujoco.MjModel, data: mujoco.MjData, n: int, times: np.ndarray) -> np.ndarray:
+    """Simulate from the model's ``init`` keyframe and sample ``qpos (T, n, 7)`` at ``times``
+    (s, from 0), interpolating linearly between the two physics steps around each time
+    (quaternions: normalised lerp). Same stepping as ``pipeline.simulate.rollout``."""
+    reset_to_scene(model, data)
+    dt = float(model.opt.timestep)
+    out = np.empty((len(times), n, 7))
+    prev = data.qpos[: 7 * n].copy()
+    cur = prev
+    step = 0
+    qpos = data.qpos
+    for k, t in enumerate(times):
+        s = t / dt
+        target = int(math.ceil(s - 1e-9))
+        if step < target:
+            while step < target - 1:
+                mujoco.mj_step(model, data)
+                step += 1
+            prev = qpos[: 7 * n].copy()
+            mujoco.mj_step(model, data)
+            step += 1
+            cur = qpos[: 7 * n].copy()
+        frac = 1.0 - (step - s) if step > 0 else 1.0
+        frac = min(max(frac, 0.0), 1.0)
+        q = (prev + frac * (cur - prev)).reshape(n, 7) if frac < 1.0 else cur.reshape(n, 7)
+        qa, qb = prev.reshape(n, 7)[:, 3:], cur.reshape(n, 7)[:, 3:]
+        if frac < 1.0:
+            sign = np.where(np.sum(qa * qb, 1, keepdims=True) < 0, -1.0, 1.0)
+            qq = (1 - frac) * qa + frac * sign * qb
+            q = q.copy()
+            q[:, 3:] = qq / np.linalg.norm(qq, axis=1, keepdims=True)
+        out[k] = q
+    return out
+
+
+def _clip_scene(clip: Clip, nuis: np.ndarray | None = None, effects: Mapping[str, Mapping[str, float]] | None = None,
+                qref: np.ndarray | None = None) -> Scene:
+    """Scene of a clip: its objects with the initial state and material of ``nuis (n, 14)``
+    (placeholders if ``None``) and the given effects."""
+    objs = []
+    for i, tr in enumerate(clip.tracks):
+        if nuis is None:
+            pos = [0.0, 0.0, 1.0 + 0.5 * i]
+            q, v, w, damping, friction = (1.0, 0.0, 0.0, 0.0), [0.0] * 3, [0.0] * 3, 0.0, 0.5
+        else:
+            x = nuis[i]
+            pos = x[_P].tolist()
+            q = tuple(quat_mul(qref[i], rotvec_to_quat(x[_R])).tolist())
+            v, w = x[_V].tolist(), x[_W].tolist()
+            damping, friction = float(x[_D]), float(x[_F])
+        objs.append({**tr.spec.scene_dict(), "position": pos, "orientation": q,
+                     "linear_velocity": v, "angular_velocity": w,
+                     "material": {"sliding_friction": friction, "rolling_friction": 0.0, "damping": damping}})
+    duration = float(min(max(clip.times[-1], 1e-3), 60.0))
+    data = {"duration": duration, "fps": min(clip.fps, 10000), "gravity": 9.81,
+            "camera": {"height": 1.2, "pitch": 35.0, "fov": 45.0}, "objects": objs,
+            "effects": [{"effect": k, "parameters": dict(v)} for k, v in (effects or {}).items()]}
+    return Scene.from_dict(data, source=f"clip {clip.name}")
+
+
+_ROLLOUTS: dict[int, Any] = {}
+
+
+def _rollout_runner(nthread: int):
+    """A persistent ``mujoco.rollout.Rollout`` with ``nthread`` threads (0: calling thread)."""
+    if nthread not in _ROLLOUTS:
+        _ROLLOUTS[nthread] = mj_rollout.Rollout(nthread=nthread)
+    return _ROLLOUTS[nthread]
+
+
+class ClipModel:
+    """A clip's scene compiled once for a set of effects; every evaluation edits copies of the
+    model in place (effect values via :func:`pipeline.effects.configure_model`, per-object
+    damping and friction) and rolls them out from the initial state with
+    ``mujoco.rollout`` (many variants per call, e.g. a finite-difference Jacobian, on
+    ``threads`` threads). Positions are interpolated linearly between the two physics steps
+    around each sample time (quaternions: normalised lerp).
+
+    Args:
+        clip: the clip.
+        effects: names of the effects present (values are set per call).
+        options: simulation options (params ``sim``).
+        gravity: m/s^2.
+        threads: rollout threads (1: the calling thread).
+    """
+
+    def __init__(self, clip: Clip, effects: Sequence[str], options: SimOptions, gravity: float = 9.81,
+                 threads: int = 1):
+        self.clip = clip
+        self.effects = tuple(effects)
+        scene = _clip_scene(clip).replace(gravity=gravity)
+        self.model, self.base, self.geoms = fx.compile_for_fit(scene, self.effects, options)
+        self.threads = max(1, int(threads))
+        self.datas = [mujoco.MjData(self.model) for _ in range(self.threads)]
+        self.pool: list[mujoco.MjModel] = [self.model]
+        self.n = len(clip.tracks)
+        self.times = clip.times
+        self.qref = np.array([tr.quat[0] if tr.quat is not None else np.array([1.0, 0, 0, 0])
+                              for tr in clip.tracks])
+        dt = float(self.model.opt.timestep)
+        s = self.times / dt
+        self._k = np.ceil(s - 1e-9).astype(int)                 # steps to the sample (or just past)
+        self._frac = np.clip(1.0 - (self._k - s), 0.0, 1.0)
+        self._frac[self._k == 0] = 1.0
+        self.nstep = int(self._k.max())
+        self._spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+        self._nstate = mujoco.mj_stateSize(self.model, self._spec)
+
+    def _configure(self, m: mujoco.MjModel, nuis: np.ndarray, effect_values: Mapping[str, Mapping[str, float]]) -> None:
+        fx.configure_model(m, self.base, self.geoms, effect_values)
+        m.geom_friction[self.geoms, 0] = nuis[:, _F]
+        m.dof_damping[: 6 * self.n] = np.repeat(nuis[:, _D], 6)
+
+    def initial(self, nuis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """MuJoCo ``qpos (7n,)``, ``qvel (6n,)`` of per-object parameters ``nuis (n, 14)``
+        (angular velocity converted to the body frame by ``pipeline.mjcf.initial_state``)."""
+        objs = [SimpleNamespace(position=x[_P], orientation=quat_mul(self.qref[i], rotvec_to_quat(x[_R])),
+                                linear_velocity=x[_V], angular_velocity=x[_W]) for i, x in enumerate(nuis)]
+        return initial_state(SimpleNamespace(objects=objs))
+
+    def run(self, nuis_list: Sequence[np.ndarray], effects_list: Sequence[Mapping[str, Mapping[str, float]]]
+            ) -> tuple[np.ndarray, np.ndarray]:
+        """Roll out variants: per variant ``(n, 14)`` parameters and effect values.
+
+        Returns:
+            ``(qpos (B, nstep+1, nq), qvel (B, nstep+1, nv))`` after 0..nstep physics steps.
+        """
+        B = len(nuis_list)
+        while len(self.pool) < B:
+            self.pool.append(copy.copy(self.model))
+        models, init = [], np.zeros((B, self._nstate))
+        d = self.datas[0]
+        for b, (nuis, eff) in enumerate(zip(nuis_list, effects_list)):
+            m = self.pool[b]
+            self._configure(m, nuis, eff)
+            models.append(m)
+            qpos, qvel = self.initial(nuis)
+            mujoco.mj_resetData(m, d)
+            d.qpos[: 7 * self.n], d.qvel[: 6 * self.n] = qpos, qvel
+            mujoco.mj_getState(m, d, init[b], self._spec)
+        runner = _rollout_runner(self.threads if self.threads > 1 else 0)
+        state, _ = runner.rollout(models, self.datas, init, nstep=max(self.nstep, 1))
+        nq, nv = self.model.nq, self.model.nv
+        full = np.concatenate([init[:, None], state], 1)
+        return full[..., 1:1 + nq], full[..., 1 + nq:1 + nq + nv]
+
+    def sample(self, qpos: np.ndarray) -> np.ndarray:
+        """``(B, nstep+1, nq)`` per-step qpos -> ``(B, T, n, 7)`` at the sample times."""
+        B = qpos.shape[0]
+        cur = qpos[:, self._k].reshape(B, len(self.times), -1, 7)[:, :, : self.n]
+        prev = qpos[:, np.maximum(self._k - 1, 0)].reshape(B, len(self.times), -1, 7)[:, :, : self.n]
+        f = self._frac[None, :, None, None]
+        out = prev + f * (cur - prev)
+        qa, qb = prev[..., 3:], cur[..., 3:]
+        sign = np.where(np.sum(qa * qb, -1, keepdims=True) < 0, -1.0, 1.0)
+        qq = (1 - f) * qa + f * sign * qb
+        out[..., 3:] = qq / np.linalg.norm(qq, axis=-1, keepdims=True)
+        return out
+
+    def simulate_many(self, nuis_list: Sequence[np.ndarray],
+                      effects_list: Sequence[Mapping[str, Mapping[str, float]]]) -> np.ndarray:
+        """``qpos (B, T, n, 7)`` at the clip's sample times for B variants."""
+        return self.sample(self.run(nuis_list, effects_list)[0])
+
+    def simulate(self, nuis: np.ndarray, effect_values: Mapping[str, Mapping[str, float]]) -> np.ndarray:
+        """``qpos (T, n, 7)`` at the clip's sample times for per-object parameters
+        ``nuis (n, 14)`` (:data:`NUISANCE`) and effect values ``{name: parameters}``."""
+        return self.simulate_many([nuis], [effect_values])[0]
+
+    def trace(self, nuis: np.ndarray, effect_values: Mapping[str, Mapping[str, float]]
+              ) -> tuple[np.ndarray, np.ndarray]:
+        """World-frame angular velocity ``(T, n, 3)`` (rad/s, at the physics step nearest each
+        sample) and ``qpos (T, n, 7)`` at the sample times."""
+        qpos, qvel = self.run([nuis], [effect_values])
+        steps = np.rint(self.times / float(self.model.opt.timestep)).astype(int)
+        q = qpos[0, steps, : 7 * self.n].reshape(len(steps), self.n, 7)[..., 3:]
+        w_body = qvel[0, steps, : 6 * self.n].reshape(len(steps), self.n, 6)[..., 3:]
+        omega = np.einsum("tnij,tnj->tni", quat_to_mat(q), w_body)
+        return omega, self.sample(qpos)[0]
+
+
+@dataclass
+class Weights:
+    """Noise model of a clip: residuals are divided by these (m, rad)."""
+
+    position: float
+    angle: float | None
+
+
+def clip_residuals(clip: Clip, qpos: np.ndarray, weights: Weights) -> tuple[np.ndarray, np.ndarray]:
+    """Noise-normalised residuals of a clip and its raw position residuals.
+
+    Args:
+        clip: measured clip.
+        qpos: ``(T, n, 7)`` simulated at ``clip.times``.
+        weights: noise standard deviations.
+
+    Returns:
+        ``(r, d)``: ``r`` flat vector (observed position coordinates / sigma_p, then
+        orientation rotation-vector error / sigma_angle where measured); ``d`` flat raw
+        position residuals (m) of the observed coordinates.
+    """
+    parts, raw = [], []
+    for i, tr in enumerate(clip.tracks):
+        idx = np.searchsorted(clip.times, tr.t)
+        diff = (qpos[idx, i, :3] - tr.pos)[:, tr.axes]
+        raw.append(diff.ravel())
+        parts.append(diff.ravel() / weights.position)
+        if tr.quat is not None and weights.angle:
+            err = quat_to_rotvec(quat_mul(quat_conj(qpos[idx, i, 3:]), tr.quat))
+            parts.append(err.ravel() / weights.angle)
+    return np.concatenate(parts), np.concatenate(raw)

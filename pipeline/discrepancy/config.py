@@ -1,0 +1,113 @@
+"""Settings of the discrepancy workflow (params section ``discrepancy``) and the decimals of
+the scenes it writes."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from pipeline import effects as fx
+from pipeline.scene import Decimals
+
+
+DISCREPANCY_DECIMALS = Decimals(position=4, orientation=4, velocity=3, damping=6, friction=3, mass=6, size=5,
+                                effect=4, duration=3)
+"""Decimals of the written extended scenes (finer than the model target: they are fits)."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class DefaultObject(_Strict):
+    """Object assumed when the input gives no size/mass (flagged in the report)."""
+
+    radius: float = Field(0.02, gt=0, description="m, sphere/cylinder radius")
+    width: float = Field(0.1, gt=0, description="m, box")
+    depth: float = Field(0.1, gt=0, description="m, box")
+    height: float = Field(0.05, gt=0, description="m, box/cylinder")
+    mass: float = Field(0.05, gt=0, description="kg")
+
+
+class DiscrepancyConfig(_Strict):
+    """Workflow settings (params section ``discrepancy``).
+
+    Attributes:
+        candidates: effect names tried (default: the whole library).
+        max_effects: most effects named by greedy forward selection.
+        noise_floor_chi2: after naming an effect, stop when every clip's chi2 per residual
+            is at most this (the model fits every clip to the noise floor).
+        bic_threshold: an effect must lower BIC by at least this much (10 = "very strong"
+            evidence, Kass & Raftery 1995).
+        heldout_threshold: ... and lower the held-out chi-square (noise-normalised squared
+            residuals of clips not used to fit its coefficients) by at least this much.
+        segment_p: residuals are flagged where a window's chi-square tail probability under
+            the noise model is below this.
+        segment_window: samples per window (:func:`residual_segments`).
+        min_segment_samples: shortest flagged segment, samples.
+        contact_tolerance: m; an object is on the floor when its lowest point is closer.
+        rest_speed: m/s; below it an object on the floor is at rest.
+        max_nfev: function evaluations per least-squares fit of the base model.
+        max_nfev_warm: ... per warm-started fit (profile refits, held-out refits). These two
+            caps are for the cheap screening fits (profile points, continuation horizons).
+        ftol: relative cost tolerance of the *converged* fits (scipy ``ftol``; ``xtol`` and
+            ``gtol`` are set 100x smaller): the base model's last horizon, every candidate's
+            joint fit, the final fit and the profile-likelihood points stop on it.
+        max_nfev_converged: safety cap (function evaluations) of a converged fit; a fit that
+            reaches it reports ``status`` 0 in the report (``optimizer``).
+        screen_ftol: relative cost tolerance of the screening fits.
+        threads: MuJoCo rollout threads (the joint fits, in the main process).
+        workers: processes that fit the clips one by one in parallel (per-clip fits: the base
+            fit, every profile point); ``None``: every available core. 1: no pool.
+        screen_gain: a candidate gets its full fits only when the linearised screen
+            (:func:`screen_candidates`) predicts a chi-square gain of at least this much, or,
+            failing that, the clips refitted from the data at one strength of it
+            (:func:`_second_chance_point`) gain that much (0: every candidate is fitted).
+        rescreen_all: after the first step, try every remaining candidate again (default:
+            only those whose profile improved the base model by ``heldout_threshold``).
+        horizons: fractions of each clip fitted in turn by the base fit (continuation).
+        forward_split: with a single clip (nothing to hold out) the shown gap is a forecast:
+            base and base + named effects are fitted on the clip's first ``forward_split``
+            of its duration and scored on the samples after it (:func:`forward_gap`).
+        hold_damping: hold every object's ``material.damping`` at 0 instead of fitting it
+            (the variant of :func:`forward_gap` in which an effect with
+            ``Effect.replaces_damping`` stands in for the linear damping).
+        diff_step: finite-difference step, in units of each parameter's scale.
+        ci_level: confidence level of the coefficient intervals.
+        default_object: size and mass assumed when the input has none.
+        recording: write the rerun recording.
+    """
+
+    candidates: tuple[str, ...] = tuple(fx.REGISTRY)
+    max_effects: int = Field(3, ge=0)
+    noise_floor_chi2: float = Field(1.3, gt=0)
+    bic_threshold: float = Field(10.0, ge=0)
+    heldout_threshold: float = Field(10.0, ge=0)
+    segment_p: float = Field(1e-3, gt=0, lt=1)
+    min_segment_samples: int = Field(2, ge=1)
+    segment_window: int = Field(5, ge=1)
+    contact_tolerance: float = Field(0.005, gt=0)
+    rest_speed: float = Field(0.05, gt=0)
+    max_nfev: int = Field(15, ge=2)
+    max_nfev_warm: int = Field(10, ge=2)
+    ftol: float = Field(1e-6, gt=0, lt=1)
+    max_nfev_converged: int = Field(100, ge=2)
+    screen_ftol: float = Field(1e-4, gt=0, lt=1)
+    threads: int = Field(2, ge=1)
+    workers: int | None = Field(None, ge=1)
+    rescreen_all: bool = False
+    screen_gain: float = Field(10.0, ge=0)
+    horizons: tuple[float, ...] = (0.5, 1.0)
+    forward_split: float = Field(0.6, gt=0, lt=1)
+    hold_damping: bool = False
+    diff_step: float = Field(1e-2, gt=0)
+    ci_level: float = Field(0.95, gt=0, lt=1)
+    default_object: DefaultObject = DefaultObject()
+    recording: bool = True
+
+    def model_post_init(self, _ctx: Any) -> None:
+        for name in self.candidates:
+            if name not in fx.REGISTRY:
+                raise ValueError(f"candidates: unknown effect {name!r}, must be one of "
+                                 f"{', '.join(fx.REGISTRY)}")

@@ -1,0 +1,384 @@
+"""Name: a candidate effect's profile over its strength (every clip refitted from the data at
+each point), its joint fit, its leave-one-clip-out scores, and the profile-likelihood
+confidence intervals of the named effects' coefficients."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+from scipy.stats import chi2 as chi2_dist
+
+from pipeline import effects as fx
+from pipeline.discrepancy.fit import Fit, _theta_keys, initial_nuisance
+from pipeline.discrepancy.screen import _scan_effect
+from pipeline.discrepancy.workspace import HeldOut, Workspace
+
+
+@dataclass
+class Profile:
+    """An effect's profile: at each point along one coordinate ``s`` (its strength, along a
+    fixed direction for multi-parameter effects) every clip's own parameters are fitted with
+    the effect held (per-clip continuation from the data), so ``chi2[p, c]`` is clip ``c``'s
+    best chi-square at point ``p``."""
+
+    s: list[float]
+    params: list[dict[str, float]]
+    chi2: list[list[float]]
+    sq: list[list[float]]
+    nuis: list[list[np.ndarray]]
+
+    def add(self, s: float, params: dict[str, float], fits: Fit) -> None:
+        self.s.append(float(s))
+        self.params.append(params)
+        self.chi2.append(list(fits.chi2))
+        self.sq.append(list(fits.sq_pos))
+        self.nuis.append(list(fits.nuisance))
+
+    def total(self, without: int | None = None) -> np.ndarray:
+        """``(P,)`` summed chi-square over clips (leaving clip ``without`` out)."""
+        chi = np.array(self.chi2)
+        if without is not None:
+            chi = np.delete(chi, without, axis=1)
+        return chi.sum(axis=1)
+
+
+CHI2_1_95 = 3.841
+"""95 % quantile of chi-square with one degree of freedom (profile-likelihood interval)."""
+
+
+def _fit_rows(prof: "Profile", p: int) -> Fit:
+    """Profile row ``p`` as a :class:`Fit` (per-clip values only)."""
+    n = len(prof.chi2[p])
+    return Fit({}, list(prof.nuis[p]), list(prof.chi2[p]), list(prof.sq[p]), [0] * n, [0] * n, 0)
+
+
+def _parabola_min(s: Sequence[float], y: np.ndarray) -> float:
+    """Coordinate of the minimum of ``y(s)``: the vertex of the parabola through the best
+    point and its neighbours (sorted by ``s``), or the best point at an edge."""
+    order = np.argsort(s)
+    ss, yy = np.asarray(s)[order], np.asarray(y)[order]
+    b = int(np.argmin(yy))
+    if b == 0 or b == len(ss) - 1:
+        return float(ss[b])
+    x0, x1, x2 = ss[b - 1:b + 2]
+    y0, y1, y2 = yy[b - 1:b + 2]
+    den = (x0 - x1) * (x0 - x2) * (x1 - x2)
+    A = (x2 * (y1 - y0) + x1 * (y0 - y2) + x0 * (y2 - y1)) / den
+    B = (x2 * x2 * (y0 - y1) + x1 * x1 * (y2 - y0) + x0 * x0 * (y1 - y2)) / den
+    if A <= 0:
+        return float(x1)
+    return float(np.clip(-B / (2 * A), x0, x2))
+
+
+def _vanishes(ws: "Workspace", c: int, current: Fit, name: str, params: Mapping[str, float]) -> bool:
+    """Whether adding effect ``name`` with ``params`` leaves the current model unchanged
+    (same rollout of clip ``c``), e.g. no drag density while wind is present does not."""
+    if not fx.REGISTRY[name].nested:
+        return False
+    with_effect = {**current.effects, name: dict(params)}
+    a = ws.model(c, current.effects).simulate(current.nuisance[c], current.effects)
+    b = ws.model(c, with_effect).simulate(current.nuisance[c], with_effect)
+    return bool(np.allclose(a, b, rtol=0, atol=1e-9))
+
+
+def _refit_from_data(ws: "Workspace", idx: Sequence[int], fit: Fit) -> Fit:
+    """``fit`` with each clip's parameters replaced by a per-clip continuation fit from the data
+    (effects held) where that is better, so that a model and its extensions are compared at
+    equally good optima (otherwise re-fitting alone can pass for an effect)."""
+    again = ws.fit_each(idx, [initial_nuisance(ws.clips[c]) for c in idx], fit.effects)
+    out = Fit({k: dict(v) for k, v in fit.effects.items()}, list(fit.nuisance), list(fit.chi2), list(fit.sq_pos),
+              list(fit.n_res), list(fit.n_pos), fit.k, list(fit.theta_keys), dict(fit.ci), fit.nfev)
+    for c in range(len(idx)):
+        if again.chi2[c] < out.chi2[c]:
+            out.nuisance[c], out.chi2[c], out.sq_pos[c] = again.nuisance[c], again.chi2[c], again.sq_pos[c]
+    return out
+
+
+def _profile_axis(ws: "Workspace", idx: Sequence[int], current: Fit, name: str
+                  ) -> tuple[list[float], Any]:
+    """Profile coordinates and the map ``s -> parameters`` of effect ``name``.
+
+    One fitted parameter: ``s`` is the parameter and the points are its grid. Several: a
+    direction from the best non-zero grid point with the clips' parameters held
+    (:func:`_scan_effect`), and magnitudes ``(0, 1/4, 1/2, 1, 1.6) x`` the grids' largest
+    value along it."""
+    cls = fx.REGISTRY[name]
+    keys = [p for p, sp in cls.parameters.items() if sp.fit]
+    defaults = cls.defaults()
+    if len(keys) == 1:
+        key = keys[0]
+        return list(cls.parameters[key].grid), lambda v: {**defaults, key: float(v)}
+    best = _scan_effect(ws, idx, current.nuisance, current.effects, name, exclude_null=True)
+    d = np.array([best[k] for k in keys], dtype=float)
+    d = d / (np.linalg.norm(d) or 1.0)
+    top = max(max(abs(g) for g in cls.parameters[k].grid) for k in keys)
+    mags = [0.0, 0.25 * top, 0.5 * top, top, 1.6 * top]
+    return mags, lambda v: {**defaults, **{k: float(v * dk) for k, dk in zip(keys, d)}}
+
+
+def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: str,
+                       baseline: Fit | None = None) -> tuple[Fit, HeldOut, Profile]:
+    """Fit the current model plus effect ``name`` and score it out of sample.
+
+    1. Profile: at each point of :func:`_profile_axis` (the first is where the effect
+       vanishes, i.e. the current model), every clip's parameters are fitted by continuation
+       from the data (:meth:`Workspace.fit_each`); the summed minimum is refined by a
+       parabola step. Fitting from the data at every strength avoids the basin in which the
+       current model compensated for the missing effect (warm-starting from it left a ball
+       with air drag at chi2/n 3-6 instead of 0.8).
+    2. Joint fit: from the best point, the coefficients and all clips' parameters together.
+    3. Held-out (leave one clip out): the strength that minimises the other clips' profile,
+       refined by a parabola step; but the effect's default value (a profile point, e.g. air
+       for drag), else no effect, where that lies within the others' 95 % profile interval
+       (clips that carry no information on the effect do not set it); the left-out clip
+       refitted there.
+
+    ``current`` is the converged current model (start of the joint fit, :func:`_joint_fit`);
+    ``baseline`` (default ``current``) the current model fitted like the profile points (per
+    clip from the data, screening budget), used as the profile's first point where the effect
+    vanishes, so that the profile compares like with like.
+
+    Returns:
+        ``(joint fit, held-out scores, profile)``.
+    """
+    baseline = baseline or current
+    s_pts, to_params = _profile_axis(ws, idx, current, name)
+    prof = Profile([], [], [], [], [])
+    others = {k: dict(v) for k, v in current.effects.items()}
+
+    def evaluate(v: float) -> None:
+        eff = {**others, name: to_params(v)}
+        prof.add(v, eff[name], ws.fit_each(idx, [initial_nuisance(ws.clips[c]) for c in idx], eff))
+
+    # The first point is the current model itself (the effect vanishes there); then outwards
+    # until the summed chi-square has risen at two points in a row (the profile is taken as
+    # unimodal), so an effect the data do not want costs two or three points.
+    at_current = _vanishes(ws, idx[0], current, name, to_params(s_pts[0]))
+    if at_current:
+        prof.add(s_pts[0], to_params(s_pts[0]), baseline)
+    else:
+        evaluate(s_pts[0])
+    rises = 0
+    for v in s_pts[1:]:
+        evaluate(v)
+        rises = rises + 1 if prof.total()[-1] > prof.total()[:-1].min() else 0
+        if rises >= 2:
+            break
+    star = _parabola_min(prof.s, prof.total())
+    if all(abs(star - v) > 1e-9 for v in prof.s):
+        evaluate(star)
+    b = int(np.argmin(prof.total()))
+    joint = _joint_fit(ws, idx, current, name, others, prof.nuis[b], prof.params[b],
+                       prof.params[0] if at_current else None, b == 0)
+
+    keys = [p for p, sp in fx.REGISTRY[name].parameters.items() if sp.fit]
+    theta = np.array([joint.effects[name][k] for k in keys])
+    if len(keys) > 1 and b > 0 and np.linalg.norm(theta) > 0:
+        # The first axis was a grid direction (45 degree steps); profile again along the
+        # jointly fitted direction, so that held-out clips are predicted along the right one.
+        first = prof
+        prof = Profile([], [], [], [], [])
+        prof.add(0.0, first.params[0], _fit_rows(first, 0))
+        norm = float(np.linalg.norm(theta))
+        to_params = lambda v: {**fx.REGISTRY[name].defaults(),  # noqa: E731
+                               **{k: float(v * t / norm) for k, t in zip(keys, theta)}}
+        for v in (0.5 * norm, 0.8 * norm, norm, 1.25 * norm, 1.6 * norm):
+            evaluate(v)
+
+    n = len(idx)
+    ho = HeldOut([0.0] * n, [0.0] * n, list(joint.n_res), list(joint.n_pos), [{}] * n)
+    s2 = max(1.0, current.rss / max(current.n - current.k, 1))   # misfit inflates the noise
+    defaults = fx.REGISTRY[name].defaults()
+    prior = next((p for p, params in enumerate(prof.params)
+                  if p > 0 and all(abs(params[k] - defaults[k]) < 1e-12 for k in defaults)), None)
+    refit: list[tuple[int, int, dict]] = []
+    for c in range(n):
+        others_total = prof.total(without=c)
+        v = _parabola_min(prof.s, others_total)
+        if n > 1:  # where the other clips do not call for another value: the prior, or none
+            tol = others_total.min() + CHI2_1_95 * s2
+            if prior is not None and others_total[prior] <= tol:
+                v = prof.s[prior]
+            elif others_total[0] <= tol:
+                v = prof.s[0]
+        near = int(np.argmin(np.abs(np.array(prof.s) - v)))
+        eff = {**others, name: to_params(v)}
+        if abs(prof.s[near] - v) < 1e-9:
+            ho.chi2[c], ho.sq_pos[c] = prof.chi2[near][c], prof.sq[near][c]
+        else:
+            refit.append((c, near, eff))
+        ho.theta[c] = eff
+    # the left-out clips refitted at their strengths (independent fits: in parallel when a pool runs)
+    by_eff: dict[str, list[tuple[int, int, dict]]] = {}
+    for c, near, eff in refit:
+        by_eff.setdefault(json.dumps(eff, sort_keys=True), []).append((c, near, eff))
+    for group in by_eff.values():
+        parts = ws.refit_each([idx[c] for c, _, _ in group], [prof.nuis[near][c] for c, near, _ in group],
+                              group[0][2], max_nfev=ws.cfg.max_nfev_warm)
+        for (c, near, _), part in zip(group, parts):
+            ho.chi2[c], ho.sq_pos[c] = min(part.chi2[0], prof.chi2[near][c]), part.sq_pos[0]
+    return joint, ho, prof
+
+
+def _joint_fit(ws: "Workspace", idx: Sequence[int], current: Fit, name: str,
+               others: Mapping[str, Mapping[str, float]], nuis: Sequence[np.ndarray], params: Mapping[str, float],
+               null: Mapping[str, float] | None, best_is_null: bool) -> Fit:
+    """Converged joint fit of the current model + effect ``name`` (coefficients shared, every
+    clip's parameters free), the best of several starts:
+
+    - ``profile``: the profile's best point (``nuis``, ``params``; per-clip fits from the data);
+    - ``base optimum``: for a nested effect (``null`` = its parameters where it vanishes, the
+      model then being the current one), the current model's optimum with the effect at
+      ``null``; the start point itself is kept as a candidate too (a trust-region method only
+      accepts decreasing steps, but the fit must start 1e-3 scale off a bound), so the extended
+      fit is never worse than the current model (nested models).
+
+    Each start runs to the tolerance ``cfg.ftol`` (:func:`fit_clips` ``converge``). The fits'
+    ``start`` attribute says which start won."""
+    fits = []
+    f = ws.fit(idx, nuis, {**others, name: dict(params)}, converge=True)
+    f.start = "profile"
+    fits.append(f)
+    if null is not None:
+        eff = {**others, name: dict(null)}
+        if not best_is_null:   # else the profile start already is the base optimum
+            f = ws.fit(idx, current.nuisance, eff, converge=True)
+            f.start = "base optimum"
+            fits.append(f)
+        n_theta = len(_theta_keys([name]))
+        fits.append(Fit({k: dict(v) for k, v in eff.items()}, list(current.nuisance), list(current.chi2),
+                        list(current.sq_pos), list(current.n_res), list(current.n_pos), current.k + n_theta,
+                        _theta_keys(list(eff)), nfev=0, status=current.status, iterations=0,
+                        converged=current.converged, start="base optimum (effect at its null value, not moved)"))
+    best = min(fits, key=lambda g: g.rss)
+    best.nfev = sum(g.nfev for g in fits)
+    best.iterations = sum(g.iterations for g in fits)
+    return best
+
+
+PROFILE_ACCEPT_GN = 0.25
+"""The Gauss-Newton end of an interval is accepted when the profile's rise there is within
+this fraction of the threshold (the profile is quadratic enough)."""
+PROFILE_GROW = 3.0
+"""Outward step factor when the profile has not yet risen to the threshold."""
+PROFILE_BISECT = 6
+"""Most interpolation steps (Illinois regula falsi on the square root of the rise) to locate
+a crossing (stops earlier when the rise is within 5 % of the threshold)."""
+
+
+def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None
+                      ) -> tuple[dict[str, dict[str, list[float | None]]], dict[str, dict[str, str]]]:
+    """Profile-likelihood intervals of the fitted coefficients of ``fit`` (a converged joint fit
+    with Gauss-Newton intervals ``fit.ci_gn``).
+
+    The threshold is ``Δχ² = q s²``: ``q`` the chi-square(1) quantile at ``cfg.ci_level``
+    (3.84 for 95 %), ``s² = χ²/dof`` of the fit (the residual variance factor; 1 when the
+    noise model is right). A profile point fixes the coefficient, refits every other parameter
+    (all clips' parameters and the other coefficients) from the optimum to the tolerance, and
+    its rise is ``χ²(point) − χ²(optimum)`` (with one coefficient the clips separate and are
+    refitted one by one: small, well-conditioned fits). Each side of each coefficient:
+
+    1. the Gauss-Newton end is checked with one profile point: a rise within
+       :data:`PROFILE_ACCEPT_GN` of the threshold accepts it (``gauss-newton``);
+    2. else the crossing is bracketed (outwards by :data:`PROFILE_GROW` up to the search
+       bound) and located by Illinois regula falsi on the square root of the rise (exact for a
+       quadratic profile; at most :data:`PROFILE_BISECT` steps) (``profile``);
+    3. where the profile has not risen by the threshold at the search bound, the data cannot
+       bound the coefficient on that side: it is ``None`` (open), never the bound (``open``).
+
+    Returns:
+        ``(ci, method)``: ``{effect: {parameter: [low|None, high|None]}}`` and
+        ``{effect: {parameter: "low method / high method"}}``.
+    """
+    cfg = ws.cfg
+    dof = max(fit.n - fit.k, 1)
+    s2 = fit.rss / dof
+    thr = float(chi2_dist.ppf(cfg.ci_level, 1)) * s2
+    ci: dict[str, dict[str, list[float | None]]] = {}
+    method: dict[str, dict[str, str]] = {}
+    for e, p in fit.theta_keys:
+        spec = fx.REGISTRY[e].parameters[p]
+        v = float(fit.effects[e][p])
+        gn = (fit.ci_gn.get(e) or {}).get(p) or [None, None]
+        cache: dict[float, float] = {}
+
+        def rise(x: float) -> float:
+            x = float(x)
+            if x not in cache:
+                eff = {k: dict(d) for k, d in fit.effects.items()}
+                eff[e][p] = x
+                if len(fit.theta_keys) == 1:   # nothing else shared: the clips separate
+                    total = sum(f.rss for f in ws.refit_each(idx, fit.nuisance, eff, converge=True))
+                else:
+                    total = ws.fit(idx, fit.nuisance, eff, converge=True, fixed=[(e, p)]).rss
+                cache[x] = max(total - fit.rss, 0.0)
+            return cache[x]
+
+        ends, how = [], []
+        for sign, bound, g in ((-1.0, spec.low, gn[0]), (1.0, spec.high, gn[1])):
+            room = sign * (bound - v)
+            if room <= 1e-9 * spec.scale:        # at the search bound: nothing beyond it to test
+                ends.append(None)
+                how.append("open (at the search bound)")
+                continue
+            step = abs(g - v) if g is not None and np.isfinite(g) and abs(g - v) > 0 else spec.scale
+            x = v + sign * min(step, room)
+            r = rise(x)
+            if abs(x - bound) > 1e-12 and abs(r - thr) <= PROFILE_ACCEPT_GN * thr and g is not None:
+                ends.append(float(x))
+                how.append("gauss-newton (profile-checked)")
+                continue
+            inner, r_in = v, 0.0
+            while r < thr and abs(x - bound) > 1e-12:
+                inner, r_in = x, r
+                x = v + sign * min(PROFILE_GROW * abs(x - v), room)
+                r = rise(x)
+            if r < thr:                           # never rose by the threshold before the bound
+                ends.append(None)
+                how.append(f"open (profile rise {r:.3g} < {thr:.3g} at the search bound {bound:g})")
+                continue
+            outer, r_out = x, r
+            # Illinois regula falsi on g = sqrt(rise) - sqrt(threshold) (linear for a quadratic
+            # profile); the end kept twice in a row has its g halved, so a steep far end (a
+            # bound of another parameter becoming active) cannot stall it.
+            g_in, g_out, kept = math.sqrt(r_in) - math.sqrt(thr), math.sqrt(r_out) - math.sqrt(thr), 0
+            for _ in range(PROFILE_BISECT):
+                xm = inner + (outer - inner) * (-g_in) / (g_out - g_in) if g_out > g_in else 0.5 * (inner + outer)
+                rm = rise(xm)
+                gm = math.sqrt(rm) - math.sqrt(thr)
+                if abs(rm - thr) <= 0.05 * thr:
+                    inner = outer = xm
+                    break
+                if gm < 0:
+                    inner, g_in = xm, gm
+                    kept = kept + 1 if kept > 0 else 1
+                    if kept >= 2:
+                        g_out *= 0.5
+                else:
+                    outer, g_out = xm, gm
+                    kept = kept - 1 if kept < 0 else -1
+                    if kept <= -2:
+                        g_in *= 0.5
+            t = (-g_in) / (g_out - g_in) if g_out > g_in else 0.5
+            ends.append(float(inner + min(max(t, 0.0), 1.0) * (outer - inner)))
+            how.append("profile")
+        ci.setdefault(e, {})[p] = ends
+        method.setdefault(e, {})[p] = " / ".join(how)
+        if log:
+            log(f"interval {e}.{p} = {v:.4g}: {_fmt_interval(ends)} (Gauss-Newton {_fmt_interval(gn)}; "
+                f"{len(cache)} profile fits; {method[e][p]})")
+    return ci, method
+
+
+def _fmt_interval(ci: Sequence[float | None] | None, nd: int = 4) -> str:
+    """``[lo, hi]`` with an open side shown as ``(open`` / ``open)``."""
+    if not ci:
+        return "fixed"
+    lo, hi = ci
+    left = "(open" if lo is None else f"[{lo:.{nd}g}"
+    right = "open)" if hi is None else f"{hi:.{nd}g}]"
+    return f"{left}, {right}"

@@ -1,0 +1,270 @@
+"""The workflow: base fit, greedy forward selection of effects (screen, profile, held-out and
+BIC gates), final fit with intervals, and its :class:`Result`."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+
+from pipeline import effects as fx
+from pipeline.discrepancy.config import DiscrepancyConfig
+from pipeline.discrepancy.find import motion_phases, residual_segments
+from pipeline.discrepancy.fit import Fit, _theta_keys, initial_nuisance, single_threaded_blas
+from pipeline.discrepancy.forward import forward_gap
+from pipeline.discrepancy.noise import Noise
+from pipeline.discrepancy.profile import _profile_candidate, _refit_from_data, profile_intervals
+from pipeline.discrepancy.screen import _second_chance_point, screen_candidates
+from pipeline.discrepancy.trajectories import MIN_SAMPLES, Clip
+from pipeline.discrepancy.workspace import HeldOut, Workspace
+from pipeline.mjcf import SimOptions
+from pipeline.parallel import available_cores
+
+
+def _gate(cand: dict[str, Any], cfg: DiscrepancyConfig) -> tuple[bool, str]:
+    """Whether a scored candidate may be named, and why not."""
+    if cand["delta_bic"] > -cfg.bic_threshold:
+        return False, f"BIC drop {-cand['delta_bic']:.1f} < {cfg.bic_threshold:g}"
+    if cand["profile_gain"] < cfg.heldout_threshold:
+        return False, (f"refitting every clip from the data with the effect gains only "
+                       f"{cand['profile_gain']:.1f} < {cfg.heldout_threshold:g} in chi2")
+    if cand.get("heldout_delta_chi2") is None:
+        return True, "no held-out clips (BIC only)"
+    if cand["heldout_delta_chi2"] < cfg.heldout_threshold:
+        return False, f"held-out chi2 drop {cand['heldout_delta_chi2']:.1f} < {cfg.heldout_threshold:g}"
+    if cand["heldout_rmse"] >= cand["heldout_rmse_before"]:
+        return False, "held-out RMSE does not shrink"
+    return True, "clears BIC and held-out gates"
+
+
+@dataclass
+class Result:
+    """Everything the workflow found (see :func:`run_workflow`)."""
+
+    clips: list[Clip]
+    noise: list[Noise]
+    base: Fit
+    base_heldout: HeldOut
+    final: Fit
+    final_heldout: HeldOut
+    steps: list[dict[str, Any]]
+    named: list[dict[str, Any]]
+    segments: list[dict[str, Any]]
+    segments_after: list[dict[str, Any]]
+    phases: list[list[np.ndarray]]
+    base_qpos: list[np.ndarray]
+    final_qpos: list[np.ndarray]
+    config: DiscrepancyConfig
+    runtime_s: float = 0.0
+    forward: dict[str, Any] | None = None
+    """Single clip: the forward split (:func:`forward_gap`), or ``None``."""
+
+    @property
+    def gap(self) -> dict[str, Any]:
+        """The shown gap: position RMSE (m) before (base) and after (named effects), its
+        relative shrink, and the same for the part beyond the measurement noise
+        (``excess = sqrt(max(RMSE^2 - sigma^2, 0))``, sigma = pooled noise estimate): the RMSE
+        cannot fall below sigma, so an effect that starts near the noise floor (e.g.
+        torsional friction, which shows mostly in orientation) shrinks the raw RMSE little.
+
+        Which gap (``kind``, ``label``, ``why``): with >= 2 clips the leave-one-clip-out
+        held-out RMSE; with one clip the forward gap (fitted on the clip's first part, scored
+        on the rest, :func:`forward_gap`); with one clip too short to split, in sample."""
+        sigma = float(np.sqrt(np.mean([n.position ** 2 for n in self.noise])))
+        extra: dict[str, Any] = {}
+        if len(self.clips) >= 2:
+            before, after = self.base_heldout.rmse, self.final_heldout.rmse
+            extra = {"kind": "leave_one_clip_out", "label": "held-out gap (leave one clip out)",
+                     "why": f"{len(self.clips)} clips (>= 2): leave one clip out"}
+        elif self.forward is not None:
+            before, after = self.forward["before"], self.forward["after"]
+            extra = {"kind": "forward", "why": "1 clip: nothing to hold out, so a forward split in time",
+                     **{k: v for k, v in self.forward.items() if k not in ("before", "after")}}
+        else:
+            before, after = self.base.rmse, self.final.rmse
+            extra = {"kind": "in_sample", "label": "in-sample gap",
+                     "why": "1 clip too short to split in time (fewer than "
+                            f"{MIN_SAMPLES} samples before the split or none after it): in sample"}
+        eb, ea = math.sqrt(max(before ** 2 - sigma ** 2, 0.0)), math.sqrt(max(after ** 2 - sigma ** 2, 0.0))
+        return {"before": before, "after": after, "shrink": 1.0 - after / before if before > 0 else 0.0,
+                "noise": sigma, "excess_before": eb, "excess_after": ea,
+                "excess_shrink": 1.0 - ea / eb if eb > 0 else 0.0, **extra}
+
+    @property
+    def in_sample(self) -> dict[str, Any]:
+        """In-sample position RMSE (m) of the base and the final model over all clips, with
+        the number of fitted parameters ``k`` of each."""
+        return {"before": self.base.rmse, "k_before": int(self.base.k),
+                "after": self.final.rmse, "k_after": int(self.final.k),
+                "effects": [n["effect"] for n in self.named]}
+
+
+def run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None = None,
+                 options: SimOptions | None = None, gravity: float = 9.81, log=None) -> Result:
+    """Find, name and add missing effects (DESIGN §8).
+
+    1. Fit the base model to each clip; estimate the noise; list residual segments.
+    2. Greedy forward selection: fit each remaining candidate jointly over all clips (shared
+       coefficients, per-clip parameters warm-started from the current model); candidates
+       whose BIC drops by at least ``bic_threshold`` get k-fold held-out scores; a candidate
+       is eligible when its held-out chi-square drops by at least ``heldout_threshold`` and
+       its held-out RMSE shrinks; the eligible one with the lowest BIC is named. Stop when
+       none is eligible or ``max_effects`` are named.
+    3. Refit the final model with confidence intervals.
+
+    Args:
+        clips: measured clips (:func:`read_trajectories`).
+        cfg: settings.
+        options: simulation options (params ``sim``).
+        gravity: m/s^2.
+        log: optional ``print``-like callable for progress lines.
+
+    Returns:
+        :class:`Result`.
+    """
+    with single_threaded_blas():
+        return _run_workflow(clips, cfg, options, gravity, log)
+
+
+def _run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None, options: SimOptions | None,
+                  gravity: float, log) -> Result:
+    cfg = cfg or DiscrepancyConfig()
+    options = (options or SimOptions()).model_copy(update={"textured": False})
+    say = log or (lambda *a, **k: None)
+    t_start = time.perf_counter()
+    ws = Workspace(clips, cfg, options, gravity)
+    try:
+        ws.start_pool(cfg.workers or available_cores())
+        return _select(ws, cfg, say, t_start)
+    finally:
+        ws.close()
+
+
+def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Result:
+    n = len(ws.clips)
+    idx = list(range(n))
+    base = ws.fit_each(idx, [initial_nuisance(c) for c in ws.clips], {}, converge=True)
+    base.start = "data (per-clip continuation)"
+    base_ho = HeldOut(list(base.chi2), list(base.sq_pos), list(base.n_res), list(base.n_pos))
+    say(f"base model: RMSE {base.rmse * 1e3:.2f} mm over {n} clips "
+        f"(noise {np.median([z.position for z in ws.noise]) * 1e3:.2f} mm)")
+
+    current, cur_ho, steps = base, base_ho, []
+    screen = ws.fit_each(idx, [initial_nuisance(c) for c in ws.clips], {})
+    base_ho = cur_ho = HeldOut(list(screen.chi2), list(screen.sq_pos), list(screen.n_res), list(screen.n_pos))
+    named_order: list[str] = []
+    for step in range(1, cfg.max_effects + 1):
+        remaining = [e for e in cfg.candidates if e not in named_order]
+        if steps and not cfg.rescreen_all:  # screening: only effects that helped at step 1
+            remaining = [e for e in remaining
+                         if any(cd["effect"] == e and cd["profile_gain"] >= cfg.heldout_threshold
+                                for cd in steps[0]["candidates"])]
+        if step > 1 and remaining:   # the current model fitted like the profile points (from the data)
+            screen = ws.fit_each(idx, [initial_nuisance(c) for c in ws.clips], current.effects)
+        screened: dict[str, dict[str, Any]] = {}
+        if remaining and cfg.screen_gain > 0:   # cheap screen before the full fits
+            screened = screen_candidates(ws, idx, current, remaining)
+            for e in remaining:
+                g = screened[e]["predicted_gain"]
+                passed = g is None or g >= cfg.screen_gain
+                if not passed:
+                    # Second chance, not linearised: the clips refitted from the data (like a
+                    # profile point) at one strength. The current optimum may sit in a basin
+                    # that compensates for the missing effect (a spin that mimics Magnus lift),
+                    # where the linearisation predicts a loss.
+                    point = _second_chance_point(e, screened[e]["best"])
+                    trial = ws.fit_each(idx, [initial_nuisance(c) for c in ws.clips], {**current.effects, e: point})
+                    screened[e]["refit_point"], screened[e]["refit_gain"] = point, float(screen.rss - trial.rss)
+                    passed = screened[e]["refit_gain"] >= cfg.screen_gain
+                screened[e]["passed"] = bool(passed)
+                if not passed:
+                    say(f"step {step}: {e:18s} screened out: predicted chi2 gain {g:.1f}, refitted from the data "
+                        f"{screened[e]['refit_gain']:.1f} < {cfg.screen_gain:g}")
+            remaining = [e for e in remaining if screened[e]["passed"]]
+        if not remaining:
+            if screened:
+                steps.append({"step": step, "model": list(named_order), "candidates": [], "named": None,
+                              "screen": screened})
+            break
+        scored = []
+        for e in remaining:
+            f, ho, prof = _profile_candidate(ws, idx, current, e, screen)
+            # Out-of-sample comparison at equal footing: the current model's per-clip fits (its
+            # own coefficients fitted on all clips, like the candidate's profile rows) against
+            # the candidate with its strength taken from the other clips.
+            before = HeldOut(list(screen.chi2), list(screen.sq_pos), list(screen.n_res), list(screen.n_pos))
+            chi = np.array(prof.chi2)
+            cand = {"effect": e, "parameters": {p: f.effects[e][p] for _, p in _theta_keys([e])},
+                    "rmse": f.rmse, "fit_gain": current.rmse - f.rmse,
+                    "chi2": f.rss, "chi2_before": current.rss, "fit_gain_chi2": current.rss - f.rss,
+                    "optimizer": f.optimizer(), "nested": bool(fx.REGISTRY[e].nested),
+                    "fit_gain_pct": 100.0 * (current.rmse - f.rmse) / current.rmse if current.rmse else 0.0,
+                    "delta_bic": f.bic - current.bic, "profile_gain": float(screen.rss - chi.sum(1).min()),
+                    "heldout_rmse_before": before.rmse, "heldout_rmse": None, "heldout_delta_chi2": None,
+                    "heldout_gain": None,
+                    "profile": {"s": prof.s, "chi2": [float(x) for x in prof.total()]},
+                    "per_clip_gain": {ws.clips[c].name: float(screen.chi2[c] - chi[:, c].min()) for c in idx}}
+            if n >= 2:
+                cand.update(heldout_rmse=ho.rmse, heldout_gain=before.rmse - ho.rmse,
+                            heldout_delta_chi2=before.total_chi2 - ho.total_chi2)
+            else:
+                ho = None
+            scored.append((cand, f, ho))
+        for cand, f, ho in scored:
+            cand["eligible"], cand["reason"] = _gate(cand, cfg)
+            say(f"step {step}: {cand['effect']:18s} dBIC {cand['delta_bic']:10.1f}  fit gain "
+                f"{cand['fit_gain'] * 1e3:7.2f} mm" + (f"  held-out {ho.rmse * 1e3:.2f} mm" if ho else "")
+                + f"  {cand['reason']}")
+        eligible = [s for s in scored if s[0]["eligible"]]
+        winner = min(eligible, key=lambda s: s[0]["delta_bic"]) if eligible else None
+        for s in scored:
+            s[0]["named"] = s is winner
+        steps.append({"step": step, "model": list(named_order), "candidates": [s[0] for s in scored],
+                      "named": winner[0]["effect"] if winner else None, "screen": screened})
+        if winner is None:
+            break
+        named_order.append(winner[0]["effect"])
+        current, cur_ho = _refit_from_data(ws, idx, winner[1]), (winner[2] or cur_ho)
+        if all(c2 / nr <= cfg.noise_floor_chi2 for c2, nr in zip(current.chi2, current.n_res)):
+            say(f"noise floor reached: chi2/n <= {cfg.noise_floor_chi2:g} in every clip")
+            break
+
+    final = current
+    if named_order:
+        final = ws.fit(idx, current.nuisance, current.effects, with_ci=True, converge=True)
+        if final.rss > current.rss:   # the converged refit never loses the model it starts from
+            kept = final
+            final = Fit({k: dict(v) for k, v in current.effects.items()}, list(current.nuisance), list(current.chi2),
+                        list(current.sq_pos), list(current.n_res), list(current.n_pos), current.k,
+                        list(kept.theta_keys), ci=kept.ci, nfev=kept.nfev, status=kept.status,
+                        iterations=kept.iterations, converged=kept.converged, start="selection fit (kept)",
+                        ci_gn=kept.ci_gn, ci_method=kept.ci_method)
+        else:
+            final.start = "selection fit"
+        say(f"final fit: chi2 {final.rss:.1f}, optimiser status {final.status}, {final.iterations} evaluations")
+        final.ci, final.ci_method = profile_intervals(ws, idx, final, log=say)
+    named = []
+    for e in named_order:
+        cls = fx.REGISTRY[e]
+        named.append({"effect": e, "parameters": dict(final.effects[e]), "ci": final.ci.get(e, {}),
+                      "ci_gauss_newton": final.ci_gn.get(e, {}), "ci_method": final.ci_method.get(e, {}),
+                      "units": {p: s.unit for p, s in cls.parameters.items()},
+                      "fitted": [p for p, s in cls.parameters.items() if s.fit], "mechanism": cls.mechanism})
+
+    base_qpos, final_qpos, phases, segs, segs_after = [], [], [], [], []
+    for c in idx:
+        m0 = ws.model(c, {})
+        omega, q0 = m0.trace(base.nuisance[c], {})
+        q1 = ws.model(c, final.effects).simulate(final.nuisance[c], final.effects)
+        ph = motion_phases(ws.clips[c], q0, omega, ws.noise[c], cfg)
+        base_qpos.append(q0)
+        final_qpos.append(q1)
+        phases.append(ph)
+        segs += residual_segments(ws.clips[c], q0, ws.noise[c], ph, cfg)
+        segs_after += residual_segments(ws.clips[c], q1, ws.noise[c], ph, cfg)
+    forward = forward_gap(ws, 0, named_order, say) if n == 1 else None
+    return Result(ws.clips, ws.noise, base, base_ho, final, cur_ho, steps, named, segs, segs_after, phases,
+                  base_qpos, final_qpos, cfg, time.perf_counter() - t_start, forward)

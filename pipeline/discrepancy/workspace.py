@@ -1,0 +1,208 @@
+"""The workspace of a workflow run: clips, noise weights, compiled models (cached) and the
+worker pool that fits clips one by one in parallel; held-out scores."""
+
+from __future__ import annotations
+
+import math
+import multiprocessing
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from typing import Iterable, Mapping, Sequence
+
+import numpy as np
+
+from pipeline import effects as fx
+from pipeline.discrepancy.clip_model import _F, ClipModel, Weights, clip_residuals
+from pipeline.discrepancy.config import DiscrepancyConfig
+from pipeline.discrepancy.fit import Fit, fit_clips, free_mask, single_threaded_blas
+from pipeline.discrepancy.noise import estimate_noise
+from pipeline.discrepancy.trajectories import Clip, _truncate
+from pipeline.mjcf import SimOptions
+
+
+@dataclass
+class HeldOut:
+    """Cross-validated scores of a model: per clip, chi-square / squared position residual /
+    counts when the effects' coefficients come from the other clips (leave one clip out)."""
+
+    chi2: list[float]
+    sq_pos: list[float]
+    n_res: list[int]
+    n_pos: list[int]
+    theta: list[dict[str, dict[str, float]]] = field(default_factory=list)
+
+    @property
+    def total_chi2(self) -> float:
+        return float(sum(self.chi2))
+
+    @property
+    def rmse(self) -> float:
+        """m, held-out position RMSE over all clips."""
+        return math.sqrt(sum(self.sq_pos) / max(sum(self.n_pos), 1))
+
+    def clip_rmse(self, c: int) -> float:
+        return math.sqrt(self.sq_pos[c] / max(self.n_pos[c], 1))
+
+
+FRICTION_GRID = (0.05, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.8, 1.0, 1.4)
+"""Sliding-friction values tried before a base fit's least squares (the residual is not
+convex in friction: a wrong start can leave it in a basin where the spin compensates)."""
+
+
+def _scan_friction(clip: Clip, model: ClipModel, weights: Weights, nuis: np.ndarray,
+                   effects: Mapping[str, Mapping[str, float]], cfg: DiscrepancyConfig) -> np.ndarray:
+    """Start values with each object's friction set, in turn, to the best of
+    :data:`FRICTION_GRID` and the current value (others held); unchanged where friction is
+    not fitted."""
+    mask = free_mask(clip, tuple(effects), cfg)
+    nuis = nuis.copy()
+    for i in range(len(clip.tracks)):
+        if not mask[i, _F]:
+            continue
+        grid = (nuis[i, _F],) + FRICTION_GRID
+        variants = []
+        for mu in grid:
+            x = nuis.copy()
+            x[i, _F] = mu
+            variants.append(x)
+        qs = model.simulate_many(variants, [effects] * len(grid))
+        chi = [float(r @ r) for r in (clip_residuals(clip, q, weights)[0] for q in qs)]
+        nuis[i, _F] = grid[int(np.argmin(chi))]
+    return nuis
+
+
+
+class Workspace:
+    """Clips, noise weights and compiled models (one per clip and effect set, cached)."""
+
+    def __init__(self, clips: Sequence[Clip], cfg: DiscrepancyConfig, options: SimOptions, gravity: float = 9.81):
+        self.clips = list(clips)
+        self.cfg = cfg
+        self.options = options
+        self.gravity = gravity
+        self.noise = [estimate_noise(c) for c in self.clips]
+        self.weights = [Weights(n.position, n.angle) for n in self.noise]
+        self._models: dict[tuple[int, tuple[str, ...]], ClipModel] = {}
+        self._pool = None
+
+    def model(self, c: int, effects: Iterable[str]) -> ClipModel:
+        key = (c, tuple(e for e in fx.REGISTRY if e in set(effects)))
+        if key not in self._models:
+            self._models[key] = ClipModel(self.clips[c], key[1], self.options, self.gravity, self.cfg.threads)
+        return self._models[key]
+
+    def fit(self, idx: Sequence[int], starts: Sequence[np.ndarray], effects: Mapping[str, Mapping[str, float]],
+            fit_effects: bool = True, with_ci: bool = False, max_nfev: int | None = None,
+            converge: bool = False, fixed: Sequence[tuple[str, str]] = ()) -> Fit:
+        """:func:`fit_clips` on the clips ``idx``."""
+        return fit_clips([self.clips[c] for c in idx], [self.model(c, effects) for c in idx],
+                         [self.weights[c] for c in idx], starts, effects, self.cfg, fit_effects, with_ci, max_nfev,
+                         converge, fixed)
+
+    def fit_each(self, idx: Sequence[int], starts: Sequence[np.ndarray],
+                 effects: Mapping[str, Mapping[str, float]], max_nfev: int | None = None,
+                 converge: bool = False) -> Fit:
+        """Fit every clip on its own with the effects' values held (no shared parameters),
+        merged into one :class:`Fit` (k counts every clip's parameters).
+
+        Each clip is fitted by continuation over the time horizon (:meth:`fit_clip`). The
+        clips are independent, so with a worker pool (:meth:`start_pool`) they are fitted in
+        parallel; the result is the same to the last bit (each clip's fit runs the same
+        arithmetic in whichever process)."""
+        jobs = [(c, start, {e: dict(p) for e, p in effects.items()}, max_nfev, converge)
+                for c, start in zip(idx, starts)]
+        if self._pool is not None and len(jobs) > 1:
+            parts = list(self._pool.map(_pool_fit_clip, jobs))
+        else:
+            parts = [self.fit_clip(*job) for job in jobs]
+        return Fit({e: dict(p) for e, p in effects.items()}, [p.nuisance[0] for p in parts],
+                   [p.chi2[0] for p in parts], [p.sq_pos[0] for p in parts], [p.n_res[0] for p in parts],
+                   [p.n_pos[0] for p in parts], k=sum(p.k for p in parts), nfev=sum(p.nfev for p in parts),
+                   status=min((p.status for p in parts), default=-2),
+                   iterations=sum(p.iterations for p in parts),
+                   converged=bool(parts) and all(p.converged or p.status == -2 for p in parts))
+
+    def fit_clip(self, c: int, start: np.ndarray, effects: Mapping[str, Mapping[str, float]],
+                 max_nfev: int | None = None, converge: bool = False) -> Fit:
+        """Fit clip ``c`` alone (effects held) by continuation over the time horizon
+        (``cfg.horizons``: first the opening fraction of the clip, then longer, warm-starting
+        each from the last), so that late contacts do not pull the initial state into a wrong
+        basin. With ``converge`` the last horizon (the whole clip) runs to the tolerance
+        ``cfg.ftol``.
+
+        Args:
+            c: clip index. start: ``(n, 14)`` starting values (:data:`NUISANCE`).
+            effects: ``{effect: parameters}`` held. max_nfev: screening cap.
+
+        Returns:
+            a one-clip :class:`Fit` (the last horizon's)."""
+        clip = self.clips[c]
+        part = None
+        for frac in self.cfg.horizons:
+            sub = _truncate(clip, frac * float(clip.times[-1])) if frac < 1.0 else clip
+            if sub is None:
+                continue
+            model = ClipModel(sub, tuple(effects), self.options, self.gravity, self.cfg.threads) if frac < 1.0 \
+                else self.model(c, effects)
+            start = _scan_friction(sub, model, self.weights[c], start, effects, self.cfg)
+            last = frac >= self.cfg.horizons[-1]
+            part = fit_clips([sub], [model], [self.weights[c]], [start], effects, self.cfg,
+                             fit_effects=False, max_nfev=None if (converge and last) else max_nfev,
+                             converge=converge and last)
+            start = part.nuisance[0]
+        assert part is not None  # the last horizon is the whole clip (cfg.horizons ends at 1)
+        return part
+
+    def refit_each(self, idx: Sequence[int], starts: Sequence[np.ndarray],
+                   effects: Mapping[str, Mapping[str, float]], max_nfev: int | None = None,
+                   converge: bool = False) -> list[Fit]:
+        """Warm-started fits of each clip alone from ``starts`` (effects held; one horizon,
+        no friction scan): ``[ws.fit([c], [start], effects, fit_effects=False, ...)]`` for the
+        clips ``idx``, in parallel when a pool is running (same result to the last bit)."""
+        jobs = [(c, start, {e: dict(p) for e, p in effects.items()}, max_nfev, converge)
+                for c, start in zip(idx, starts)]
+        if self._pool is not None and len(jobs) > 1:
+            return list(self._pool.map(_pool_refit_clip, jobs))
+        return [self.fit([c], [start], eff, fit_effects=False, max_nfev=m, converge=cv)
+                for c, start, eff, m, cv in jobs]
+
+    def start_pool(self, workers: int) -> None:
+        """Fit clips in ``workers`` processes (:meth:`fit_each`); each worker holds its own
+        copy of this workspace with one rollout thread, made once. No-op for ``workers`` < 2,
+        fewer than two clips, or inside a daemonic process (a multiprocessing pool's worker,
+        which may not have children). Pair with :meth:`close`."""
+        if workers < 2 or len(self.clips) < 2 or self._pool is not None:
+            return
+        if multiprocessing.current_process().daemon:   # a pool worker itself: no children allowed
+            return
+
+        cfg = self.cfg.model_copy(update={"threads": 1, "workers": 1})
+        self._pool = ProcessPoolExecutor(min(workers, len(self.clips)), mp_context=multiprocessing.get_context("spawn"),
+                                         initializer=_pool_init,
+                                         initargs=(self.clips, cfg, self.options, self.gravity))
+
+    def close(self) -> None:
+        """Shut the worker pool down (if any)."""
+        if self._pool is not None:
+            self._pool.shutdown(cancel_futures=True)
+            self._pool = None
+
+
+_POOL_WS: "Workspace | None" = None
+
+
+def _pool_init(clips: Sequence[Clip], cfg: DiscrepancyConfig, options: SimOptions, gravity: float) -> None:
+    """Worker start: its own :class:`Workspace` (models compiled on first use, then cached)."""
+    global _POOL_WS
+    _POOL_WS = Workspace(clips, cfg, options, gravity)
+
+
+def _pool_fit_clip(job: tuple) -> Fit:
+    with single_threaded_blas():
+        return _POOL_WS.fit_clip(*job)
+
+
+def _pool_refit_clip(job: tuple) -> Fit:
+    c, start, effects, max_nfev, converge = job
+    with single_threaded_blas():
+        return _POOL_WS.fit([c], [start], effects, fit_effects=False, max_nfev=max_nfev, converge=converge)
