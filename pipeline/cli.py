@@ -3,6 +3,7 @@
     dynamics simulate SCENE.yaml --out DIR        run your own scene (trace, video, masks, events)
     dynamics infer VIDEO --out DIR [--fps F] [--start S]   the main job on any video
     dynamics discrepancy TRAJECTORIES --out DIR   find -> name -> add -> show (DESIGN §8)
+    dynamics discrepancy-benchmark [--trials N]   naming accuracy on hidden-effect data
     dynamics view SHARD [--scene ID] [--save FILE.rrd]     rerun recording of a shard
     dynamics schema [--out FILE]                  JSON Schema of a scene file (for editors)
 
@@ -46,6 +47,11 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Discrepancy workflow on measured trajectories (CSV/Parquet/Tracker txt).")
     discrepancy.add_arguments(p)
     p.set_defaults(func=discrepancy.main_cli)
+
+    p = sub.add_parser("discrepancy-benchmark", help="naming accuracy of the discrepancy workflow on hidden-effect data",
+                       description="Hidden-effect benchmark of the discrepancy workflow (JSON + Markdown summary).")
+    discrepancy.add_benchmark_arguments(p)
+    p.set_defaults(func=discrepancy.benchmark_cli)
 
     from pipeline import view
 

@@ -4,7 +4,7 @@ effect of the library is named on fresh seeds, nothing is named without one, and
 gap shrinks by at least half.
 
 The hidden-effect trials use a reduced profile (3 clips of 0.8 s, one effect named at most) so
-that the file runs in about a minute on 2 cores; ``python -m pipeline.discrepancy benchmark``
+that the file runs in about a minute on 2 cores; ``dynamics discrepancy-benchmark``
 runs the full profile over many seeds.
 """
 
@@ -31,7 +31,7 @@ OPTS = SimOptions(textured=False)  # the params timestep, 1/600 s (the library d
 OPTS_2MS = SimOptions(textured=False, timestep=0.002)
 """The timestep the nested-model check was tuned at. Issue 12 finding: at 1/600 s (seed 921, no
 effect) the magnus_lift candidate fit ends at chi2 144.1671 against the base's 144.1504, 1.2e-4
-relative, above the test's 1e-6 tolerance (for the owner of pipeline/discrepancy.py)."""
+relative, above the test's 1e-6 tolerance (for the owner of pipeline/discrepancy/)."""
 REAL = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "real" / "trajectories"
 
 

@@ -33,9 +33,10 @@ def _module_file(name: str) -> Path | None:
 def _imports(path: Path) -> set[Path]:
     """Project module files imported by ``path`` (any level, any scope)."""
     tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
-    pkg = ".".join(path.relative_to(ROOT).with_suffix("").parts[:-1])
+    rel = path.relative_to(ROOT) if path.is_relative_to(ROOT) else Path(path.name)   # a probe outside the tree
+    pkg = ".".join(rel.with_suffix("").parts[:-1])
     if path.name == "__init__.py":
-        pkg = ".".join(path.relative_to(ROOT).parent.parts)
+        pkg = ".".join(rel.parent.parts)
     out: set[Path] = set()
     for node in ast.walk(tree):
         names: list[str] = []
@@ -90,8 +91,13 @@ def test_stage_deps_cover_every_imported_project_module(name, stage):
 
 
 def test_the_closure_sees_function_level_and_transitive_imports(tmp_path):
-    """The import reader itself: discrepancy imports viz only inside a function, and effects
-    reaches mjcf only through other modules; both are found."""
+    """The import reader itself: an import inside a function is found (a probe script), and
+    the discrepancy stage reaches viz only through the pipeline.discrepancy package (its
+    ``__init__`` -> ``plots`` -> ``viz``) and mjcf and scene only through other modules; all
+    are found. A folder dep (``pipeline/discrepancy``) covers the package's modules."""
+    probe = tmp_path / "probe.py"
+    probe.write_text("def f():\n    from pipeline import shards\n")
+    assert ROOT / "pipeline" / "shards.py" in _imports(probe)
     closure = _closure(ROOT / "stages" / "discrepancy.py")
-    assert "pipeline/viz.py" in closure
+    assert "pipeline/discrepancy/plots.py" in closure and "pipeline/viz.py" in closure
     assert "pipeline/mjcf.py" in closure and "pipeline/scene.py" in closure

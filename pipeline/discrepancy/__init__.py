@@ -12,12 +12,14 @@ extended scenes (``effects:`` block) and a report showing the held-out gap shrin
    model compiled once per clip and edited in place). The measurement noise is estimated from
    the data alone (:func:`estimate_noise`), and residual segments that exceed it are listed
    with the motion phase (flight, contact, sliding, rolling, rest).
-2. **Name.** Every candidate effect is fitted jointly over all clips (its coefficients shared,
-   the per-clip parameters free), scored in sample by BIC and out of sample by k-fold
-   cross-validation over clips (coefficients fitted on the other clips, only the clip's own
-   parameters refitted). An effect is named only if it clears both gates (BIC drop and
-   held-out chi-square drop above thresholds, i.e. above what the noise floor explains);
-   greedy forward selection repeats with the named effects in the model.
+2. **Name.** Candidate effects are screened cheaply (linearised gain), then each one left
+   is profiled over its strength (every clip refitted from the data at each point), fitted
+   jointly over all clips (its coefficients shared, the per-clip parameters free), scored in
+   sample by BIC and out of sample by leave-one-clip-out (coefficients from the other clips'
+   profile, only the clip's own parameters refitted). An effect is named only if it clears
+   both gates (BIC drop and held-out chi-square drop above thresholds, i.e. above what the
+   noise floor explains); greedy forward selection repeats with the named effects in the
+   model (:func:`run_workflow`).
 3. **Add.** The final joint fit (converged) gives the coefficients, with confidence intervals
    from the profile likelihood (:func:`profile_intervals`; the Gauss-Newton interval
    ``s^2 (J^T J)^-1`` of ``mujoco.sysid.calculate_intervals`` where the profile confirms it,

@@ -43,6 +43,7 @@ def run_trial(seed: int, effect: str, cfg: DiscrepancyConfig | None = None, hidd
 
 
 def _trial_job(args: tuple) -> dict[str, Any]:
+    """:func:`run_trial` of ``(seed, effect, cfg, hidden, options)`` (one picklable task)."""
     seed, effect, cfg, hidden, options = args
     return run_trial(seed, effect, cfg, hidden, options)
 
@@ -141,7 +142,9 @@ def _per_effect(rs: Sequence[Mapping[str, Any]], names: Sequence[str]) -> dict[s
 
 
 def benchmark_markdown(bench: Mapping[str, Any], command: str = "") -> str:
-    """Markdown summary of :func:`run_benchmark`."""
+    """Markdown summary of :func:`run_benchmark` (``reports/discrepancy_benchmark.md``):
+    accuracy, false-positive rate and gap shrink (percent), per-effect tables and the misnamed
+    trials; ``command`` is shown in a code block when given."""
     s = bench["summary"]
     pct = lambda x: "—" if x is None else f"{100 * x:.1f} %"  # noqa: E731
     lines = ["# Discrepancy workflow: hidden-effect benchmark", "",

@@ -7,6 +7,7 @@ import math
 from typing import Any, Sequence
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 from scipy import ndimage
 from scipy.stats import chi2
 
@@ -79,14 +80,12 @@ def motion_phases(clip: Clip, sim_qpos: np.ndarray, sim_omega: np.ndarray, noise
         phase = np.where(~on, "flight", np.where(speed < cfg.rest_speed, "rest",
                          np.where(slip < np.maximum(cfg.rest_speed, 0.2 * speed), "rolling", "sliding")))
         phase = phase.astype(object)
-        T = len(tr.t)
-        for k in range(1, T):
-            arrive = on[k] and not on[k - 1]
-            bounce = (0 < k < T - 1 and h[k] <= h[k - 1] and h[k] <= h[k + 1] and v[k - 1, 2] < -cfg.rest_speed
-                      and v[k + 1, 2] > cfg.rest_speed
-                      and h[k] < tol + abs(v[k - 1, 2]) * (tr.t[k] - tr.t[k - 1]))
-            if arrive or bounce:
-                phase[max(k - 1, 0):min(k + 2, T)] = "contact"
+        hit = np.zeros(len(tr.t), bool)       # impacts: arriving on the floor, or a bounce at k
+        hit[1:] = on[1:] & ~on[:-1]
+        hit[1:-1] |= ((h[1:-1] <= h[:-2]) & (h[1:-1] <= h[2:]) & (v[:-2, 2] < -cfg.rest_speed)
+                      & (v[2:, 2] > cfg.rest_speed)
+                      & (h[1:-1] < tol + np.abs(v[:-2, 2]) * (tr.t[1:-1] - tr.t[:-2])))
+        phase[sliding_window_view(np.pad(hit, 1), 3).any(axis=1)] = "contact"   # and the samples on either side
         out.append(phase.astype(str))
     return out
 
@@ -125,19 +124,12 @@ def residual_segments(clip: Clip, qpos: np.ndarray, noise: Noise, phases: Sequen
         for name, e, sigma, dof, unit in chans:
             w = min(cfg.segment_window, len(e))
             thr = sigma * math.sqrt(chi2.isf(cfg.segment_p, w * dof) / w)
-            flag = np.zeros(len(e), bool)
             z = (e / sigma) ** 2
-            for k in range(len(e) - w + 1):
-                if z[k:k + w].sum() > chi2.isf(cfg.segment_p, w * dof):
-                    flag[k:k + w] = True
-            k = 0
-            while k < len(flag):
-                if not flag[k]:
-                    k += 1
-                    continue
-                j = k
-                while j + 1 < len(flag) and flag[j + 1]:
-                    j += 1
+            hot = sliding_window_view(z, w).sum(axis=1) > chi2.isf(cfg.segment_p, w * dof)  # window k..k+w-1
+            flag = sliding_window_view(np.pad(hot, w - 1), w).any(axis=1)   # every sample of a flagged window
+            runs, _ = ndimage.label(flag)
+            for (run,) in ndimage.find_objects(runs):
+                k, j = run.start, run.stop - 1
                 if j - k + 1 >= cfg.min_segment_samples:
                     ph, counts = np.unique(phases[i][k:j + 1], return_counts=True)
                     segs.append({"clip": clip.name, "object": tr.object, "channel": name,

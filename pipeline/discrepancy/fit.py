@@ -181,10 +181,12 @@ class Fit:
 
     @property
     def n(self) -> int:
+        """Number of residual scalars over all clips."""
         return int(sum(self.n_res))
 
     @property
     def rss(self) -> float:
+        """Chi-square over all clips: sum of squared noise-normalised residuals."""
         return float(sum(self.chi2))
 
     @property

@@ -67,7 +67,19 @@ class HiddenConfig(_Strict):
 
 def draw_effect(rng: np.random.Generator, cfg: HiddenConfig, effect: str | None = None
                 ) -> tuple[str | None, dict[str, float]]:
-    """Draw the hidden effect and its strength: ``(name or None, parameters)``."""
+    """Draw the hidden effect and its strength.
+
+    Args:
+        rng: random generator (consumed: the effect if ``random``, then its parameters).
+        cfg: ``effect`` and ``strengths`` ranges.
+        effect: overrides ``cfg.effect`` (``random``, ``none`` or a name).
+
+    Returns:
+        ``(name or None, parameters)``: the fitted parameters of the effect drawn uniformly in
+        their ``strengths`` range (units of ``ParamSpec.unit``); ``wind`` and ``floor_tilt``
+        as a magnitude in its range (m/s, deg) in a uniform direction (``wind_x``/``wind_y``,
+        ``tilt_x``/``tilt_y``).
+    """
     name = effect or cfg.effect
     if name == "random":
         name = str(rng.choice(["none", *fx.REGISTRY]))

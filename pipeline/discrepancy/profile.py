@@ -32,6 +32,7 @@ class Profile:
     nuis: list[list[np.ndarray]]
 
     def add(self, s: float, params: dict[str, float], fits: Fit) -> None:
+        """Append the point ``s`` with the effect's ``params`` and the per-clip fits there."""
         self.s.append(float(s))
         self.params.append(params)
         self.chi2.append(list(fits.chi2))

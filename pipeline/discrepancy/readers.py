@@ -424,7 +424,17 @@ def read_trajectories(paths: Sequence[str | Path] | str | Path, objects: Any = N
 
 def clips_from_columns(cols: Mapping[str, Sequence], source: str = "<table>", objects: Any = None,
                        default: DefaultObject | None = None) -> list[Clip]:
-    """Clips from in-memory table columns (same checks as :func:`read_trajectory_file`)."""
+    """Clips from in-memory table columns (same checks as :func:`read_trajectory_file`).
+
+    Args:
+        cols: ``{column: values}`` with :data:`TABLE_COLUMNS` (m, s, z up) and optionally
+            :data:`QUAT_COLUMNS` and :data:`SPEC_COLUMNS` (e.g. :func:`generate_hidden`'s).
+        source: name used for ``Clip.source`` and in messages.
+        objects: objects mapping (:func:`parse_objects`). default: size/mass assumed.
+
+    Raises:
+        DiscrepancyInputError: as :func:`read_trajectory_file`, naming ``source``.
+    """
     return _clips_from_columns(Path(source), {k: list(v) for k, v in cols.items()}, False, 0,
                                parse_objects(objects), default or DefaultObject())
 

@@ -142,7 +142,9 @@ def _video_lines(rep: Mapping[str, Any]) -> list[str]:
 
 
 def report_markdown(rep: Mapping[str, Any]) -> str:
-    """Human-readable report (Markdown) from :func:`report_dict`."""
+    """Human-readable report (Markdown) from :func:`report_dict` (lengths in mm, angles in
+    deg): the gap, the named effects with intervals, every step's candidates, the clips, the
+    residual segments and the method."""
     mm = 1e3
     lines = ["# Discrepancy report", "",
              "Workflow of DESIGN.md §8: fit the base model (scene language v1 in MuJoCo) per clip, find where it "

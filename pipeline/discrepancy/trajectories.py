@@ -59,6 +59,7 @@ class ObjectSpec:
         return math.sqrt(s["radius"] ** 2 + (s["height"] / 2) ** 2)
 
     def scene_dict(self) -> dict[str, Any]:
+        """``{shape, size, mass}`` of a scene-language object (m, kg)."""
         return {"shape": self.shape, "size": dict(self.size), "mass": self.mass}
 
 
@@ -109,6 +110,7 @@ class Clip:
 
     @property
     def has_orientation(self) -> bool:
+        """Whether any track has measured orientations."""
         return any(tr.quat is not None for tr in self.tracks)
 
     @property

@@ -106,24 +106,46 @@ def run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None = None,
                  options: SimOptions | None = None, gravity: float = 9.81, log=None) -> Result:
     """Find, name and add missing effects (DESIGN §8).
 
-    1. Fit the base model to each clip; estimate the noise; list residual segments.
-    2. Greedy forward selection: fit each remaining candidate jointly over all clips (shared
-       coefficients, per-clip parameters warm-started from the current model); candidates
-       whose BIC drops by at least ``bic_threshold`` get k-fold held-out scores; a candidate
-       is eligible when its held-out chi-square drops by at least ``heldout_threshold`` and
-       its held-out RMSE shrinks; the eligible one with the lowest BIC is named. Stop when
-       none is eligible or ``max_effects`` are named.
-    3. Refit the final model with confidence intervals.
+    Runs with every BLAS on one thread (:func:`single_threaded_blas`) and, with >= 2 clips, a
+    pool of ``cfg.workers`` processes (default: every available core) for the per-clip fits
+    (:meth:`Workspace.start_pool`; same result to the last bit as without).
+
+    1. **Base.** The noise of each clip is estimated from the data (:func:`estimate_noise`).
+       Each clip's base parameters (:data:`NUISANCE`) are fitted on their own from the data
+       (:func:`initial_nuisance`, then continuation over ``cfg.horizons`` with a friction
+       scan, :meth:`Workspace.fit_clip`), converged to ``cfg.ftol``; the same per-clip fit
+       with the screening budget is the reference the candidates' profiles are compared with.
+    2. **Name** (greedy forward selection, at most ``max_effects`` steps). Candidates: every
+       effect not yet named; after step 1 (unless ``rescreen_all``) only those whose profile
+       gained at least ``heldout_threshold`` at step 1. With ``screen_gain`` > 0 each is first
+       screened (:func:`screen_candidates`, linearised chi-square gain; failing that, the clips
+       refitted from the data at one strength, :func:`_second_chance_point`) and dropped below
+       ``screen_gain``. Each remaining candidate gets its profile over its strength (every
+       clip refitted from the data at each point), a converged joint fit (coefficients shared,
+       every clip's parameters free) and leave-one-clip-out held-out scores
+       (:func:`_profile_candidate`). It is eligible when BIC drops by at least
+       ``bic_threshold``, the profile gains at least ``heldout_threshold`` in chi-square and,
+       with >= 2 clips, the held-out chi-square drops by at least ``heldout_threshold`` and the
+       held-out RMSE shrinks (:func:`_gate`); the eligible one with the lowest BIC is named and
+       each clip's parameters are refitted from the data where that is better
+       (:func:`_refit_from_data`). Stop when none is eligible, or when every clip's chi-square
+       per residual is at most ``noise_floor_chi2``.
+    3. **Add.** With effects named, a converged joint refit with Gauss-Newton intervals (the
+       selection fit is kept if the refit is worse), then profile-likelihood intervals
+       (:func:`profile_intervals`).
+    4. **Find.** Per clip, the motion phases (:func:`motion_phases`, with the base model's
+       spin where none is measured) and the residual segments of the base and the final model
+       (:func:`residual_segments`); with one clip, the forward gap (:func:`forward_gap`).
 
     Args:
-        clips: measured clips (:func:`read_trajectories`).
-        cfg: settings.
-        options: simulation options (params ``sim``).
+        clips: measured clips (:func:`read_trajectories`), objects in scene order.
+        cfg: settings (default :class:`DiscrepancyConfig`).
+        options: simulation options (params ``sim``; ``textured`` is switched off).
         gravity: m/s^2.
         log: optional ``print``-like callable for progress lines.
 
     Returns:
-        :class:`Result`.
+        :class:`Result`; ``runtime_s`` is the wall time, s.
     """
     with single_threaded_blas():
         return _run_workflow(clips, cfg, options, gravity, log)

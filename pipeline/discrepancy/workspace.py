@@ -33,6 +33,7 @@ class HeldOut:
 
     @property
     def total_chi2(self) -> float:
+        """Held-out chi-square summed over clips."""
         return float(sum(self.chi2))
 
     @property
@@ -41,6 +42,7 @@ class HeldOut:
         return math.sqrt(sum(self.sq_pos) / max(sum(self.n_pos), 1))
 
     def clip_rmse(self, c: int) -> float:
+        """m, held-out position RMSE of clip ``c``."""
         return math.sqrt(self.sq_pos[c] / max(self.n_pos[c], 1))
 
 
@@ -86,6 +88,8 @@ class Workspace:
         self._pool = None
 
     def model(self, c: int, effects: Iterable[str]) -> ClipModel:
+        """The :class:`ClipModel` of clip ``c`` with ``effects`` (compiled on first use, cached
+        per clip and effect set)."""
         key = (c, tuple(e for e in fx.REGISTRY if e in set(effects)))
         if key not in self._models:
             self._models[key] = ClipModel(self.clips[c], key[1], self.options, self.gravity, self.cfg.threads)
