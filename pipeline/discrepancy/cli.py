@@ -20,8 +20,8 @@ from pipeline.discrepancy.report import write_report
 from pipeline.discrepancy.trajectories import DiscrepancyInputError
 from pipeline.discrepancy.workflow import run_workflow
 from pipeline.mjcf import SimOptions
-from pipeline.params import load_params
 from pipeline.parallel import ComputeConfig
+from pipeline.params import load_params
 from pipeline.shards import write_json, write_text
 
 

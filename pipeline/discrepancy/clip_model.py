@@ -15,9 +15,9 @@ import numpy as np
 from mujoco import rollout as mj_rollout
 
 from pipeline import effects as fx
+from pipeline.discrepancy.quaternions import quat_conj, quat_mul, quat_to_mat, quat_to_rotvec, rotvec_to_quat
 from pipeline.discrepancy.trajectories import Clip
 from pipeline.mjcf import SimOptions, initial_state
-from pipeline.discrepancy.quaternions import quat_conj, quat_mul, quat_to_mat, quat_to_rotvec, rotvec_to_quat
 from pipeline.scene import Scene
 from pipeline.simulate import reset_to_scene
 

@@ -16,8 +16,8 @@ from threadpoolctl import threadpool_limits
 from pipeline import effects as fx
 from pipeline.discrepancy.clip_model import _D, _F, _P, _R, _V, _W, NUISANCE, ClipModel, Weights, clip_residuals
 from pipeline.discrepancy.config import DiscrepancyConfig
-from pipeline.discrepancy.trajectories import Clip, ObjectSpec, Track
 from pipeline.discrepancy.quaternions import quat_conj, quat_mul, quat_to_mat, quat_to_rotvec
+from pipeline.discrepancy.trajectories import Clip, ObjectSpec, Track
 
 try:   # an optional extra of MuJoCo; without it the same formula runs on a pseudo-inverse
     from mujoco import sysid

@@ -13,9 +13,9 @@ from pydantic import Field
 from pipeline import effects as fx
 from pipeline.discrepancy.clip_model import _sample_rollout
 from pipeline.discrepancy.config import DISCREPANCY_DECIMALS, _Strict
+from pipeline.discrepancy.quaternions import quat_mul, rotvec_to_quat
 from pipeline.discrepancy.trajectories import QUAT_COLUMNS, SPEC_COLUMNS, TABLE_COLUMNS
 from pipeline.mjcf import SimOptions, compile_model
-from pipeline.discrepancy.quaternions import quat_mul, rotvec_to_quat
 from pipeline.scene import Scene
 
 

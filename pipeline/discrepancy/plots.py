@@ -18,7 +18,6 @@ def _safe_name(name: str) -> str:
     return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in name) or "clip"
 
 
-
 _PHASE_COLOURS = {"flight": "#ffffff", "contact": "#d62728", "sliding": "#ff7f0e", "rolling": "#2ca02c", "rest": "#7f7f7f"}
 
 

@@ -31,7 +31,6 @@ def extended_scenes(result: Result) -> dict[str, Scene]:
     return out
 
 
-
 def _fmt(x: float | None, scale: float = 1.0, nd: int = 2) -> str:
     return "—" if x is None else f"{x * scale:.{nd}f}"
 

@@ -19,6 +19,8 @@ QUAT_COLUMNS = ("qw", "qx", "qy", "qz")
 SPEC_COLUMNS = ("shape", "radius", "width", "depth", "height", "mass")
 """Optional per-object columns (constant within an object): shape, size (m), mass (kg)."""
 MIN_SAMPLES = 5
+"""Fewest samples of a track (and of a truncated one, :func:`_truncate`): the noise estimate
+fits quadratics over windows of 5 samples."""
 
 
 class DiscrepancyInputError(UserError, ValueError):
@@ -117,7 +119,6 @@ class Clip:
     def fps(self) -> int:
         """Sample rate (median spacing), rounded to an integer for the scene's ``fps``."""
         return int(max(1, round(1.0 / float(np.median(np.diff(self.times))))))
-
 
 
 def _truncate(clip: Clip, t_max: float) -> Clip | None:

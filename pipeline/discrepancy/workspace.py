@@ -73,7 +73,6 @@ def _scan_friction(clip: Clip, model: ClipModel, weights: Weights, nuis: np.ndar
     return nuis
 
 
-
 class Workspace:
     """Clips, noise weights and compiled models (one per clip and effect set, cached)."""
 
