@@ -89,14 +89,16 @@ def run_legacy(n: int, seed: int, params: dict) -> dict:
     """Time the old render path against the new one on the same ``n`` scenes, in this process."""
     from pipeline.mjcf import SimOptions, to_xml
     from pipeline.render import render_mjcf
+    from pipeline.params import typed_section
     from pipeline.sampler import SampleChunk, SampleConfig, sample_chunk
     from pipeline.scene import Decimals
 
     W, H = int(params["render"]["width"]), int(params["render"]["height"])
-    cfg = SampleConfig(**{**params["sample"], "n_train": n, "n_val": 0, "n_test": 0, "n_test_comp": 0,
-                          "width": W, "height": H})
-    options = SimOptions(**params["sim"])
-    scenes, _ = sample_chunk(SampleChunk(cfg, seed, 0, n, Decimals(**params["scene"]["decimals"]), options))
+    cfg = typed_section(params, "sample", SampleConfig, required=True, overrides={
+        "n_train": n, "n_val": 0, "n_test": 0, "n_test_comp": 0, "width": W, "height": H})
+    options = typed_section(params, "sim", SimOptions, required=True)
+    decimals = typed_section(params, "scene.decimals", Decimals, required=True)
+    scenes, _ = sample_chunk(SampleChunk(cfg, seed, 0, n, decimals, options))
     items = [(to_xml(s, options), len(s.objects), s.n_frames, s.fps) for _, _, s in scenes]
     t = time.perf_counter()
     old = [legacy_render(*it, W, H) for it in items]

@@ -1,18 +1,24 @@
 """Read ``params.yaml``: the one place where stage parameters and output paths live.
 
-Each module owns a typed config for its section (e.g. ``model.ModelConfig(**p["model"])``);
-this module only finds and parses the file.
+Each module owns a typed config (a frozen pydantic model) for its section; this module finds
+and parses the file and reads a section into its config with one-line errors::
+
+    p = load_params()
+    cfg = typed_section(p, "search", SearchConfig)   # params.yaml: search.popsize: must be > 0, got -1
 """
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping, TypeVar
 
 import yaml
+from pydantic import BaseModel, ValidationError
 
-from pipeline.errors import UserError
+from pipeline.errors import UserError, format_validation_error, short_repr
+
+C = TypeVar("C", bound=BaseModel)
 
 PARAMS_FILE = "params.yaml"
 
@@ -46,6 +52,54 @@ def section(params: dict[str, Any], key: str, source: str = PARAMS_FILE) -> dict
     except KeyError:
         raise ParamsError(f"{source}: {key}: required section missing") from None
     return value if value is not None else {}
+
+
+def typed_section(params: Mapping[str, Any], key: str, cls: type[C], source: str = PARAMS_FILE, *,
+                  required: bool = False, defaults: Mapping[str, Any] | None = None,
+                  overrides: Mapping[str, Any] | None = None, error: type[UserError] = ParamsError,
+                  unknown: str | None = None) -> C:
+    """Section ``key`` of parsed params validated into ``cls``.
+
+    Args:
+        params: parsed params.yaml (:func:`load_params`).
+        key: section name, e.g. ``"search"``; dots for a nested section (``"scene.decimals"``).
+        cls: the section's pydantic model (``extra="forbid"``, frozen).
+        source: file named in errors.
+        required: a missing (or null) section is an error; otherwise it takes ``cls``'s
+            defaults (and fails only if ``cls`` has required fields, naming the first).
+        defaults: values used where the section does not give the key (e.g. the top-level
+            ``seed`` for ``model.seed``).
+        overrides: values that replace the section's (e.g. ``sample.width`` from
+            ``render.width``, or a benchmark's command-line option).
+        error: the :class:`UserError` subclass raised (``ParamsError`` unless the owning module
+            has its own, e.g. ``ModelError``).
+        unknown: wording of an unknown key (see :func:`pipeline.errors.format_validation_error`;
+            default ``must not be given (unknown key), got <value>``).
+
+    Returns:
+        The validated ``cls`` instance.
+
+    Raises:
+        ParamsError (or ``error``): one line ``<source>: <key>.<field path>: must be <rule>, got
+            <value>``, e.g. ``params.yaml: search.popsize: must be > 0, got -1``; the section is
+            missing while ``required``; or it is not a mapping.
+    """
+    data: Any = params
+    for depth, name in enumerate(key.split(".")):
+        where = ".".join(key.split(".")[:depth + 1])
+        data = data.get(name)
+        if data is None:
+            if required:
+                raise error(f"{source}: {where}: required section missing")
+            data = {}
+        if not isinstance(data, Mapping):
+            raise error(f"{source}: {where}: must be a mapping, got {short_repr(data)}")
+    data = {**(defaults or {}), **data, **(overrides or {})}
+    try:
+        return cls.model_validate(data)
+    except ValidationError as exc:
+        extra = {} if unknown is None else {"unknown": unknown, "known": tuple(cls.model_fields)}
+        raise error(format_validation_error(exc, source, key.split("."), **extra)) from None
 
 
 def path_of(params: dict[str, Any], name: str) -> Path:

@@ -13,7 +13,7 @@ from tqdm import tqdm
 from pipeline import shards
 from pipeline.flow import FlowConfig, estimate_flow
 from pipeline.parallel import compute_from_params, parallel_map
-from pipeline.params import load_params, path_of
+from pipeline.params import load_params, path_of, typed_section
 
 
 def flow_shard(task: tuple[str, int, str, dict]) -> int:
@@ -38,7 +38,7 @@ def flow_shard(task: tuple[str, int, str, dict]) -> int:
 
 def main() -> None:
     p = load_params()
-    FlowConfig(**p["flow"])  # validate before starting workers
+    typed_section(p, "flow", FlowConfig, required=True)  # validate before starting workers
     video_dir, out = path_of(p, "video"), shards.reset_dir(path_of(p, "flow"))
     video_shards = shards.list_shards(video_dir, "zarr")
     tasks = [(str(s), i, str(out), p["flow"]) for i, s in enumerate(video_shards)]
