@@ -37,6 +37,7 @@ if str(ROOT) not in sys.path:
 import numpy as np  # noqa: E402
 
 import pipeline  # noqa: E402,F401  (MUJOCO_GL before mujoco)
+from pipeline.atomic import write_text  # noqa: E402
 
 
 # --------------------------------------------------------------------------- the render path before issue 8
@@ -69,7 +70,7 @@ def run_stages(n: int, workers: int, params: dict, code: Path, workdir: Path) ->
     p = dict(params)
     p["sample"] = {**params["sample"], "n_train": n, "n_val": 0, "n_test": 0, "n_test_comp": 0}
     p["compute"] = {"workers": workers}
-    (workdir / "params.yaml").write_text(yaml.safe_dump(p, sort_keys=False))
+    write_text(workdir / "params.yaml", yaml.safe_dump(p, sort_keys=False))
     env = {**os.environ, "PYTHONPATH": str(code), "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
     out = {"workers": workers, "code": str(code), "load_avg_before": list(os.getloadavg()), "stages": {}}
     for stage in STAGES:

@@ -35,6 +35,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 import pipeline  # noqa: E402,F401  (MUJOCO_GL before mujoco)
+from pipeline.atomic import write_text  # noqa: E402
 
 BACKENDS = {"local1": {"backend": "local", "workers": 1}, "local2": {"backend": "local", "workers": 2},
             "ray2": {"backend": "ray", "address": None, "workers": 2}}
@@ -171,8 +172,7 @@ def main(argv=None) -> int:
               "render_size": [int(p["render"]["width"]), int(p["render"]["height"])], "runs": results,
               "cost_model": {"basis": basis, "node_cores": NODE_CORES, **model}}
     out = ROOT / args.out
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(report, indent=2))
+    write_text(out, json.dumps(report, indent=2))
     print(f"wrote {out}")
     return 0
 

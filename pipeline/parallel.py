@@ -45,7 +45,7 @@ from typing import Any, Callable, Iterable, Iterator, Literal, Sequence, TypeVar
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 from tqdm import tqdm
 
-from pipeline.params import PARAMS_FILE, typed_section
+from pipeline.params import typed_section
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -101,7 +101,7 @@ class ComputeConfig(BaseModel):
         return self.workers or available_cores()
 
 
-def compute_from_params(params: dict[str, Any], source: str = PARAMS_FILE) -> ComputeConfig:
+def compute_from_params(params: dict[str, Any], source: str | None = None) -> ComputeConfig:
     """The :class:`ComputeConfig` of params section ``compute`` (defaults when it is missing).
 
     Raises:

@@ -27,8 +27,20 @@ class ParamsError(UserError, ValueError):
     """params.yaml is missing, malformed or lacks a section (one line naming file and key)."""
 
 
-def load_params(path: str | Path | None = None) -> dict[str, Any]:
+class Params(dict):
+    """Parsed params.yaml (a plain ``dict`` of its sections) that remembers its file
+    (``source``), so that :func:`typed_section` errors name the file that was read."""
+
+    def __init__(self, data: Mapping[str, Any], source: str = PARAMS_FILE):
+        super().__init__(data)
+        self.source = str(source)
+
+
+def load_params(path: str | Path | None = None) -> Params:
     """Parse params.yaml (``$DYNAMICS_PARAMS`` or ./params.yaml by default).
+
+    Returns:
+        the sections, as a :class:`Params` dict whose ``source`` is the file's path.
 
     Raises:
         ParamsError: the file is missing or not a YAML mapping.
@@ -42,11 +54,13 @@ def load_params(path: str | Path | None = None) -> dict[str, Any]:
         raise ParamsError(f"{path}: malformed YAML: {str(exc).splitlines()[0]}") from None
     if not isinstance(data, dict):
         raise ParamsError(f"{path}: must be a mapping")
-    return data
+    return Params(data, source=str(path))
 
 
-def section(params: dict[str, Any], key: str, source: str = PARAMS_FILE) -> dict[str, Any]:
-    """``params[key]`` with a one-line error if it is missing."""
+def section(params: Mapping[str, Any], key: str, source: str | None = None) -> dict[str, Any]:
+    """``params[key]`` (raw, untyped) with a one-line error if it is missing; prefer
+    :func:`typed_section` for a section that has a config class."""
+    source = source or getattr(params, "source", PARAMS_FILE)
     try:
         value = params[key]
     except KeyError:
@@ -54,7 +68,7 @@ def section(params: dict[str, Any], key: str, source: str = PARAMS_FILE) -> dict
     return value if value is not None else {}
 
 
-def typed_section(params: Mapping[str, Any], key: str, cls: type[C], source: str = PARAMS_FILE, *,
+def typed_section(params: Mapping[str, Any], key: str, cls: type[C], source: str | None = None, *,
                   required: bool = False, defaults: Mapping[str, Any] | None = None,
                   overrides: Mapping[str, Any] | None = None, error: type[UserError] = ParamsError,
                   unknown: str | None = None) -> C:
@@ -64,7 +78,8 @@ def typed_section(params: Mapping[str, Any], key: str, cls: type[C], source: str
         params: parsed params.yaml (:func:`load_params`).
         key: section name, e.g. ``"search"``; dots for a nested section (``"scene.decimals"``).
         cls: the section's pydantic model (``extra="forbid"``, frozen).
-        source: file named in errors.
+        source: file named in errors (default: ``params.source`` of a :func:`load_params`
+            result, else ``params.yaml``).
         required: a missing (or null) section is an error; otherwise it takes ``cls``'s
             defaults (and fails only if ``cls`` has required fields, naming the first).
         defaults: values used where the section does not give the key (e.g. the top-level
@@ -84,6 +99,7 @@ def typed_section(params: Mapping[str, Any], key: str, cls: type[C], source: str
             <value>``, e.g. ``params.yaml: search.popsize: must be > 0, got -1``; the section is
             missing while ``required``; or it is not a mapping.
     """
+    source = source or getattr(params, "source", PARAMS_FILE)
     data: Any = params
     for depth, name in enumerate(key.split(".")):
         where = ".".join(key.split(".")[:depth + 1])
@@ -104,4 +120,5 @@ def typed_section(params: Mapping[str, Any], key: str, cls: type[C], source: str
 
 def path_of(params: dict[str, Any], name: str) -> Path:
     """Output directory ``paths.<name>`` (e.g. ``data/video``)."""
-    return Path(section(section(params, "paths"), name, source=f"{PARAMS_FILE}: paths"))
+    source = getattr(params, "source", PARAMS_FILE)
+    return Path(section(section(params, "paths"), name, source=f"{source}: paths"))

@@ -16,6 +16,7 @@ order, so the shards do not depend on the backend or the worker count.
 import pyarrow as pa
 
 from pipeline import shards
+from pipeline.entry import run_stage
 from pipeline.mjcf import SimOptions
 from pipeline.parallel import compute_from_params, map_shards
 from pipeline.params import load_params, path_of, typed_section
@@ -71,4 +72,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_stage(main)

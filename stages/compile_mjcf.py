@@ -7,6 +7,7 @@ in chunks on the ``compute`` backend (``pipeline.parallel``).
 """
 
 from pipeline import shards
+from pipeline.entry import run_stage
 from pipeline.mjcf import SimOptions, to_xml
 from pipeline.parallel import compute_from_params, map_shards
 from pipeline.params import load_params, path_of, typed_section
@@ -40,4 +41,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_stage(main)

@@ -12,6 +12,7 @@ import pyarrow as pa
 from tqdm import tqdm
 
 from pipeline import shards
+from pipeline.entry import run_stage
 from pipeline.events import EventConfig, events_to_rows, events_to_text, extract_events
 from pipeline.parallel import compute_from_params, parallel_map
 from pipeline.params import load_params, path_of, typed_section
@@ -50,4 +51,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_stage(main)

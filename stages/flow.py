@@ -11,6 +11,7 @@ import numpy as np
 from tqdm import tqdm
 
 from pipeline import shards
+from pipeline.entry import run_stage
 from pipeline.flow import FlowConfig, estimate_flow
 from pipeline.parallel import compute_from_params, parallel_map
 from pipeline.params import load_params, path_of, typed_section
@@ -50,4 +51,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_stage(main)

@@ -14,6 +14,7 @@ from collections import Counter
 from tqdm import tqdm
 
 from pipeline import shards
+from pipeline.entry import run_stage
 from pipeline.mjcf import SimOptions
 from pipeline.parallel import compute_from_params, parallel_map
 from pipeline.params import load_params, path_of, section, typed_section
@@ -57,4 +58,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_stage(main)

@@ -15,6 +15,7 @@ import json
 from tqdm import tqdm
 
 from pipeline import shards
+from pipeline.entry import run_stage
 from pipeline.metrics import PARAMETER_UNITS, json_safe, markdown_table, scene_report, summarize
 from pipeline.mjcf import SimOptions
 from pipeline.params import load_params, path_of, typed_section
@@ -92,4 +93,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_stage(main)

@@ -107,7 +107,7 @@ class ModelConfig(BaseModel):
         return self
 
     @classmethod
-    def from_params(cls, params: dict[str, Any], source: str = "params.yaml") -> "ModelConfig":
+    def from_params(cls, params: dict[str, Any], source: str | None = None) -> "ModelConfig":
         """Validate section ``model`` of a parsed params.yaml (missing section = defaults).
 
         ``model.seed`` defaults to the top-level ``seed``.
