@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import logging
 import sys
-from typing import Any, Callable, NoReturn
+from typing import Any, Callable
 
 from pipeline.errors import UserError
 
@@ -62,9 +62,10 @@ def user_error_line(exc: UserError) -> str:
     return f"error: {text.splitlines()[0] if text else type(exc).__name__}"
 
 
-def run_stage(main: Callable[[], Any], name: str | None = None) -> NoReturn:
-    """Run a stage's ``main()`` and exit: status 0, or 2 with :func:`user_error_line` on stderr
-    for a :class:`UserError` (e.g. ``error: params.yaml: search.popsize: must be >= 2, got -1``).
+def run_stage(main: Callable[[], Any], name: str | None = None) -> None:
+    """Run a stage's ``main()``; on a :class:`UserError` print :func:`user_error_line` to stderr
+    (e.g. ``error: params.yaml: search.popsize: must be >= 2, got -1``) and exit with status 2.
+    Returns normally when ``main`` does (the script then ends with status 0).
 
     Args:
         main: the stage's ``main`` (no arguments; it reads params.yaml itself).
@@ -76,4 +77,3 @@ def run_stage(main: Callable[[], Any], name: str | None = None) -> NoReturn:
     except UserError as exc:
         print(user_error_line(exc), file=sys.stderr)
         sys.exit(USER_ERROR_STATUS)
-    sys.exit(0)
