@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.optimize import least_squares
+from tabulate import tabulate
 
 CLIP = Path(__file__).resolve().parents[1] / ".." / "shared/data/real/trajectories/kseuro_balldrop_white_pingpong.txt"
 MASS, RADIUS, G, CD = 0.0028, 0.0201, 9.81, 0.47   # SOURCES.md: m = 2.80 g, r = 20.1 mm
@@ -46,8 +47,7 @@ def main() -> None:
     t, z = d[a.skip:, 0], d[a.skip:, 1]
     n_fit = int(np.sum(t <= t[0] + a.split * (t[-1] - t[0])))
     print(f"{CLIP.name}: {len(t)} samples, fit on the first {n_fit} (t <= {t[n_fit - 1]:.3f} s), forecast {len(t) - n_fit}")
-    print("| law | c fitted on the first part | forecast RMSE (mm) | c on the whole clip | whole-clip RMSE (mm) |")
-    print("|---|---|---|---|---|")
+    rows = []
     for law in ("none", "linear", "quadratic"):
         hi = 1e-12 if law == "none" else np.inf
         bounds = ([-np.inf, -np.inf, 0.0], [np.inf, np.inf, hi])
@@ -55,8 +55,10 @@ def main() -> None:
         part = least_squares(lambda p: simulate(p, t[:n_fit], law) - z[:n_fit], p0, bounds=bounds)
         fore = simulate(part.x, t, law)[n_fit:] - z[n_fit:]
         whole = least_squares(lambda p: simulate(p, t, law) - z, part.x, bounds=bounds)
-        print(f"| {law} | {part.x[2]:.3f} | {1e3 * np.sqrt(np.mean(fore ** 2)):.2f} | {whole.x[2]:.3f} | "
-              f"{1e3 * np.sqrt(np.mean(whole.fun ** 2)):.2f} |")
+        rows.append([law, f"{part.x[2]:.3f}", f"{1e3 * np.sqrt(np.mean(fore ** 2)):.2f}", f"{whole.x[2]:.3f}",
+                     f"{1e3 * np.sqrt(np.mean(whole.fun ** 2)):.2f}"])
+    print(tabulate(rows, ["law", "c fitted on the first part", "forecast RMSE (mm)", "c on the whole clip",
+                          "whole-clip RMSE (mm)"], tablefmt="github", disable_numparse=True))
 
 
 if __name__ == "__main__":

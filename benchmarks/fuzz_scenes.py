@@ -22,7 +22,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import re
 import sys
 import tempfile
@@ -39,6 +38,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from pipeline.atomic import write_json  # noqa: E402
 from pipeline.scene import MAX_SCENE_BYTES, Scene, SceneError, load_scene  # noqa: E402
 
 MAX_LINE = 300
@@ -268,10 +268,7 @@ def main() -> int:
     t0 = time.time()
     report = run(args.examples)
     report["seconds"] = round(time.time() - t0, 1)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = args.out.with_name(f".{args.out.name}.tmp-{os.getpid()}")
-    tmp.write_text(json.dumps(report, indent=2) + "\n")
-    os.replace(tmp, args.out)
+    write_json(args.out, report)
     print(json.dumps({k: v for k, v in report.items() if k != "failure_examples"}, indent=2))
     for f in report["failure_examples"][:5]:
         print(f)

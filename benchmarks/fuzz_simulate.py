@@ -17,7 +17,6 @@ import argparse
 import contextlib
 import io
 import json
-import os
 import re
 import shutil
 import signal
@@ -34,6 +33,8 @@ from hypothesis import strategies as st
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
+
+from pipeline.atomic import write_json  # noqa: E402
 
 REPRO = ROOT.parent / "shared" / "repro"
 
@@ -151,10 +152,7 @@ def main() -> int:
               "failures": sum(v for k, v in counts.items() if k.startswith("failure")),
               "slowest_s": round(slowest[0], 2), "slowest_outcome": slowest[1],
               "seconds": round(time.time() - t0, 1), "reproducers": repro, "failure_examples": failures}
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    tmp_out = args.out.with_name(f".{args.out.name}.tmp-{os.getpid()}")
-    tmp_out.write_text(json.dumps(report, indent=2) + "\n")
-    os.replace(tmp_out, args.out)
+    write_json(args.out, report)
     print(json.dumps({k: v for k, v in report.items() if k not in ("failure_examples", "reproducers")}, indent=2))
     for name, r in repro.items():
         print(f"{name}: {r['outcome']}")

@@ -37,6 +37,7 @@ if str(ROOT) not in sys.path:
 import numpy as np  # noqa: E402
 
 import pipeline  # noqa: E402,F401  (MUJOCO_GL before mujoco)
+from pipeline.atomic import write_text  # noqa: E402
 
 
 # --------------------------------------------------------------------------- the render path before issue 8
@@ -69,7 +70,7 @@ def run_stages(n: int, workers: int, params: dict, code: Path, workdir: Path) ->
     p = dict(params)
     p["sample"] = {**params["sample"], "n_train": n, "n_val": 0, "n_test": 0, "n_test_comp": 0}
     p["compute"] = {"workers": workers}
-    (workdir / "params.yaml").write_text(yaml.safe_dump(p, sort_keys=False))
+    write_text(workdir / "params.yaml", yaml.safe_dump(p, sort_keys=False))
     env = {**os.environ, "PYTHONPATH": str(code), "MUJOCO_GL": os.environ.get("MUJOCO_GL", "egl")}
     out = {"workers": workers, "code": str(code), "load_avg_before": list(os.getloadavg()), "stages": {}}
     for stage in STAGES:
@@ -89,14 +90,16 @@ def run_legacy(n: int, seed: int, params: dict) -> dict:
     """Time the old render path against the new one on the same ``n`` scenes, in this process."""
     from pipeline.mjcf import SimOptions, to_xml
     from pipeline.render import render_mjcf
+    from pipeline.params import typed_section
     from pipeline.sampler import SampleChunk, SampleConfig, sample_chunk
     from pipeline.scene import Decimals
 
     W, H = int(params["render"]["width"]), int(params["render"]["height"])
-    cfg = SampleConfig(**{**params["sample"], "n_train": n, "n_val": 0, "n_test": 0, "n_test_comp": 0,
-                          "width": W, "height": H})
-    options = SimOptions(**params["sim"])
-    scenes, _ = sample_chunk(SampleChunk(cfg, seed, 0, n, Decimals(**params["scene"]["decimals"]), options))
+    cfg = typed_section(params, "sample", SampleConfig, required=True, overrides={
+        "n_train": n, "n_val": 0, "n_test": 0, "n_test_comp": 0, "width": W, "height": H})
+    options = typed_section(params, "sim", SimOptions, required=True)
+    decimals = typed_section(params, "scene.decimals", Decimals, required=True)
+    scenes, _ = sample_chunk(SampleChunk(cfg, seed, 0, n, decimals, options))
     items = [(to_xml(s, options), len(s.objects), s.n_frames, s.fps) for _, _, s in scenes]
     t = time.perf_counter()
     old = [legacy_render(*it, W, H) for it in items]

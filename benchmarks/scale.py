@@ -35,6 +35,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 import pipeline  # noqa: E402,F401  (MUJOCO_GL before mujoco)
+from pipeline.atomic import write_text  # noqa: E402
 
 BACKENDS = {"local1": {"backend": "local", "workers": 1}, "local2": {"backend": "local", "workers": 2},
             "ray2": {"backend": "ray", "address": None, "workers": 2}}
@@ -69,18 +70,20 @@ def make_inputs(args, p: dict):
     """Render tasks and search tasks for ``args`` from params ``p``."""
     from pipeline.mjcf import SimOptions, to_xml
     from pipeline.parallel import chunks
+    from pipeline.params import typed_section
     from pipeline.render import render_scene
     from pipeline.sampler import SampleChunk, SampleConfig, sample_chunk
     from pipeline.search import SearchConfig
 
     W, H = int(p["render"]["width"]), int(p["render"]["height"])
-    cfg = SampleConfig(**{**p["sample"], "n_train": args.n, "n_val": 0, "n_test": 0, "n_test_comp": 0,
-                          "width": W, "height": H})
-    sim = SimOptions(**p["sim"])
+    cfg = typed_section(p, "sample", SampleConfig, required=True, overrides={
+        "n_train": args.n, "n_val": 0, "n_test": 0, "n_test_comp": 0, "width": W, "height": H})
+    sim = typed_section(p, "sim", SimOptions, required=True)
     scenes = [s for _, _, s in sample_chunk(SampleChunk(cfg, int(p.get("seed", 0)), 0, args.n, None, sim))[0]]
     rows = [(to_xml(s, sim), len(s.objects), s.n_frames, s.fps) for s in scenes]
     render_tasks = [(list(part), W, H) for part in chunks(rows, args.chunk)]
-    search_cfg = SearchConfig(**{**(p.get("search") or {}), "popsize": args.popsize, "iterations": args.iterations})
+    search_cfg = typed_section(p, "search", SearchConfig,
+                               overrides={"popsize": args.popsize, "iterations": args.iterations})
     targets = []
     for i, s in enumerate(scenes[:args.search_scenes]):
         _, frames = render_scene(s, W, H, sim)
@@ -169,8 +172,7 @@ def main(argv=None) -> int:
               "render_size": [int(p["render"]["width"]), int(p["render"]["height"])], "runs": results,
               "cost_model": {"basis": basis, "node_cores": NODE_CORES, **model}}
     out = ROOT / args.out
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(report, indent=2))
+    write_text(out, json.dumps(report, indent=2))
     print(f"wrote {out}")
     return 0
 

@@ -28,6 +28,7 @@ import numpy as np
 import torch
 
 from pipeline import model as M
+from pipeline.atomic import write_text
 from pipeline.codec import SceneCodec, bin_token
 from pipeline.model.network import CompositionHead, VisionTap, composition_targets
 
@@ -98,8 +99,7 @@ def main() -> None:
     ratio = rows[-1]["examples_per_s"] / rows[0]["examples_per_s"]
     print(f"after / before: {ratio:.2f}x ({args.threads} threads)")
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"rows": rows, "speedup_after_vs_before": round(ratio, 2),
+    write_text(out, json.dumps({"rows": rows, "speedup_after_vs_before": round(ratio, 2),
                                "cpu_count": os.cpu_count(), "command": "python benchmarks/train_step.py"}, indent=1))
 
 

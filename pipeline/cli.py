@@ -15,9 +15,11 @@ from __future__ import annotations
 
 import argparse
 import sys
-
-from pipeline.errors import UserError
 import warnings
+
+from pipeline.atomic import write_text
+from pipeline.entry import USER_ERROR_STATUS, configure_logging, user_error_line
+from pipeline.errors import UserError
 
 _python_showwarning = warnings.showwarning
 
@@ -68,19 +70,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _schema_cli(args: argparse.Namespace) -> int:
-    import os
-    from pathlib import Path
-
     from pipeline.scene import json_schema_text
 
     text = json_schema_text()
     if args.out is None:
         sys.stdout.write(text)
         return 0
-    out = Path(args.out)
-    tmp = out.with_name(f".{out.name}.tmp-{os.getpid()}")
-    tmp.write_text(text)
-    os.replace(tmp, out)
+    try:
+        write_text(args.out, text)
+    except OSError as exc:
+        raise UserError(f"{args.out}: --out: cannot write: {exc.strerror or exc}") from None
     return 0
 
 
@@ -97,12 +96,13 @@ def _one_line_warning(message, category, filename, lineno, file=None, line=None)
 
 def main(argv: list[str] | None = None) -> int:
     warnings.showwarning = _one_line_warning
+    configure_logging("dynamics")
     args = build_parser().parse_args(argv)
     try:
         result = args.func(args)
-    except UserError as exc:   # every subcommand: one line, exit 2 (pipeline.errors)
-        print(f"error: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}", file=sys.stderr)
-        return 2
+    except UserError as exc:   # every subcommand: one line, exit 2 (pipeline.entry)
+        print(user_error_line(exc), file=sys.stderr)
+        return USER_ERROR_STATUS
     except KeyboardInterrupt:
         return 130
     return int(result or 0)

@@ -35,6 +35,7 @@ from typing import Any, Iterable, Sequence
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from pipeline.params import typed_section
 from pipeline.scene import SHAPES, Decimals, Scene, SceneError
 
 THINK, END_THINK = "<think>", "</think>"
@@ -135,7 +136,7 @@ class SceneCodec:
             CodecError: a range with hi <= lo.
         """
         s = params.get("sample") or {}
-        t = TokenConfig(**(params.get("tokens") or {}))
+        t = typed_section(params, "tokens", TokenConfig)
         n = t.bins
         ext = _range(s.get("extent", (0.18, 0.4)), "sample.extent")
         speed = float(_range(s.get("speed", (0.4, 2.0)), "sample.speed")[1])
@@ -164,7 +165,7 @@ class SceneCodec:
         quantizers = {k: Quantizer(k, lo, hi, n) for k, (lo, hi) in specs.items()}
         constants = {"duration": float(s.get("duration", 1.0)), "fps": int(s.get("fps", 30)),
                      "gravity": float(s.get("gravity", 9.81))}
-        decimals = Decimals(**((params.get("scene") or {}).get("decimals") or {}))
+        decimals = typed_section(params, "scene.decimals", Decimals)
         return cls(quantizers, constants, max_objects=t.max_objects, decimals=decimals)
 
     def to_dict(self) -> dict[str, Any]:

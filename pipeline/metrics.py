@@ -34,6 +34,7 @@ from typing import Any, Sequence
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+from tabulate import tabulate
 
 from pipeline.scene import Scene
 
@@ -476,14 +477,13 @@ def markdown_table(summaries: dict[str, dict[str, Any]], labels: dict[str, str],
         return "–" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{nd}f}"
 
     n = max((s["n"] for s in summaries.values()), default=0)
-    lines = [f"### Split `{split}` (n = {n})", "",
-             "| Method | Input | Composition acc. | Initial IoU | Full-sequence IoU | Foreground IoU | EPE (px) | valid |",
-             "|---|---|---|---|---|---|---|---|"]
-    for key, s in summaries.items():
-        lines.append(f"| {labels.get(key, key)} | {inputs.get(key, '-')} | {f(s['composition_accuracy'])} | "
-                     f"{f(s['initial_iou'])} | {f(s['full_iou'])} | {f(s['foreground_iou'])} | {f(s['epe'], 2)} | "
-                     f"{s['n_valid']}/{s['n']} |")
-    return "\n".join(lines) + "\n"
+    header = ["Method", "Input", "Composition acc.", "Initial IoU", "Full-sequence IoU", "Foreground IoU", "EPE (px)",
+              "valid"]
+    rows = [[labels.get(key, key), inputs.get(key, "-"), f(s["composition_accuracy"]), f(s["initial_iou"]),
+             f(s["full_iou"]), f(s["foreground_iou"]), f(s["epe"], 2), f"{s['n_valid']}/{s['n']}"]
+            for key, s in summaries.items()]
+    table = tabulate(rows, header, tablefmt="github", disable_numparse=True)  # cells exactly as formatted here
+    return f"### Split `{split}` (n = {n})\n\n{table}\n"
 
 
 def json_safe(obj: Any) -> Any:

@@ -42,9 +42,10 @@ from collections import deque
 from concurrent.futures import Executor, ProcessPoolExecutor
 from typing import Any, Callable, Iterable, Iterator, Literal, Sequence, TypeVar
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+from tqdm import tqdm
 
-from pipeline.params import PARAMS_FILE, ParamsError
+from pipeline.params import typed_section
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -77,6 +78,13 @@ class ComputeConfig(BaseModel):
     address: str | None = None
     workers: int | None = Field(default=None, ge=1, strict=True)
 
+    @field_validator("workers", mode="before")
+    @classmethod
+    def _check_workers(cls, value: Any) -> Any:
+        if value is None or (type(value) is int and value >= 1):
+            return value
+        raise ValueError("must be a positive integer or null")
+
     @field_validator("address")
     @classmethod
     def _check_address(cls, value: str | None) -> str | None:
@@ -93,38 +101,14 @@ class ComputeConfig(BaseModel):
         return self.workers or available_cores()
 
 
-def _format_error(exc: ValidationError, source: str) -> str:
-    """First pydantic error as ``params.yaml: compute.backend: must be one of local, ray, got 'x'``."""
-    err = exc.errors()[0]
-    path = ".".join(str(x) for x in err["loc"])
-    kind, value = err["type"], err.get("input")
-    if kind == "literal_error":
-        rule = f"must be one of {', '.join(BACKENDS)}"
-    elif kind == "extra_forbidden":
-        return f"{source}: compute.{path}: unknown key (known: {', '.join(ComputeConfig.model_fields)})"
-    elif path == "workers":
-        rule = "must be a positive integer or null"
-    elif kind == "value_error":
-        return f"{source}: compute.{path}: {err['ctx']['error']}"
-    else:
-        rule = f"must be {err['msg'].lower().removeprefix('input should be ')}"
-    return f"{source}: compute.{path}: {rule}, got {value!r}"
-
-
-def compute_from_params(params: dict[str, Any], source: str = PARAMS_FILE) -> ComputeConfig:
+def compute_from_params(params: dict[str, Any], source: str | None = None) -> ComputeConfig:
     """The :class:`ComputeConfig` of params section ``compute`` (defaults when it is missing).
 
     Raises:
         ParamsError: one line naming the bad key, e.g. ``params.yaml: compute.backend: must be
             one of local, ray, got 'x'``.
     """
-    section = params.get("compute") or {}
-    if not isinstance(section, dict):
-        raise ParamsError(f"{source}: compute: must be a mapping, got {section!r}")
-    try:
-        return ComputeConfig(**section)
-    except ValidationError as exc:
-        raise ParamsError(_format_error(exc, source)) from None
+    return typed_section(params, "compute", ComputeConfig, source, unknown="unknown key (known: {known})")
 
 
 def available_cores() -> int:
@@ -144,6 +128,42 @@ def chunks(items: Sequence[T], size: int) -> list[Sequence[T]]:
     if size <= 0:
         raise ValueError(f"chunk size must be > 0, got {size}")
     return [items[i:i + size] for i in range(0, len(items), size)]
+
+
+def map_shards(fn: Callable[[Any], list[R]], groups: Iterable[Sequence[T]], task: Callable[[int, Sequence[T]], Any],
+               size: int, compute: ComputeConfig | int | None = None,
+               desc: str | None = None) -> Iterator[tuple[int, list[R]]]:
+    """Map ``fn`` over chunks of every input shard's items; yield each shard's rows once complete.
+
+    The shape of the sharded stages (compile_mjcf, best_of_k, cmaes): the items of input shard
+    ``i`` (``groups[i]``) are cut into :func:`chunks` of ``size`` (an empty shard is one empty
+    chunk, so its output shard is still written), each chunk becomes ``task(i, chunk)``,
+    :func:`parallel_map` runs ``fn`` on the tasks (a tqdm bar ``desc`` counts chunks), and the
+    rows of all chunks of a shard are concatenated in order.
+
+    Args:
+        fn: top-level function (picklable) of one task, returning a list of rows.
+        groups: per input shard, its items (read lazily, in order, before any task runs).
+        task: ``(shard index, chunk of items) -> task`` given to ``fn``.
+        size: items per chunk.
+        compute: backend (see :func:`parallel_map`).
+        desc: progress-bar label (the stage name).
+
+    Yields:
+        ``(shard index, rows)`` in shard order.
+    """
+    tasks, owner = [], []  # chunks of items and the shard each belongs to
+    for i, items in enumerate(groups):
+        for part in chunks(items, size) or [[]]:
+            tasks.append(task(i, part))
+            owner.append(i)
+    rows: list[R] = []
+    results = parallel_map(fn, tasks, compute)
+    for k, part in enumerate(tqdm(results, total=len(tasks), desc=desc, unit="chunk")):
+        rows += part
+        if k + 1 == len(tasks) or owner[k + 1] != owner[k]:  # the shard is complete
+            yield owner[k], rows
+            rows = []
 
 
 def _init_worker() -> None:

@@ -42,6 +42,7 @@ import cv2
 import numpy as np
 
 from pipeline.camera import intrinsics, pixel_to_plane
+from pipeline.errors import UserError
 from pipeline.scene import Camera, Scene
 
 G = 9.81
@@ -63,8 +64,8 @@ ROLL_FACTOR = {"sphere": 5.0 / 7.0, "cylinder": 2.0 / 3.0}
 ``1 / (1 + I / (m r^2))`` with ``I = 2/5 m r^2`` and ``1/2 m r^2`` (any mechanics text)."""
 
 
-class PerceptionError(ValueError):
-    """Nothing usable was found in the video (no moving object)."""
+class PerceptionError(UserError, ValueError):
+    """Nothing usable was found in the user's video (no moving object)."""
 
 
 # --------------------------------------------------------------------------------- tracks

@@ -36,7 +36,7 @@ import cv2
 import numpy as np
 
 from pipeline import infer_tracks, shards
-from pipeline.params import load_params, path_of
+from pipeline.params import load_params, path_of, section, typed_section
 from pipeline.scene import Scene
 
 
@@ -83,8 +83,8 @@ def model_samples(model_dir: Path, frames: np.ndarray, params: dict, k: int | No
     from pipeline import model as vlm
     from pipeline.flow import FlowConfig, estimate_flow
 
-    W, H = int(params["render"]["width"]), int(params["render"]["height"])
-    fcfg = FlowConfig(**params["flow"])
+    W, H = int(section(params, "render")["width"]), int(section(params, "render")["height"])
+    fcfg = typed_section(params, "flow", FlowConfig, required=True)
     small = np.stack([cv2.resize(f, (W, H), interpolation=cv2.INTER_AREA) for f in frames])
     flow = estimate_flow(small, method="dis" if fcfg.method == "gt" else fcfg.method, preset=fcfg.preset)
     torch.set_num_threads(1)  # as in stages/infer.py: decoding K samples, 1 thread is as fast
@@ -151,12 +151,12 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     t0 = time.time()
     out = Path(out)
     rv = params.get("realvideo", {})
-    fcfg = FlowConfig(**params["flow"])
-    scfg = SearchConfig(**params["search"])
+    fcfg = typed_section(params, "flow", FlowConfig, required=True)
+    scfg = typed_section(params, "search", SearchConfig, required=True)
     scfg = scfg.model_copy(update={"popsize": int(rv.get("popsize", scfg.popsize)),
                                    "iterations": int(rv.get("iterations", scfg.iterations)),
                                    "lambda_epe": float(rv.get("lambda_epe", scfg.lambda_epe))})
-    sim = SimOptions(**params["sim"])
+    sim = typed_section(params, "sim", SimOptions, required=True)
     scene_fps, duration = int(rv.get("fps", 30)), float(rv.get("duration", 1.0))
     max_objects = int(rv.get("max_objects", 4))
 

@@ -30,7 +30,7 @@ the first frame, so names (``<shape>_<index>``) follow from the video. Every sce
 
 Example::
 
-    cfg = SampleConfig(**params["sample"])
+    cfg = typed_section(params, "sample", SampleConfig)   # pipeline.params
     for sid, split, scene in sample_dataset(cfg, seed=0):
         print(sid, split, scene.composition)
 """

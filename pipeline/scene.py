@@ -16,7 +16,6 @@ Example::
 from __future__ import annotations
 
 import math
-import reprlib
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
@@ -24,7 +23,7 @@ import yaml
 from pydantic import (AfterValidator, BaseModel, ConfigDict, Field, ValidationError, field_validator,
                       model_validator)
 
-from pipeline.errors import UserError
+from pipeline.errors import IDENTIFIER_PATTERN, UserError, format_validation_error
 
 _LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)  # libyaml when available: ~10x faster
 
@@ -81,7 +80,7 @@ _Normal = AfterValidator(_not_subnormal)
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False), _Normal]
 NonNegFloat = Annotated[float, Field(ge=0, allow_inf_nan=False), _Normal]
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False), _Normal]
-Name = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]*$", max_length=64)]
+Name = Annotated[str, Field(pattern=IDENTIFIER_PATTERN, max_length=64)]
 """An effect or parameter name: an identifier (the library's names are; anything else could not
 be written back as plain canonical text)."""
 Vec3 = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
@@ -309,7 +308,7 @@ class Scene(_Strict):
         try:
             return cls.model_validate(data)
         except ValidationError as exc:
-            raise SceneError(f"{source}: {_format_error(exc)}") from None
+            raise SceneError(format_validation_error(exc, source, tags=SHAPES + STATIC_SHAPES)) from None
 
     @classmethod
     def from_yaml(cls, text: str, source: str = "<scene>") -> "Scene":
@@ -436,78 +435,6 @@ def _check_structure(text: str, source: str) -> None:
             if n_alias > MAX_YAML_ALIASES:
                 raise SceneError(f"{source}: <yaml>: must use at most {MAX_YAML_ALIASES} aliases (*name), "
                                  f"got more")
-
-
-def _format_error(exc: ValidationError) -> str:
-    """First pydantic error as ``objects[2].size.radius: must be > 0, got -1``."""
-    err = exc.errors()[0]
-    parts: list[str] = []
-    prev_int = False
-    for item in err["loc"]:
-        if isinstance(item, int):
-            parts.append(f"[{item}]")
-            prev_int = True
-            continue
-        if prev_int and (item in SHAPES or item in STATIC_SHAPES):  # discriminated-union tag, not a field
-            prev_int = False
-            continue
-        prev_int = False
-        parts.append(("." if parts else "") + str(item))
-    path = "".join(parts) or "<root>"
-    msg = err["msg"]
-    kind = err["type"]
-    ctx = err.get("ctx") or {}
-    if kind == "greater_than":
-        msg = f"must be > {ctx.get('gt')}"
-    elif kind == "greater_than_equal":
-        msg = f"must be >= {ctx.get('ge')}"
-    elif kind == "less_than":
-        msg = f"must be < {ctx.get('lt')}"
-    elif kind == "less_than_equal":
-        msg = f"must be <= {ctx.get('le')}"
-    elif kind in ("too_long", "too_short"):
-        bound = "at most" if kind == "too_long" else "at least"
-        limit = ctx.get("max_length") if kind == "too_long" else ctx.get("min_length")
-        msg = f"must have {bound} {limit} items, got {ctx.get('actual_length')}"
-        return f"{path}: {msg}"
-    elif kind == "extra_forbidden":
-        msg = "must not be given (unknown key)"
-    elif kind == "missing":
-        msg = "must be given (required field missing)"
-    elif kind == "union_tag_invalid":  # the input is the whole object: quote the tag here
-        tags = STATIC_SHAPES if str(err["loc"][0]) == "static" else SHAPES
-        msg = f"unknown shape, must be one of {', '.join(tags)}, got {ctx.get('tag')!r}"
-        path = path + ".shape" if not path.endswith("shape") else path
-    elif kind == "union_tag_not_found":
-        msg = "must be given (required field missing: shape)"
-        path = path + ".shape" if not path.endswith("shape") else path
-    elif kind == "value_error":
-        msg = msg.removeprefix("Value error, ")
-    elif kind == "string_pattern_mismatch":
-        msg = "must be an identifier (letters, digits, _; not starting with a digit)"
-    elif msg.startswith("Input should be "):   # pydantic's type errors in the project's wording
-        msg = "must be " + msg.removeprefix("Input should be ")
-    msg = msg[0].lower() + msg[1:] if msg else msg
-    if "input" in err and kind not in ("missing", "union_tag_not_found") and not isinstance(err["input"], dict):
-        inp = err["input"]
-        if kind == "union_tag_invalid":
-            inp = ctx.get("tag", inp)
-        msg += f", got {_short_repr(inp)}"
-    return f"{path}: {msg}"
-
-
-_REPR = reprlib.Repr()
-_REPR.maxlevel, _REPR.maxstring, _REPR.maxother = 2, 60, 60
-_REPR.maxlist = _REPR.maxtuple = _REPR.maxdict = 4
-
-
-def _short_repr(value: Any) -> str:
-    """``repr`` of a user's value cut to ~60 characters and 2 levels of nesting (a repr of a
-    996-deep list recursed past Python's limit; a 72 MB error line is no help)."""
-    try:
-        return _REPR.repr(value)
-    except (RecursionError, ValueError):
-        return f"<{type(value).__name__}>"
 
 
 def _num(x: float, nd: int, positive: bool = False) -> str:

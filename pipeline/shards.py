@@ -17,10 +17,7 @@ Example::
 from __future__ import annotations
 
 import json
-import os
 import shutil
-import tempfile
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Mapping, Sequence
 
@@ -28,6 +25,9 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+# atomic writes: pipeline.atomic is the one implementation; its writers stay importable from here
+from pipeline.atomic import (atomic_dir, atomic_path, json_default, remove_stale_temps, replace_path,  # noqa: F401
+                             temp_dir_for, write_bytes, write_json, write_text)
 from pipeline.errors import UserError
 
 SHARD_TEMPLATE = "shard-{index:05d}.{ext}"
@@ -89,96 +89,6 @@ def chunked(n: int, size: int) -> list[range]:
     return [range(i, min(n, i + size)) for i in range(0, n, size)]
 
 
-# --------------------------------------------------------------------------- atomic writes
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-def _tmp_sibling(path: Path, suffix: str = ".tmp") -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix, dir=path.parent)
-    os.close(fd)
-    os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600 files; artifacts get normal permissions
-    return Path(tmp)
-
-
-def temp_dir_for(path: str | Path) -> Path:
-    """A new empty folder ``.<name>.XXXX.tmp`` beside ``path`` (same file system, so it can be
-    renamed onto ``path``), with the permissions of a normal folder (mkdtemp makes 0700)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
-    os.chmod(tmp, 0o777 & ~_umask())
-    return tmp
-
-
-def replace_path(tmp: str | Path, path: str | Path) -> None:
-    """Move ``tmp`` onto ``path`` (file or directory); the old target is removed only after.
-
-    A directory is swapped whole: a reader sees the old folder, the new one, or (killed between
-    the two renames) none, never a mix; the old one waits as ``.<name>.old`` until it is removed
-    (or until :func:`remove_stale_temps` at the next run)."""
-    tmp, path = Path(tmp), Path(path)
-    if path.is_dir() and not path.is_symlink():
-        old = path.with_name(f".{path.name}.old")
-        if old.exists():
-            shutil.rmtree(old)
-        os.replace(path, old)
-        os.replace(tmp, path)
-        shutil.rmtree(old)
-    else:
-        os.replace(tmp, path)
-
-
-@contextmanager
-def atomic_path(path: str | Path, suffix: str = ".tmp") -> Iterator[Path]:
-    """Yield a temporary sibling of ``path`` (ending in ``suffix``, e.g. ``.mp4`` for writers that
-    pick the format from the name); it is renamed onto ``path`` only if the block completes."""
-    path = Path(path)
-    tmp = _tmp_sibling(path, suffix)
-    try:
-        yield tmp
-        replace_path(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-
-
-def write_bytes(path: str | Path, data: bytes) -> Path:
-    """Atomically write ``data`` to ``path``."""
-    path = Path(path)
-    tmp = _tmp_sibling(path)
-    try:
-        tmp.write_bytes(data)
-        replace_path(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return path
-
-
-def write_text(path: str | Path, text: str) -> Path:
-    """Atomically write ``text`` (UTF-8) to ``path``."""
-    return write_bytes(path, text.encode())
-
-
-def write_json(path: str | Path, obj: Any) -> Path:
-    """Atomically write ``obj`` as indented JSON (numpy scalars/arrays converted)."""
-    return write_text(path, json.dumps(obj, indent=2, default=_json_default) + "\n")
-
-
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
-
-
 def write_table(
     path: str | Path,
     rows: pa.Table | Sequence[Mapping[str, Any]],
@@ -198,15 +108,10 @@ def write_table(
     table = rows if isinstance(rows, pa.Table) else pa.Table.from_pylist(list(rows), schema=schema)
     if metadata is not None:
         meta = dict(table.schema.metadata or {})
-        meta[b"dynamics"] = json.dumps(metadata, default=_json_default).encode()
+        meta[b"dynamics"] = json.dumps(metadata, default=json_default).encode()
         table = table.replace_schema_metadata(meta)
-    tmp = _tmp_sibling(path)
-    try:
+    with atomic_path(path) as tmp:
         pq.write_table(table, tmp)
-        replace_path(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
     return path
 
 
@@ -250,8 +155,7 @@ def write_arrays(
     import zarr
 
     path = Path(path)
-    tmp = temp_dir_for(path)
-    try:
+    with atomic_dir(path) as tmp:
         group = zarr.open_group(str(tmp), mode="w")
         for name, arr in arrays.items():
             arr = np.asarray(arr)
@@ -262,11 +166,7 @@ def write_arrays(
             ids = np.asarray(list(scene_ids), dtype=object)
             z = group.create_array("scene_id", shape=ids.shape, dtype=str)  # variable-length UTF-8 (zarr v3 spec)
             z[...] = ids
-        group.attrs.update(json.loads(json.dumps(dict(attrs or {}), default=_json_default)))
-        replace_path(tmp, path)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp)
+        group.attrs.update(json.loads(json.dumps(dict(attrs or {}), default=json_default)))
     return path
 
 
@@ -331,26 +231,6 @@ def read_meta(out_dir: str | Path, required: bool = True) -> dict:
         return json.loads(path.read_text())
     except json.JSONDecodeError as exc:
         raise ShardError(f"{path}: invalid JSON: {exc.msg}") from None
-
-
-def remove_stale_temps(path: str | Path) -> list[Path]:
-    """Remove what an interrupted atomic write of ``path`` left beside it: the temporary siblings
-    ``.<name>.*.tmp`` (and ``.tmp-*``) and ``.<name>.old`` (see :func:`replace_path`).
-
-    Returns:
-        the removed paths.
-    """
-    path = Path(path)
-    if not path.parent.is_dir():
-        return []
-    stale = sorted({*path.parent.glob(f".{path.name}.*.tmp"), *path.parent.glob(f".{path.name}.*tmp-*"),
-                    *path.parent.glob(f".{path.name}.old")})
-    for p in stale:
-        if p.is_dir() and not p.is_symlink():
-            shutil.rmtree(p, ignore_errors=True)
-        else:
-            p.unlink(missing_ok=True)
-    return stale
 
 
 def reset_dir(out_dir: str | Path) -> Path:

@@ -242,21 +242,14 @@ def simulate_cli(args: argparse.Namespace) -> int:
         scene = load_scene(args.scene)
         options, events, sanity = SimOptions(), EventConfig(), SanityConfig()
         if args.params is not None:
-            from pydantic import ValidationError
-
-            from pipeline.params import load_params
+            from pipeline.params import ParamsError, load_params, typed_section
 
             p = load_params(args.params)
-            for section, cls in (("sim", SimOptions), ("events", EventConfig), ("sanity", SanityConfig)):
-                try:
-                    cls(**(p.get(section) or {}))
-                except ValidationError as exc:
-                    err = exc.errors()[0]
-                    where = ".".join(str(x) for x in (section, *err["loc"]))
-                    what = "must not be given (unknown key)" if err["type"] == "extra_forbidden" else err["msg"]
-                    return fail(f"{args.params}: {where}: {what}")
-            options, events = SimOptions(**(p.get("sim") or {})), EventConfig(**(p.get("events") or {}))
-            sanity = SanityConfig(**(p.get("sanity") or {}))
+            try:
+                options, events, sanity = (typed_section(p, key, cls, str(args.params)) for key, cls in
+                                           (("sim", SimOptions), ("events", EventConfig), ("sanity", SanityConfig)))
+            except ParamsError as exc:
+                return fail(str(exc))
         # the offscreen buffer must hold the image (MuJoCo's default here is 640 px)
         options = options.model_copy(update={"offscreen_size": max(options.offscreen_size, args.width, args.height)})
         if args.resolve_overlaps:

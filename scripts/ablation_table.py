@@ -7,21 +7,27 @@ import json
 import sys
 from pathlib import Path
 
+from tabulate import tabulate
+
 ROWS = (("first_sample", "Model (first sample)"), ("best_of_k", "Best@K"), ("best_of_k_cmaes", "Best@K + CMA-ES"),
         ("trivial_baseline_cmaes", "Trivial baseline + CMA-ES"))
 
 
+HEADER = ["Method", "Input", "Reasoning", "Split", "Composition acc.", "Initial IoU", "Full-sequence IoU", "EPE (px)",
+          "valid"]
+
+
 def main(paths: list[str]) -> None:
-    print("| Method | Input | Reasoning | Split | Composition acc. | Initial IoU | Full-sequence IoU | EPE (px) | valid |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    rows = []
     for path in paths:
         m = json.loads(Path(path).read_text())
         for key, label in ROWS:
             for split, r in (m["methods"].get(key) or {}).items():
                 epe = f"{r['epe']:.2f}" if r.get("epe") is not None else "–"
-                print(f"| {label} | {m['input'] if 'baseline' not in key else '–'} | {m['reasoning']} | {split} | "
-                      f"{r['composition_accuracy']:.3f} | {r['initial_iou']:.3f} | {r['full_iou']:.3f} | {epe} | "
-                      f"{r['n_valid']}/{r['n']} |")
+                rows.append([label, m["input"] if "baseline" not in key else "–", str(m["reasoning"]), split,
+                             f"{r['composition_accuracy']:.3f}", f"{r['initial_iou']:.3f}", f"{r['full_iou']:.3f}",
+                             epe, f"{r['n_valid']}/{r['n']}"])
+    print(tabulate(rows, HEADER, tablefmt="github", disable_numparse=True))
 
 
 if __name__ == "__main__":

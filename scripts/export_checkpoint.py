@@ -16,7 +16,6 @@ import json
 import os
 import shutil
 import sys
-import tempfile
 from pathlib import Path
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
@@ -27,6 +26,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from pipeline import model as M  # noqa: E402
 from pipeline import shards  # noqa: E402
+from pipeline.atomic import atomic_dir  # noqa: E402
 from pipeline.codec import composition_of, split_completion  # noqa: E402
 from pipeline.params import load_params, path_of  # noqa: E402
 
@@ -68,8 +68,7 @@ def main() -> None:
     src, dst = Path(args.src), Path(args.dst)
     params = load_params(args.params)
     model, tok = M.load_model(src)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{dst.name}.", dir=dst.parent if dst.parent.exists() else None))
-    try:
+    with atomic_dir(dst) as tmp:
         model.half().save_pretrained(str(tmp))
         tok.save_pretrained(str(tmp))
         for name in COPY:
@@ -92,15 +91,9 @@ def main() -> None:
             reasoning=cfg.get("reasoning"), stopped_by=result.get("stopped_by"),
             metrics=json.dumps(metrics, indent=1), n_train=params["sample"]["n_train"])
         (tmp / "README.md").write_text(card)
-        tmp.chmod(0o755)  # mkdtemp makes 0700; the checkpoint is for everyone
+        tmp.chmod(0o755)  # the checkpoint is for everyone
         for f in tmp.iterdir():
             f.chmod(0o644)
-        if dst.exists():
-            shutil.rmtree(dst)
-        dst.parent.mkdir(parents=True, exist_ok=True)
-        tmp.rename(dst)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
     print(f"exported {dst} ({size / 2**20:.1f} MB): {json.dumps(metrics)}")
 
 

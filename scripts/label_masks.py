@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import copy
 import os
+import sys
 from pathlib import Path
 
 import cv2
@@ -38,8 +39,24 @@ import numpy as np
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from pipeline.atomic import atomic_path  # noqa: E402
+
 FIXTURES = ROOT / "tests" / "fixtures" / "realvideo"
 SPEC = FIXTURES / "labels.yaml"
+
+
+def write_png(path: Path, img: np.ndarray, flags: list[int] | None = None) -> None:
+    """Write a BGR or label image as PNG, atomically (``cv2.imwrite`` on a temporary sibling).
+
+    Raises:
+        OSError: OpenCV could not encode or write it.
+    """
+    with atomic_path(path, suffix=".png") as tmp:
+        if not cv2.imwrite(str(tmp), img, flags or []):
+            raise OSError(f"{path}: cannot write PNG")
 
 
 def real_video_dir() -> Path:
@@ -183,14 +200,14 @@ def write_clip(clip: str, spec: dict, video_dir: Path, out_dir: Path,
         size = tuple(spec.get("label_size", (bgr.shape[1], bgr.shape[0])))
         label = label_image(bgr, clip_rules(spec, i), size)
         target = out_dir / clip / f"{i:04d}.png"
-        cv2.imwrite(str(target), label, [cv2.IMWRITE_PNG_COMPRESSION, 9])
+        write_png(target, label, [cv2.IMWRITE_PNG_COMPRESSION, 9])
         written.append(target)
         if overlay_dir is not None:
             overlay_dir.mkdir(parents=True, exist_ok=True)
             big = overlay(bgr, label)
             if big.shape[1] < 640:
                 big = cv2.resize(big, None, fx=2, fy=2, interpolation=cv2.INTER_NEAREST)
-            cv2.imwrite(str(overlay_dir / f"{clip}_{i:04d}.png"), big)
+            write_png(overlay_dir / f"{clip}_{i:04d}.png", big)
     return written
 
 
@@ -205,7 +222,7 @@ def dump(clip: str, spec: dict, video_dir: Path, out: Path, indices: list[int]) 
             cv2.line(img, (x, 0), (x, 8 if x % (5 * step) else 16), (0, 0, 255), 1)
         for y in range(0, h, step):
             cv2.line(img, (0, y), (8 if y % (5 * step) else 16, y), (0, 0, 255), 1)
-        cv2.imwrite(str(out / f"{clip}_{i:04d}.png"), img)
+        write_png(out / f"{clip}_{i:04d}.png", img)
 
 
 def propose(clip: str, spec: dict, video_dir: Path, index: int, roi: list[int],

@@ -27,6 +27,7 @@ sys.path.insert(0, str(ROOT / "scripts"))
 
 from label_masks import FIXTURES, load_spec, real_video_dir  # noqa: E402
 
+from pipeline.atomic import write_json  # noqa: E402
 from pipeline.video import pseudo_ground_truth  # noqa: E402
 
 
@@ -84,8 +85,7 @@ def main(argv: list[str] | None = None) -> None:
         r = report["clips"][clip]
         print(f"{clip}: foreground IoU {r['mean_foreground_iou']:.3f}, "
               f"object IoU {r['mean_object_iou']:.3f}", flush=True)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(report, indent=1) + "\n")
+    write_json(args.out, report, indent=1)
 
 
 if __name__ == "__main__":

@@ -14,12 +14,12 @@ order, so the shards do not depend on the backend or the worker count.
 """
 
 import pyarrow as pa
-from tqdm import tqdm
 
 from pipeline import shards
+from pipeline.entry import run_stage
 from pipeline.mjcf import SimOptions
-from pipeline.parallel import chunks, compute_from_params, parallel_map
-from pipeline.params import load_params, path_of
+from pipeline.parallel import compute_from_params, map_shards
+from pipeline.params import load_params, path_of, typed_section
 from pipeline.search import (EvaluatorPool, Observations, SearchConfig, at_clip_timing, best_of_k, parse_sample,
                              samples_by_scene)
 
@@ -54,7 +54,7 @@ def score_chunk(task: tuple[str, str, SearchConfig, SimOptions, list[tuple[str, 
 
 def main() -> None:
     p = load_params()
-    cfg, sim = SearchConfig(**(p.get("search") or {})), SimOptions(**p["sim"])
+    cfg, sim = typed_section(p, "search", SearchConfig), typed_section(p, "sim", SimOptions, required=True)
     video, flow_dir = str(path_of(p, "video")), str(path_of(p, "flow"))
     Observations(video, flow_dir)  # fail here, before any task, if an input is missing
     pred_shards = shards.list_shards(path_of(p, "predictions"), "parquet")
@@ -63,22 +63,13 @@ def main() -> None:
     meta = {"params": {"search": {k: v for k, v in cfg.model_dump().items() if k in used}, "sim": p["sim"]},
             "units": {"epe": "px (rendered resolution)"},
             "observed": {"seg": "rendered ground truth", "flow": (p.get("flow") or {}).get("method")}}
-    tasks, owner = [], []  # chunks of scenes and the predictions shard each belongs to
-    for i, shard in enumerate(pred_shards):
-        scenes = list(samples_by_scene(shards.read_table(shard), cfg.splits, cfg.k).items())
-        for part in chunks(scenes, CHUNK) or [[]]:
-            tasks.append((video, flow_dir, cfg, sim, part))
-            owner.append(i)
-    rows: list[dict] = []
-    results = parallel_map(score_chunk, tasks, compute_from_params(p))
-    for k, part in enumerate(tqdm(results, total=len(tasks), desc="best_of_k", unit="chunk")):
-        rows += part
-        if k + 1 == len(tasks) or owner[k + 1] != owner[k]:  # the shard is complete
-            shards.write_table(shards.shard_path(out, owner[k], "parquet"), rows, schema=SCHEMA, metadata=meta)
-            rows = []
+    groups = (list(samples_by_scene(shards.read_table(shard), cfg.splits, cfg.k).items()) for shard in pred_shards)
+    for i, rows in map_shards(score_chunk, groups, lambda i, part: (video, flow_dir, cfg, sim, part), CHUNK,
+                              compute_from_params(p), desc="best_of_k"):
+        shards.write_table(shards.shard_path(out, i, "parquet"), rows, schema=SCHEMA, metadata=meta)
     shards.write_meta(out, {**meta, "shards": {"shard": len(pred_shards)},
                             "features": {c: str(SCHEMA.field(c).type) for c in SCHEMA.names}})
 
 
 if __name__ == "__main__":
-    main()
+    run_stage(main)

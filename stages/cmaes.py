@@ -22,12 +22,12 @@ import math
 import zlib
 
 import pyarrow as pa
-from tqdm import tqdm
 
 from pipeline import shards
+from pipeline.entry import run_stage
 from pipeline.mjcf import SimOptions
-from pipeline.parallel import chunks, compute_from_params, parallel_map
-from pipeline.params import load_params, path_of
+from pipeline.parallel import compute_from_params, map_shards
+from pipeline.params import load_params, path_of, typed_section
 from pipeline.scene import Decimals, Scene
 from pipeline.search import (EvaluatorPool, Observations, SearchConfig, at_clip_timing, baseline_scene, cmaes_refine,
                              fitness, parse_sample, samples_by_scene)
@@ -76,8 +76,8 @@ def refine_chunk(task: tuple) -> list[dict]:
 
 def main() -> None:
     p = load_params()
-    cfg, sim, seed = SearchConfig(**(p.get("search") or {})), SimOptions(**p["sim"]), int(p.get("seed", 0))
-    decimals = Decimals(**(p.get("scene") or {}).get("decimals", {}))
+    cfg, sim = typed_section(p, "search", SearchConfig), typed_section(p, "sim", SimOptions, required=True)
+    seed, decimals = int(p.get("seed", 0)), typed_section(p, "scene.decimals", Decimals)
     video, flow_dir = str(path_of(p, "video")), str(path_of(p, "flow"))
     Observations(video, flow_dir)  # fail here, before any task, if an input is missing
     preds = samples_by_scene(shards.read_table(path_of(p, "predictions")), cfg.splits)
@@ -87,27 +87,23 @@ def main() -> None:
     meta = {"params": {"search": cfg.model_dump(), "sim": p["sim"], "seed": seed},
             "units": {"epe": "px (rendered resolution)"},
             "observed": {"seg": "rendered ground truth", "flow": (p.get("flow") or {}).get("method")}}
-    tasks, owner = [], []  # chunks of scenes and the best_of_k shard each belongs to
-    for i, shard in enumerate(bok_shards):
+
+    def scenes_of(shard) -> list[tuple]:
         table = shards.read_table(shard).to_pylist()
         best = {r["scene_id"]: r["sample"] for r in table if r["is_best"]}
         split = {r["scene_id"]: r["split"] for r in table}
-        scenes = [(sid, split[sid], best.get(sid),
-                   next((r for r in preds[sid] if r["sample"] == best[sid]), None) if sid in best else None)
-                  for sid in split]
-        for part in chunks(scenes, CHUNK) or [[]]:
-            tasks.append((video, flow_dir, cfg, sim, seed, decimals, baseline, part))
-            owner.append(i)
-    rows: list[dict] = []
-    results = parallel_map(refine_chunk, tasks, compute_from_params(p))
-    for k, part in enumerate(tqdm(results, total=len(tasks), desc="cmaes", unit="chunk")):
-        rows += part
-        if k + 1 == len(tasks) or owner[k + 1] != owner[k]:  # the shard is complete
-            shards.write_table(shards.shard_path(out, owner[k], "parquet"), rows, schema=SCHEMA, metadata=meta)
-            rows = []
+        return [(sid, split[sid], best.get(sid),
+                 next((r for r in preds[sid] if r["sample"] == best[sid]), None) if sid in best else None)
+                for sid in split]
+
+    groups = (scenes_of(shard) for shard in bok_shards)
+    for i, rows in map_shards(refine_chunk, groups, lambda i, part: (video, flow_dir, cfg, sim, seed, decimals,
+                                                                     baseline, part),
+                              CHUNK, compute_from_params(p), desc="cmaes"):
+        shards.write_table(shards.shard_path(out, i, "parquet"), rows, schema=SCHEMA, metadata=meta)
     shards.write_meta(out, {**meta, "shards": {"shard": len(bok_shards)},
                             "features": {c: str(SCHEMA.field(c).type) for c in SCHEMA.names}})
 
 
 if __name__ == "__main__":
-    main()
+    run_stage(main)

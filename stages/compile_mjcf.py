@@ -6,12 +6,11 @@ n_objects, n_frames, fps (what the render stage needs besides the XML). Scenes a
 in chunks on the ``compute`` backend (``pipeline.parallel``).
 """
 
-from tqdm import tqdm
-
 from pipeline import shards
+from pipeline.entry import run_stage
 from pipeline.mjcf import SimOptions, to_xml
-from pipeline.parallel import chunks, compute_from_params, parallel_map
-from pipeline.params import load_params, path_of
+from pipeline.parallel import compute_from_params, map_shards
+from pipeline.params import load_params, path_of, typed_section
 from pipeline.scene import Scene
 
 CHUNK = 100
@@ -31,24 +30,15 @@ def compile_chunk(task: tuple[str, list[dict], SimOptions]) -> list[dict]:
 
 def main() -> None:
     p = load_params()
-    options = SimOptions(**p["sim"])
+    options = typed_section(p, "sim", SimOptions, required=True)
     configs, out = path_of(p, "configs"), shards.reset_dir(path_of(p, "mjcf"))
     config_shards = shards.list_shards(configs, "parquet")
-    tasks, owner = [], []  # units of work and the shard each belongs to
-    for i, shard in enumerate(config_shards):
-        rows = shards.read_table(shard, columns=["scene_id", "split", "scene"]).to_pylist()
-        for part in chunks(rows, CHUNK) or [[]]:
-            tasks.append((str(shard), part, options))
-            owner.append(i)
-    done: list[dict] = []
-    results = parallel_map(compile_chunk, tasks, compute_from_params(p))
-    for k, rows in enumerate(tqdm(results, total=len(tasks), desc="compile_mjcf", unit="chunk")):
-        done += rows
-        if k + 1 == len(tasks) or owner[k + 1] != owner[k]:  # the shard is complete
-            shards.write_table(shards.shard_path(out, owner[k], "parquet"), done, metadata={"params": {"sim": p["sim"]}})
-            done = []
+    groups = (shards.read_table(shard, columns=["scene_id", "split", "scene"]).to_pylist() for shard in config_shards)
+    for i, rows in map_shards(compile_chunk, groups, lambda i, part: (str(config_shards[i]), part, options), CHUNK,
+                              compute_from_params(p), desc="compile_mjcf"):
+        shards.write_table(shards.shard_path(out, i, "parquet"), rows, metadata={"params": {"sim": p["sim"]}})
     shards.write_meta(out, {"shards": {"shard": len(config_shards)}, "params": {"sim": p["sim"]}})
 
 
 if __name__ == "__main__":
-    main()
+    run_stage(main)

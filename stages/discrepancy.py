@@ -8,6 +8,7 @@ discrepancy_trajectories.png, and ``paths.discrepancy``: extended scenes
 
 from pipeline import shards
 from pipeline.discrepancy import load_config, read_trajectories, run_workflow, write_report
+from pipeline.entry import run_stage
 from pipeline.params import load_params, path_of
 
 
@@ -22,4 +23,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_stage(main)

@@ -12,9 +12,10 @@ import pyarrow as pa
 from tqdm import tqdm
 
 from pipeline import shards
+from pipeline.entry import run_stage
 from pipeline.events import EventConfig, events_to_rows, events_to_text, extract_events
 from pipeline.parallel import compute_from_params, parallel_map
-from pipeline.params import load_params, path_of
+from pipeline.params import load_params, path_of, typed_section
 from pipeline.traces import trace_from_row
 
 EVENTS_SCHEMA = pa.schema([("scene_id", pa.string()), ("t", pa.float64()), ("frame", pa.int32()),
@@ -36,7 +37,7 @@ def events_shard(task: tuple[str, EventConfig]) -> tuple[list[dict], list[dict]]
 
 def main() -> None:
     p = load_params()
-    cfg = EventConfig(**(p.get("events") or {}))
+    cfg = typed_section(p, "events", EventConfig)
     out = shards.reset_dir(path_of(p, "events"))
     trace_shards = shards.list_shards(path_of(p, "traces"), "parquet")
     meta = {"params": cfg.model_dump(), "units": {"t": "s", "force": "N (peak normal force)"}}
@@ -50,4 +51,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_stage(main)

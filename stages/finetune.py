@@ -11,16 +11,21 @@ tokenizer, codec.json, trainer state, ``train_curve.csv``/``.png``) and copies t
 
 import argparse
 import json
+import logging
 import shutil
 from pathlib import Path
 
 import torch
 
 from pipeline import shards
+from pipeline.atomic import atomic_path
 from pipeline.codec import SceneCodec
+from pipeline.entry import run_stage
 from pipeline.model import (CURVE_FILE, CURVE_PNG, ModelConfig, extend_tokenizer, load_tokenizer, plot_curve,
                             read_inputs, think_vocab, train)
 from pipeline.params import load_params, path_of
+
+log = logging.getLogger(__name__)
 
 
 def main() -> None:
@@ -54,15 +59,14 @@ def main() -> None:
     reports.mkdir(parents=True, exist_ok=True)
     for name in (CURVE_FILE, CURVE_PNG):
         if (out / name).exists():
-            tmp = reports / f".{name}.tmp"
-            shutil.copyfile(out / name, tmp)
-            tmp.replace(reports / name)
+            with atomic_path(reports / name) as tmp:
+                shutil.copyfile(out / name, tmp)
     if result["stopped_by"] == "max_minutes":
-        print(f"finetune: WARNING: the safety cap model.max_minutes={cfg.max_minutes} stopped training at "
-              f"step {result['step']} of {cfg.max_steps}")
+        log.warning(f"WARNING: the safety cap model.max_minutes={cfg.max_minutes} stopped training at "
+                    f"step {result['step']} of {cfg.max_steps}")
     shards.write_json(out / "result.json", result)
     print("finetune:", json.dumps(result))
 
 
 if __name__ == "__main__":
-    main()
+    run_stage(main)

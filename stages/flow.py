@@ -11,9 +11,10 @@ import numpy as np
 from tqdm import tqdm
 
 from pipeline import shards
+from pipeline.entry import run_stage
 from pipeline.flow import FlowConfig, estimate_flow
 from pipeline.parallel import compute_from_params, parallel_map
-from pipeline.params import load_params, path_of
+from pipeline.params import load_params, path_of, typed_section
 
 
 def flow_shard(task: tuple[str, int, str, dict]) -> int:
@@ -38,7 +39,7 @@ def flow_shard(task: tuple[str, int, str, dict]) -> int:
 
 def main() -> None:
     p = load_params()
-    FlowConfig(**p["flow"])  # validate before starting workers
+    typed_section(p, "flow", FlowConfig, required=True)  # validate before starting workers
     video_dir, out = path_of(p, "video"), shards.reset_dir(path_of(p, "flow"))
     video_shards = shards.list_shards(video_dir, "zarr")
     tasks = [(str(s), i, str(out), p["flow"]) for i, s in enumerate(video_shards)]
@@ -50,4 +51,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_stage(main)

@@ -14,6 +14,7 @@ import pyarrow as pa
 from tqdm import tqdm
 
 from pipeline import shards
+from pipeline.entry import run_stage
 from pipeline.model import (ModelConfig, checkpoint_config, generate, load_codec, load_model, read_inputs,
                             to_scene)
 from pipeline.params import load_params, path_of
@@ -54,4 +55,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_stage(main)

@@ -9,6 +9,7 @@ width, depth, height, mass; ``meta.json``) and, apart, ``paths.hidden_truth``
 
 from pipeline import shards
 from pipeline.discrepancy import generate_hidden, load_config
+from pipeline.entry import run_stage
 from pipeline.params import load_params, path_of
 
 
@@ -28,4 +29,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_stage(main)

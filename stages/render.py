@@ -29,6 +29,7 @@ import numpy as np
 from tqdm import tqdm
 
 from pipeline import shards
+from pipeline.entry import run_stage
 from pipeline.parallel import compute_from_params, parallel_map
 from pipeline.params import load_params, path_of
 from pipeline.mjcf import compile_model
@@ -116,4 +117,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_stage(main)

@@ -14,9 +14,10 @@ from collections import Counter
 from tqdm import tqdm
 
 from pipeline import shards
+from pipeline.entry import run_stage
 from pipeline.mjcf import SimOptions
 from pipeline.parallel import compute_from_params, parallel_map
-from pipeline.params import load_params, path_of
+from pipeline.params import load_params, path_of, section, typed_section
 from pipeline.sampler import SampleChunk, SampleConfig, sample_chunk, scene_seed
 from pipeline.scene import Decimals
 
@@ -27,10 +28,12 @@ CHUNK = 20
 def main() -> None:
     p = load_params()
     # the visibility filter checks objects at the render size (params `render`)
-    cfg = SampleConfig(**{**p["sample"], "width": p["render"]["width"], "height": p["render"]["height"]})
+    render = section(p, "render")
+    cfg = typed_section(p, "sample", SampleConfig, required=True,
+                        overrides={"width": render["width"], "height": render["height"]})
     seed = int(p.get("seed", 0))
-    decimals = Decimals(**(p.get("scene") or {}).get("decimals", {}))
-    options = SimOptions(**p["sim"])
+    decimals = typed_section(p, "scene.decimals", Decimals)
+    options = typed_section(p, "sim", SimOptions, required=True)
     out = shards.reset_dir(path_of(p, "configs"))
     rows = []
     rejected: Counter[str] = Counter()
@@ -55,4 +58,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_stage(main)

@@ -15,9 +15,10 @@ import json
 from tqdm import tqdm
 
 from pipeline import shards
+from pipeline.entry import run_stage
 from pipeline.metrics import PARAMETER_UNITS, json_safe, markdown_table, scene_report, summarize
 from pipeline.mjcf import SimOptions
-from pipeline.params import load_params, path_of
+from pipeline.params import load_params, path_of, typed_section
 from pipeline.scene import Scene, SceneError
 from pipeline.search import (EvaluatorPool, Observations, SearchConfig, at_clip_timing, baseline_scene, parse_sample,
                              plot_history, samples_by_scene)
@@ -25,7 +26,7 @@ from pipeline.search import (EvaluatorPool, Observations, SearchConfig, at_clip_
 
 def main() -> None:
     p = load_params()
-    cfg, sim = SearchConfig(**(p.get("search") or {})), SimOptions(**p["sim"])
+    cfg, sim = typed_section(p, "search", SearchConfig), typed_section(p, "sim", SimOptions, required=True)
     model_input, flow_method = (p.get("model") or {}).get("input", "flow"), (p.get("flow") or {}).get("method")
     configs = shards.read_table(path_of(p, "configs")).to_pylist()
     preds = samples_by_scene(shards.read_table(path_of(p, "predictions")), cfg.splits)
@@ -92,4 +93,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_stage(main)

@@ -18,6 +18,7 @@ import numpy as np
 
 from pipeline import shards
 from pipeline.codec import SceneCodec, target_tokens, text_of
+from pipeline.entry import run_stage
 from pipeline.model import ModelConfig, build_tokenizer, think_vocab
 from pipeline.params import load_params, path_of
 from pipeline.scene import Scene
@@ -69,4 +70,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_stage(main)

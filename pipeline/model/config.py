@@ -4,9 +4,10 @@ from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from pipeline.errors import UserError
+from pipeline.params import typed_section
 
 
 class ModelError(UserError, ValueError):
@@ -106,7 +107,7 @@ class ModelConfig(BaseModel):
         return self
 
     @classmethod
-    def from_params(cls, params: dict[str, Any], source: str = "params.yaml") -> "ModelConfig":
+    def from_params(cls, params: dict[str, Any], source: str | None = None) -> "ModelConfig":
         """Validate section ``model`` of a parsed params.yaml (missing section = defaults).
 
         ``model.seed`` defaults to the top-level ``seed``.
@@ -114,22 +115,8 @@ class ModelConfig(BaseModel):
         Raises:
             ModelError: one line ``<source>: model.<field>: <rule>, got <value>``.
         """
-        data = dict(params.get("model") or {})
-        if "seed" in params and "seed" not in data:
-            data["seed"] = params["seed"]
-        try:
-            return cls.model_validate(data)
-        except ValidationError as exc:
-            err = exc.errors()[0]
-            loc = ".".join(str(x) for x in err["loc"])
-            msg = err["msg"].removeprefix("Value error, ")
-            if not loc:  # a cross-field check: its message starts with the field name
-                raise ModelError(f"{source}: model.{msg}") from None
-            if err["type"] == "extra_forbidden":
-                msg = "unknown key"
-            elif "input" in err:
-                msg += f", got {err['input']!r}"
-            raise ModelError(f"{source}: model.{loc}: {msg}") from None
+        defaults = {"seed": params["seed"]} if "seed" in params else None
+        return typed_section(params, "model", cls, source, defaults=defaults, error=ModelError, unknown="unknown key")
 
     @property
     def head_dim(self) -> int:

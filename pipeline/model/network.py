@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 
 import torch
 
+from pipeline.errors import format_validation_error
 from pipeline.model.config import ModelConfig, ModelError
 from pipeline.model.tokenizer import IMAGE_PAD, VIDEO_PAD, VISION_END, VISION_START, load_tokenizer, token_id
 from pipeline.scene import SHAPES
@@ -179,10 +180,9 @@ def check_checkpoint(model_dir: str | Path, need_codec: bool = True) -> None:
         try:
             ModelConfig.model_validate(saved)
         except ValidationError as exc:
-            err = exc.errors()[0]
-            loc = ".".join(str(p) for p in err["loc"]) or "(root)"
+            what = format_validation_error(exc, prefix=("model",), unknown="extra inputs are not permitted")
             raise ModelError(f"{model_dir}: dynamics_model.json: written by another version of the project "
-                             f"(model.{loc}: {err['msg'].lower()})") from None
+                             f"({what})") from None
 
 
 def load_model(model_dir: str | Path):

@@ -25,8 +25,8 @@ reconstruction (IoU, EPE) and parameter recovery apart.
 
 Example::
 
-    cfg = SearchConfig(**params["search"])
-    scores, best = best_of_k(candidates, obs_seg, obs_flow, cfg, SimOptions(**params["sim"]))
+    cfg, sim = typed_section(params, "search", SearchConfig), typed_section(params, "sim", SimOptions)
+    scores, best = best_of_k(candidates, obs_seg, obs_flow, cfg, sim)
     refined, history = cmaes_refine(candidates[best], obs_seg, obs_flow, cfg, sim, seed=0)
 
 Package layout: :mod:`.config` (SearchConfig, SearchRanges, FREE_FIELDS), :mod:`.evaluator`

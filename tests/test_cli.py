@@ -1,0 +1,58 @@
+"""Every ``dynamics`` subcommand answers a user mistake with one stderr line and exit status 2
+(pipeline.errors.UserError, caught once in pipeline.cli), never a traceback."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+GOOD_SCENE = "camera: {height: 1.0}\nobjects:\n  - {shape: sphere, size: {radius: 0.1}, mass: 0.5, position: [0, 0, 0.1]}\n"
+
+
+def _case(name: str, tmp: Path) -> list[str]:
+    (tmp / "scene.yaml").write_text(GOOD_SCENE)
+    (tmp / "bad_scene.yaml").write_text("objects: 3\n")
+    (tmp / "text.mp4").write_text("not a video\n")
+    (tmp / "a_file").write_text("")
+    (tmp / "bad_params.yaml").write_text("sim: {foo: 1}\n")
+    params = str(ROOT / "params.yaml")
+    return {
+        "simulate_missing_scene": ["simulate", str(tmp / "missing.yaml"), "--out", str(tmp / "o")],
+        "simulate_bad_scene": ["simulate", str(tmp / "bad_scene.yaml"), "--out", str(tmp / "o")],
+        "simulate_bad_params": ["simulate", str(tmp / "scene.yaml"), "--out", str(tmp / "o"),
+                                "--params", str(tmp / "bad_params.yaml")],
+        "simulate_missing_params": ["simulate", str(tmp / "scene.yaml"), "--out", str(tmp / "o"),
+                                    "--params", str(tmp / "none.yaml")],
+        "infer_missing_video": ["infer", str(tmp / "missing.mp4"), "--out", str(tmp / "o"), "--params", params],
+        "infer_not_a_video": ["infer", str(tmp / "text.mp4"), "--out", str(tmp / "o"), "--params", params],
+        "infer_missing_model": ["infer", str(tmp / "text.mp4"), "--out", str(tmp / "o"), "--params", params,
+                                "--model", str(tmp / "no_model")],
+        "infer_missing_params": ["infer", str(tmp / "text.mp4"), "--out", str(tmp / "o"),
+                                 "--params", str(tmp / "none.yaml")],
+        "infer_bad_params": ["infer", str(tmp / "text.mp4"), "--out", str(tmp / "o"),
+                             "--params", str(tmp / "bad_params.yaml")],
+        "discrepancy_missing_file": ["discrepancy", str(tmp / "missing.csv"), "--out", str(tmp / "o"),
+                                     "--params", params],
+        "view_missing_shard": ["view", str(tmp / "shard-00000.zarr"), "--save", str(tmp / "x.rrd")],
+        "schema_unwritable_out": ["schema", "--out", str(tmp / "a_file" / "schema.json")],
+    }[name]
+
+
+CASES = ["simulate_missing_scene", "simulate_bad_scene", "simulate_bad_params", "simulate_missing_params",
+         "infer_missing_video", "infer_not_a_video", "infer_missing_model", "infer_missing_params",
+         "infer_bad_params", "discrepancy_missing_file", "view_missing_shard", "schema_unwritable_out"]
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_user_mistake_is_one_line_and_exit_2(tmp_path, case):
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "MUJOCO_GL": "egl"}
+    env.pop("DYNAMICS_PARAMS", None)
+    proc = subprocess.run([sys.executable, "-m", "pipeline.cli", *_case(case, tmp_path)], cwd=tmp_path, env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert "Traceback" not in proc.stderr
+    assert proc.stderr.count("\n") == 1 and proc.stderr.endswith("\n"), proc.stderr
+    assert not (tmp_path / "o").exists()
