@@ -21,29 +21,22 @@ from pipeline.discrepancy.trajectories import DiscrepancyInputError
 from pipeline.discrepancy.workflow import run_workflow
 from pipeline.mjcf import SimOptions
 from pipeline.parallel import ComputeConfig
-from pipeline.params import load_params
-from pipeline.shards import write_json, write_text
+from pipeline.params import load_params, typed_section
+from pipeline.atomic import write_json, write_text
 
 
 def load_config(params: Mapping[str, Any] | None) -> tuple[DiscrepancyConfig, HiddenConfig, SimOptions]:
-    """Typed configs from a params dict (sections ``discrepancy``, ``measure_hidden``,
-    ``sim``; missing sections take the defaults).
+    """Typed configs from parsed params (sections ``discrepancy``, ``measure_hidden``, ``sim``;
+    a missing section takes the defaults), read by :func:`pipeline.params.typed_section`.
 
     Raises:
-        DiscrepancyInputError: a section fails validation (one line naming the key).
+        DiscrepancyInputError: a section fails validation, one line
+            ``<file>: <section>.<field>: must be <rule>, got <value>``.
     """
-    params = params or {}
-    out = []
-    for key, cls in (("discrepancy", DiscrepancyConfig), ("measure_hidden", HiddenConfig), ("sim", SimOptions)):
-        try:
-            out.append(cls(**(params.get(key) or {})))
-        except (ValidationError, ValueError) as exc:
-            msg = str(exc).splitlines()
-            if isinstance(exc, ValidationError):
-                err = exc.errors()[0]
-                msg = [f"{'.'.join(map(str, err['loc']))}: {err['msg']}"]
-            raise DiscrepancyInputError(f"params.yaml: {key}: {msg[0]}") from None
-    return out[0], out[1], out[2]
+    params = params if params is not None else {}
+    return (typed_section(params, "discrepancy", DiscrepancyConfig, error=DiscrepancyInputError),
+            typed_section(params, "measure_hidden", HiddenConfig, error=DiscrepancyInputError),
+            typed_section(params, "sim", SimOptions, error=DiscrepancyInputError))
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -10,7 +10,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from pipeline.discrepancy.workflow import Result
-from pipeline.shards import write_bytes
+from pipeline.atomic import write_bytes
 from pipeline.viz import record_clip
 
 

@@ -17,7 +17,7 @@ from pipeline.discrepancy.plots import _safe_name, plot_residuals, plot_trajecto
 from pipeline.discrepancy.profile import _fmt_interval
 from pipeline.discrepancy.workflow import Result
 from pipeline.scene import Decimals, Scene
-from pipeline.shards import write_json, write_text
+from pipeline.atomic import write_json, write_text
 
 
 def extended_scenes(result: Result) -> dict[str, Scene]:
