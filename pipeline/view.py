@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import shards
+from pipeline import shards, viz
 from pipeline.camera import extrinsics, intrinsics
 from pipeline.params import load_params, path_of
 from pipeline.scene import Scene
@@ -54,8 +54,6 @@ def record_shard(shard: str | Path, scene_id: str | None, out: str | Path, param
     Raises:
         ShardError: a shard is missing or does not hold ``scene_id``.
     """
-    from pipeline import viz
-
     shard = Path(shard)
     if not shard.exists():
         raise shards.ShardError(f"{shard}: missing shard")

@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 
 from pipeline.flow import flow_to_rgb
-from pipeline.shards import write_bytes
+from pipeline.shards import atomic_path, write_bytes
 
 PALETTE = np.array([
     (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
@@ -144,8 +144,6 @@ def side_by_side_mp4(
     W = sum(c.shape[2] for c in cols)
     size = (W + W % 2, H + H % 2)
 
-    from pipeline.shards import atomic_path
-
     with atomic_path(path, suffix=".mp4") as tmp:  # OpenCV picks the container from the name
         writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), size)
         if not writer.isOpened():
@@ -205,7 +203,6 @@ def contact_sheet(path: str | Path, rows: Sequence[np.ndarray], labels: Sequence
         cv2.putText(bar, title, (4, bar.shape[0] - 6), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0),
                     max(1, round(scale)), cv2.LINE_AA)
         img = np.concatenate([bar, img], axis=0)
-    from pipeline.shards import atomic_path
 
     with atomic_path(path, suffix=".png") as tmp:
         if not cv2.imwrite(str(tmp), cv2.cvtColor(img, cv2.COLOR_RGB2BGR)):
