@@ -17,9 +17,12 @@ import argparse
 import sys
 import warnings
 
+from pipeline import discrepancy, reconstruct, traces, view
 from pipeline.atomic import write_text
 from pipeline.entry import USER_ERROR_STATUS, configure_logging, user_error_line
 from pipeline.errors import UserError
+from pipeline.scene import json_schema_text
+from pipeline.video import VideoWarning
 
 _python_showwarning = warnings.showwarning
 
@@ -29,21 +32,15 @@ def build_parser() -> argparse.ArgumentParser:
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    from pipeline import traces
-
     p = sub.add_parser("simulate", help="simulate a scene YAML: trace.parquet, rgb.mp4, masks, events.json",
                        description="Simulate and render one scene of scene language v1.")
     traces.add_simulate_arguments(p)
     p.set_defaults(func=traces.simulate_cli)
 
-    from pipeline import reconstruct
-
     p = sub.add_parser("infer", help="main job: video -> scene YAML, side-by-side mp4, metrics, .rrd",
                        description=reconstruct.__doc__.split("\n\n")[0])
     reconstruct.add_arguments(p)
     p.set_defaults(func=reconstruct.main_cli)
-
-    from pipeline import discrepancy
 
     p = sub.add_parser("discrepancy", help="find, name and add missing physical effects (DESIGN §8)",
                        description="Discrepancy workflow on measured trajectories (CSV/Parquet/Tracker txt).")
@@ -54,8 +51,6 @@ def build_parser() -> argparse.ArgumentParser:
                        description="Hidden-effect benchmark of the discrepancy workflow (JSON + Markdown summary).")
     discrepancy.add_benchmark_arguments(p)
     p.set_defaults(func=discrepancy.benchmark_cli)
-
-    from pipeline import view
 
     p = sub.add_parser("view", help="open or save a rerun recording of a shard",
                        description=view.__doc__.split("\n\n")[0])
@@ -70,8 +65,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _schema_cli(args: argparse.Namespace) -> int:
-    from pipeline.scene import json_schema_text
-
     text = json_schema_text()
     if args.out is None:
         sys.stdout.write(text)
@@ -86,8 +79,6 @@ def _schema_cli(args: argparse.Namespace) -> int:
 def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
     """Our own warnings (e.g. a truncated video) as one stderr line ``warning: <message>``;
     others keep Python's format."""
-    from pipeline.video import VideoWarning
-
     if issubclass(category, VideoWarning):
         print(f"warning: {message}", file=file or sys.stderr)
     else:

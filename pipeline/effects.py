@@ -3,7 +3,8 @@
 Adding an effect is one small class: a name, parameters with bounds and units, and how it
 edits the model, once on the MJCF tree (:meth:`Effect.apply`, used by ``pipeline.mjcf`` when a
 scene has an ``effects:`` block) and once in place on a compiled ``MjModel``
-(:meth:`Effect.set_model`, used by fits that compile once and edit fields per evaluation).
+(:meth:`Effect.set_model`, used by fits that compile once and edit fields per evaluation,
+through :func:`pipeline.engine.configure_model`).
 Both must give the same model; ``tests/test_effects.py`` checks that rollouts agree.
 
 Every effect works through MuJoCo's own mechanism:
@@ -33,7 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import ClassVar, Mapping
+from typing import Any, ClassVar, Mapping
 
 import mujoco
 import numpy as np
@@ -106,9 +107,10 @@ class Effect:
 
     @classmethod
     def set_model(cls, model: mujoco.MjModel, params: Mapping[str, float], geoms: np.ndarray,
-                  base: "ModelBase") -> None:
+                  base: Any) -> None:
         """Edit a compiled model in place (``geoms``: object geom ids; ``base``: the base
-        model's values, see :func:`snapshot`). Called after the fields were reset to base."""
+        model's values, a :class:`pipeline.engine.ModelBase` from :func:`pipeline.engine.snapshot`). Called by
+        :func:`pipeline.engine.configure_model` after the fields were reset to base."""
         raise NotImplementedError
 
     @classmethod
@@ -129,59 +131,6 @@ def register(cls: type[Effect]) -> type[Effect]:
 def _object_geoms(root) -> list:
     """MJCF geoms of the scene's objects (every geom not attached to the world body)."""
     return [g for g in root.find_all("geom") if g.parent is not root.worldbody]
-
-
-@dataclass
-class ModelBase:
-    """Base-model values of every field an effect may edit (copied from a compiled model)."""
-
-    density: float
-    wind: np.ndarray
-    gravity: np.ndarray
-    geom_solref: np.ndarray
-    geom_friction: np.ndarray
-    geom_fluid: np.ndarray
-
-
-def snapshot(model: mujoco.MjModel) -> ModelBase:
-    """Copy the effect-editable fields of a model compiled without effects."""
-    return ModelBase(float(model.opt.density), model.opt.wind.copy(), model.opt.gravity.copy(),
-                     model.geom_solref.copy(), model.geom_friction.copy(), model.geom_fluid.copy())
-
-
-def compile_for_fit(scene: Scene, effects: "list[str] | tuple[str, ...]", options=None
-                    ) -> tuple[mujoco.MjModel, ModelBase, np.ndarray]:
-    """Compile a scene once for fits that edit effect values in place.
-
-    The model is compiled with the structural effects among ``effects`` (at their defaults)
-    so that :func:`configure_model` can set any values of ``effects`` afterwards; the
-    returned base holds the base model's values (compiled without effects) except for
-    ``geom_fluid``, whose compiler-derived ellipsoid terms come from the structural model.
-
-    Args:
-        scene: the scene; its own ``effects`` are ignored.
-        effects: effect names (known to :data:`REGISTRY`).
-        options: ``pipeline.mjcf.SimOptions``.
-
-    Returns:
-        ``(model, base, geoms)``: geoms ``(n,)`` are the object geom ids in scene order.
-
-    Raises:
-        KeyError: an unknown effect name.
-    """
-    from pipeline.mjcf import compile_model, object_ids
-
-    plain = scene.replace(effects=[])
-    base_model = compile_model(plain, options)
-    base = snapshot(base_model)
-    structural = [n for n in effects if REGISTRY[n].structural]
-    model = base_model
-    if structural:
-        model = compile_model(plain.replace(effects=[{"effect": n, "parameters": {}} for n in structural]),
-                              options)
-        base.geom_fluid = model.geom_fluid.copy()
-    _, geoms = object_ids(model, len(scene.objects))
-    return model, base, geoms
 
 
 # --------------------------------------------------------------------------- drag and wind
@@ -508,34 +457,3 @@ def apply_effects(root, scene: Scene, source: str = "<scene>") -> None:
     """
     for name, params in scene_effects(scene, source).items():
         REGISTRY[name].apply(root, params)
-
-
-def configure_model(model: mujoco.MjModel, base: ModelBase, geoms: np.ndarray,
-                    effects: Mapping[str, Mapping[str, float]]) -> None:
-    """Set a compiled model's effect fields in place: reset them to ``base``, then apply
-    ``effects`` (``{name: full parameters}``) in :data:`REGISTRY` order. Equivalent to
-    rebuilding the MJCF with those effects (checked in ``tests/test_effects.py``).
-
-    Args:
-        model: compiled with the same structural effects (``Effect.structural``) present.
-        base: :func:`snapshot` of that model.
-        geoms: ``(n,)`` int geom ids of the objects.
-        effects: effect name -> parameter values (all parameters).
-
-    Raises:
-        KeyError: an unknown effect name.
-        ValueError: a structural effect the model was not compiled with.
-    """
-    model.opt.density = base.density
-    model.opt.wind[:] = base.wind
-    model.opt.gravity[:] = base.gravity
-    model.geom_solref[:] = base.geom_solref
-    model.geom_friction[:] = base.geom_friction
-    model.geom_fluid[:] = base.geom_fluid
-    ellipsoid = bool(model.geom_fluid.size and np.any(model.geom_fluid[geoms, 0] > 0))
-    if ellipsoid != ("magnus_lift" in effects):
-        raise ValueError("configure_model: magnus_lift is structural: the model must be "
-                         "compiled with it exactly when it is among the effects")
-    for name in REGISTRY:
-        if name in effects:
-            REGISTRY[name].set_model(model, effects[name], geoms, base)

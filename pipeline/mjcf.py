@@ -34,6 +34,8 @@ from dm_control import mjcf
 import mujoco
 
 from pipeline.camera import camera_pose
+from pipeline.effects import apply_effects
+from pipeline.geometry import geom_size
 from pipeline.scene import Scene
 
 STATIC_COLOUR = (0.55, 0.5, 0.45, 1.0)
@@ -68,16 +70,6 @@ class SimOptions(BaseModel):
     object_solref: tuple[float, float] = (0.02, 1.0)
     offscreen_size: int = Field(640, gt=0, description="px, max render width/height")
     textured: bool = True
-
-
-def geom_size(obj) -> list[float]:
-    """MuJoCo geom ``size`` (half extents) for a scene object, m."""
-    s = obj.size
-    if obj.shape == "sphere":
-        return [s.radius]
-    if obj.shape == "cylinder":
-        return [s.radius, s.height / 2.0]
-    return [s.width / 2.0, s.depth / 2.0, s.height / 2.0]
 
 
 def static_geom_size(geom) -> list[float]:
@@ -192,7 +184,7 @@ def build_mjcf(scene: Scene, options: SimOptions | None = None) -> mjcf.RootElem
         q = np.asarray(obj.orientation, dtype=np.float64)
         body = root.worldbody.add("body", name=name, pos=list(obj.position), quat=(q / np.linalg.norm(q)).tolist())
         body.add("joint", name=f"{name}_joint", type="free", damping=obj.material.damping)
-        body.add("geom", name=f"{name}_geom", type=obj.shape, size=geom_size(obj), mass=obj.mass,
+        body.add("geom", name=f"{name}_geom", type=obj.shape, size=geom_size(obj.shape, obj.size), mass=obj.mass,
                  material=mat, rgba=None if mat else [*colour, 1.0],
                  friction=[obj.material.sliding_friction, 0.0, obj.material.rolling_friction],
                  condim=6 if obj.material.sliding_friction > 0 else 1, priority=1,
@@ -202,8 +194,6 @@ def build_mjcf(scene: Scene, options: SimOptions | None = None) -> mjcf.RootElem
     root.keyframe.add("key", name="init", qpos=qpos.tolist(), qvel=qvel.tolist())
 
     if scene.effects:
-        from pipeline.effects import apply_effects
-
         apply_effects(root, scene)
     return root
 

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from pipeline.flow import estimate_flow
 from pipeline.perception import object_tracks
 from pipeline.video import (Clip, VideoError, drop_ghosts, hold_resting, label_objects, merge_touching,
                             pseudo_masks, read_video, resample)
@@ -192,8 +193,6 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     Raises:
         VideoError: unreadable video or window past its end.
     """
-    from pipeline.flow import estimate_flow
-
     auto = start is None
     if auto:
         start = choose_start(video, fps, scene_fps, duration)

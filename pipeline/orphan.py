@@ -18,6 +18,7 @@ without a line in ``stages/``. Library and CLI use are unaffected.
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 import threading
 import time
@@ -80,8 +81,6 @@ def _alive(pid: int, start: str) -> bool:
 
 
 def _exit_now() -> None:
-    import multiprocessing
-
     for child in multiprocessing.active_children():
         child.terminate()
     os._exit(EXIT_STATUS)

@@ -42,6 +42,7 @@ from collections import deque
 from concurrent.futures import Executor, ProcessPoolExecutor
 from typing import Any, Callable, Iterable, Iterator, Literal, Sequence, TypeVar
 
+import cv2
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 from tqdm import tqdm
 
@@ -176,8 +177,6 @@ def _init_worker() -> None:
     for key, value in WORKER_ENV.items():
         os.environ.setdefault(key, value)  # LP_NUM_THREADS is read when the worker's EGL display starts
     try:
-        import cv2
-
         cv2.setNumThreads(1)  # DIS flow is bit-identical for any thread count
     except ImportError:
         pass

@@ -43,6 +43,8 @@ import numpy as np
 
 from pipeline.camera import intrinsics, pixel_to_plane
 from pipeline.errors import UserError
+from pipeline.geometry import volume
+from pipeline.rotation import axis_angle_quat
 from pipeline.scene import Camera, Scene
 
 G = 9.81
@@ -402,19 +404,8 @@ class Lifted:
     notes: list[str] = field(default_factory=list)
 
 
-def _quat_axis_angle(axis: tuple[float, float, float], angle: float) -> list[float]:
-    s = math.sin(angle / 2.0)
-    return [math.cos(angle / 2.0), axis[0] * s, axis[1] * s, axis[2] * s]
-
-
 def _mass(shape: str, size: dict[str, float]) -> float:
-    if shape == "sphere":
-        vol = 4.0 / 3.0 * math.pi * size["radius"] ** 3
-    elif shape == "cylinder":
-        vol = math.pi * size["radius"] ** 2 * size["height"]
-    else:
-        vol = size["width"] * size["depth"] * size["height"]
-    return max(DENSITY * vol, 1e-3)
+    return max(DENSITY * volume(shape, size), 1e-3)
 
 
 def _side_motion_kind(track: Track, m: Motion) -> str:
@@ -488,12 +479,12 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
             half_h = size["radius"]
         elif shape == "cylinder":  # a disc seen end-on: axis along the line of sight (y)
             size = {"radius": tr.diameter / 2 * px, "height": 0.4 * tr.diameter * px}
-            quat = _quat_axis_angle((1.0, 0.0, 0.0), -math.pi / 2)
+            quat = axis_angle_quat((1.0, 0.0, 0.0), -math.pi / 2).tolist()
             half_h = size["radius"]
         else:  # box in the image plane, turned by the silhouette's angle about -y
             long_, short = tr.size
             size = {"width": long_ * px, "depth": short * px, "height": short * px}
-            quat = _quat_axis_angle((0.0, 1.0, 0.0), -math.radians(tr.angle))
+            quat = axis_angle_quat((0.0, 1.0, 0.0), -math.radians(tr.angle)).tolist()
             half_h = short / 2 * px
         z = max(z, half_h + 1e-3)
         friction = 0.5
@@ -541,7 +532,7 @@ def _ramp_under(tr: Track, m: Motion, px: float, cu: float, cv: float, cam_h: fl
     thickness = 0.02
     mid = centre_line + along * (length / 2 - 10 * half_h - 0.15) - normal * thickness / 2
     angle = sgn * theta  # rotation about +y that tilts +x down by theta for sgn = +1
-    quat = _quat_axis_angle((0.0, 1.0, 0.0), angle)
+    quat = axis_angle_quat((0.0, 1.0, 0.0), angle).tolist()
     ramp = {"shape": "box", "size": {"width": round(length, 4), "depth": 0.3, "height": thickness},
             "position": [float(mid[0]), float(y), float(mid[1])], "orientation": quat}
     if shape == "box":
@@ -587,7 +578,7 @@ def lift_top(tracks: list[Track], motions: list[Motion], width: int, height: int
         vel = (p[1] - p[0]) / dt
         quat = [1.0, 0.0, 0.0, 0.0]
         if shape == "box":  # silhouette angle is counter-clockwise as seen from above = yaw
-            quat = _quat_axis_angle((0.0, 0.0, 1.0), math.radians(tr.angle))
+            quat = axis_angle_quat((0.0, 0.0, 1.0), math.radians(tr.angle)).tolist()
         nv = float(np.linalg.norm(m.v0))
         decel = -float(m.a @ m.v0) / nv if nv > 1e-6 else 0.0
         mu = float(np.clip(decel / ppm / G, 0.0, 1.0)) if m.n >= 5 else 0.2

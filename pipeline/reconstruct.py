@@ -35,9 +35,18 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from pipeline import infer_tracks, shards
+from pipeline import infer_tracks, perception, shards, viz
+from pipeline.flow import FlowConfig, estimate_flow
+from pipeline.metrics import flow_epe, sequence_iou
+from pipeline.mjcf import SimOptions
+from pipeline.observe import observe, original_frames, upscale
 from pipeline.params import load_params, path_of, section, typed_section
+from pipeline.render import render_scene
 from pipeline.scene import Scene
+from pipeline.search import EvaluatorPool, SearchConfig, best_of_k
+from pipeline.search.staged import REFERENCE_WIDTH, staged_refine
+from pipeline.video import VideoError
+from pipeline.view import camera_dict, scene_objects
 
 
 def default_model_dir(params: dict) -> Path | None:
@@ -81,7 +90,6 @@ def model_samples(model_dir: Path, frames: np.ndarray, params: dict, k: int | No
     import torch
 
     from pipeline import model as vlm
-    from pipeline.flow import FlowConfig, estimate_flow
 
     W, H = int(section(params, "render")["width"]), int(section(params, "render")["height"])
     fcfg = typed_section(params, "flow", FlowConfig, required=True)
@@ -134,17 +142,6 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
         ModelError: ``model_dir`` (or the default trained model) is not a usable checkpoint;
             raised before the video is decoded.
     """
-    from pipeline import perception, viz
-    from pipeline.flow import FlowConfig
-    from pipeline.metrics import flow_epe, sequence_iou
-    from pipeline.mjcf import SimOptions
-    from pipeline.observe import observe, original_frames, upscale
-    from pipeline.render import render_scene
-    from pipeline.search import EvaluatorPool, SearchConfig, best_of_k
-    from pipeline.search.staged import REFERENCE_WIDTH, staged_refine
-    from pipeline.video import VideoError
-    from pipeline.view import camera_dict, scene_objects
-
     # llvmpipe rasterizing in the calling thread is 5-10 % faster for these small renders
     # (benchmarks/search_eval.py --compare-lp); pixels do not depend on it
     os.environ.setdefault("LP_NUM_THREADS", "0")

@@ -24,6 +24,10 @@ import mujoco
 import numpy as np
 
 import pipeline  # noqa: F401  (MUJOCO_GL)
+from pipeline.camera import intrinsics
+from pipeline.mjcf import compile_model
+from pipeline.rotation import quat_to_mat
+from pipeline.simulate import Trace, check_rollout, rollout, simulate
 
 BACKGROUND = -1
 """Segmentation label of the floor and background."""
@@ -67,23 +71,10 @@ def camera_matrices(model: mujoco.MjModel, data: mujoco.MjData, width: int, heig
     Read from ``data.cam_xpos`` / ``data.cam_xmat`` (call ``mj_kinematics`` + ``mj_camlight``
     first) and ``model.cam_fovy``; conventions as in ``pipeline.camera``.
     """
-    fy = 0.5 * height / np.tan(np.deg2rad(model.cam_fovy[camera]) / 2.0)
-    K = np.array([[fy, 0.0, width / 2.0], [0.0, fy, height / 2.0], [0.0, 0.0, 1.0]])
+    K = intrinsics(model.cam_fovy[camera], width, height)
     axes = data.cam_xmat[camera].reshape(3, 3)  # columns: x right, y up, z backward (world)
     R = np.stack([axes[:, 0], -axes[:, 1], -axes[:, 2]])
     return K, R, -R @ data.cam_xpos[camera]
-
-
-def quat_to_mat(q: np.ndarray) -> np.ndarray:
-    """Rotation matrices (..., 3, 3) from unit quaternions (..., 4) w, x, y, z."""
-    q = np.asarray(q, dtype=np.float64)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], -2)
 
 
 def rigid_flow(seg: np.ndarray, depth: np.ndarray, qpos0: np.ndarray, qpos1: np.ndarray,
@@ -522,9 +513,6 @@ def render_mjcf(mjcf: str, n_objects: int, n_frames: int, fps: float, width: int
         ValueError: MuJoCo rejects the MJCF.
         pipeline.simulate.SimulationError: the simulation diverged (see :func:`check_rollout`).
     """
-    from pipeline.mjcf import compile_model
-    from pipeline.simulate import check_rollout, rollout
-
     model = compile_model(mjcf)
     data = mujoco.MjData(model)
     trace = rollout(model, n_objects, n_frames, fps, data=data)
@@ -539,8 +527,6 @@ def render_scene(scene, width: int, height: int, options=None, **kwargs) -> tupl
     Returns:
         (trace, frames): the :class:`pipeline.simulate.Trace` and rendered :class:`Frames`.
     """
-    from pipeline.simulate import simulate
-
     model, trace = simulate(scene, options)
     with FrameRenderer(model, width, height) as r:
         return trace, r.render(trace.qpos, **kwargs)

@@ -47,12 +47,17 @@ import mujoco
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-from pipeline.camera import camera_pose, project, unproject
-from pipeline.mjcf import SimOptions, compile_model, geom_size, initial_state
+from pipeline.camera import project, unproject
+from pipeline.engine import set_camera, set_object_size
+from pipeline.geometry import bounding_radius
+from pipeline.mjcf import SimOptions, compile_model, initial_state
+from pipeline.render import FrameRenderer, shared_gl
+from pipeline.rotation import quat_mul, quat_to_mat, yaw_quat
 from pipeline.scene import SHAPES, Camera, Decimals, Scene
-from pipeline.static import ramp as make_ramp
-from pipeline.static import rotation_matrix, support_height
 from pipeline.shards import scene_id
+from pipeline.simulate import rollout
+from pipeline.static import ramp as make_ramp
+from pipeline.static import support_height
 
 SPLITS = ("train", "val", "test", "test_comp")
 """Splits in the order scenes are numbered."""
@@ -228,16 +233,6 @@ def sample_composition(rng: np.random.Generator, cfg: SampleConfig, split: str) 
 
 
 # --------------------------------------------------------------------------- layout
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    out = np.zeros(4)
-    mujoco.mju_mulQuat(out, np.asarray(a, float), np.asarray(b, float))
-    return out
-
-
-def _yaw_quat(yaw: float) -> np.ndarray:
-    return np.array([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)])
-
-
 def _random_quat(rng: np.random.Generator) -> np.ndarray:
     q = rng.normal(size=4)
     q /= np.linalg.norm(q)
@@ -257,15 +252,6 @@ def _size(rng: np.random.Generator, shape: str, extent: Range) -> dict[str, floa
         return {"radius": round(_grid(e() / 2, 0.001), 3), "height": round(_grid(e(), 0.002), 3)}
     return {"width": round(_grid(e(), 0.002), 3), "depth": round(_grid(e(), 0.002), 3),
             "height": round(_grid(e(), 0.002), 3)}
-
-
-def bounding_radius(shape: str, size: dict[str, float]) -> float:
-    """Radius of the smallest sphere about the centre containing the object, m."""
-    if shape == "sphere":
-        return size["radius"]
-    if shape == "cylinder":
-        return math.hypot(size["radius"], size["height"] / 2)
-    return 0.5 * math.sqrt(size["width"] ** 2 + size["depth"] ** 2 + size["height"] ** 2)
 
 
 def _floor_point(cam, u: float, v: float, z: float, width: int, height: int) -> np.ndarray | None:
@@ -304,11 +290,11 @@ def _sample_layout(rng: np.random.Generator, cfg: SampleConfig, shapes: list[str
             z_floor = bounding_radius(shape, size)
             z = z_floor + float(rng.uniform(*cfg.drop_height))
         else:
-            quat = _yaw_quat(yaw)
+            quat = yaw_quat(yaw)
             if shape == "sphere":
                 z_floor = size["radius"]
             elif shape == "cylinder" and rng.random() < cfg.p_lying:  # on its side
-                quat = _quat_mul(quat, [math.sqrt(0.5), math.sqrt(0.5), 0.0, 0.0])
+                quat = quat_mul(quat, [math.sqrt(0.5), math.sqrt(0.5), 0.0, 0.0])
                 z_floor = size["radius"]
             else:
                 z_floor = size["height"] / 2
@@ -388,7 +374,7 @@ def _place_on_ramp(rng: np.random.Generator, cfg: SampleConfig, camera: Camera, 
     box = box.model_copy(update={
         "position": tuple(round(c, decimals.position) for c in box.position),
         "orientation": tuple(round(c, decimals.orientation) for c in box.orientation)})
-    R = rotation_matrix(box.orientation)
+    R = quat_to_mat(box.orientation)
     qr = np.asarray(box.orientation, dtype=np.float64) / np.linalg.norm(box.orientation)
     downhill, normal = R[:, 0], R[:, 2]
     k = int(rng.integers(len(objects)))
@@ -401,14 +387,14 @@ def _place_on_ramp(rng: np.random.Generator, cfg: SampleConfig, camera: Camera, 
     if z is None:  # pragma: no cover (p lies on the top face)
         return None
     p[2] = z
-    spin = _yaw_quat(float(rng.uniform(-math.pi, math.pi)))
+    spin = yaw_quat(float(rng.uniform(-math.pi, math.pi)))
     rolls = shape == "sphere"
     if shape == "sphere":
-        quat, lift = _quat_mul(qr, spin), size["radius"]
+        quat, lift = quat_mul(qr, spin), size["radius"]
     elif shape == "cylinder" and rng.random() < cfg.p_lying:  # axis across the slope: rolls
-        quat, lift, rolls = _quat_mul(qr, [math.sqrt(0.5), math.sqrt(0.5), 0.0, 0.0]), size["radius"], True
+        quat, lift, rolls = quat_mul(qr, [math.sqrt(0.5), math.sqrt(0.5), 0.0, 0.0]), size["radius"], True
     else:
-        quat, lift = _quat_mul(qr, spin), size["height"] / 2
+        quat, lift = quat_mul(qr, spin), size["height"] / 2
     centre = p + (lift + 0.002) * normal
     slides = o["material"]["sliding_friction"] < math.tan(th)
     vel = np.zeros(3)
@@ -439,8 +425,6 @@ class SceneFilter:
     MAX_PER_SHAPE = 4
 
     def __init__(self, cfg: SampleConfig, options: SimOptions | None = None):
-        from pipeline.render import FrameRenderer
-
         self.cfg = cfg
         self.options = (options or SimOptions()).model_copy(update={"textured": False})
         template = Scene.from_dict({
@@ -479,21 +463,11 @@ class SceneFilter:
         for i, obj in enumerate(scene.objects):
             slot = free[obj.shape].pop(0)
             g = self.geoms[slot]
-            size = np.zeros(3)
-            gs = geom_size(obj)
-            size[: len(gs)] = gs
-            m.geom_size[g] = size
-            half = [gs[0]] * 3 if obj.shape == "sphere" else [gs[0], gs[0], gs[1]] if obj.shape == "cylinder" else gs
-            m.geom_aabb[g] = [0.0, 0.0, 0.0, *half]  # centre, half sizes (geom frame)
-            m.geom_rbound[g] = bounding_radius(obj.shape, obj.size.model_dump())
-            m.bvh_aabb[m.body_bvhadr[slot + 1]] = [0.0, 0.0, 0.0, *half]  # one geom per body
+            set_object_size(m, slot + 1, g, obj.shape, obj.size)
             q = np.asarray(obj.orientation, dtype=np.float64)
             qpos[slot] = [*obj.position, *(q / np.linalg.norm(q))]
             lut[slot] = i
-        pose = camera_pose(scene.camera)
-        quat = np.zeros(4)
-        mujoco.mju_mat2Quat(quat, np.stack([pose.right, pose.up, -pose.forward], axis=1).reshape(-1))
-        m.cam_pos[0], m.cam_quat[0], m.cam_fovy[0] = pose.eye, quat, scene.camera.fov
+        set_camera(m, 0, scene.camera)
         self.renderer.set_pose(qpos)
         return lut
 
@@ -515,8 +489,6 @@ class SceneFilter:
         """First-frame segmentation ``(H, W) int8`` and deepest initial interpenetration (m) of
         a scene with static geometry, from its compiled model (the template has no static
         geoms): the ramp occludes objects and collides with them as in the full render."""
-        from pipeline.render import FrameRenderer, shared_gl
-
         model = model or compile_model(scene, self.options)
         qpos, _ = initial_state(scene)
         with FrameRenderer(model, self.cfg.width, self.cfg.height, shared_gl()) as r:
@@ -543,8 +515,6 @@ class SceneFilter:
         if (overlap if scene.static else self.initial_overlap(scene)) > cfg.overlap_tolerance:
             return "overlap"
         if cfg.keep_in_view:
-            from pipeline.simulate import rollout
-
             model = model or compile_model(scene, self.options)
             trace = rollout(model, len(scene.objects), scene.n_frames, scene.fps, record_contacts=False)
             pos = trace.position

@@ -44,6 +44,9 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from pipeline.errors import UserError
+from pipeline.geometry import smallest_half_extent
+from pipeline.mjcf import compile_model, steps_per_frame
+from pipeline.rotation import quat_to_mat
 
 
 class PhysicsError(UserError, ValueError):
@@ -110,8 +113,6 @@ def initial_overlaps(model: mujoco.MjModel, tolerance: float) -> list[Overlap]:
 def n_steps(n_frames: int, fps: float, timestep: float) -> int:
     """Physics steps of a rollout of ``n_frames`` frames: ``(n_frames - 1) * steps_per_frame``
     (frame 0 is the initial state)."""
-    from pipeline.mjcf import steps_per_frame
-
     return max(0, n_frames - 1) * steps_per_frame(fps, timestep)
 
 
@@ -164,8 +165,6 @@ def resolve_overlaps(scene, options=None, cfg: SanityConfig | None = None, max_m
     Raises:
         PhysicsError: still overlapping after ``max_moves`` moves.
     """
-    from pipeline.mjcf import compile_model
-
     cfg = cfg or SanityConfig()
     moves: list[str] = []
     for _ in range(max_moves):
@@ -191,17 +190,6 @@ def resolve_overlaps(scene, options=None, cfg: SanityConfig | None = None, max_m
 
 
 # --------------------------------------------------------------------------- rollout checks
-def _quat_to_mat(q: np.ndarray) -> np.ndarray:
-    """(..., 4) unit quaternions w, x, y, z -> (..., 3, 3) rotation matrices."""
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    return np.stack([
-        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-    ], -2)
-
-
 def mechanical_energy(model: mujoco.MjModel, qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
     """Kinetic plus gravitational potential energy per frame, J.
 
@@ -219,22 +207,12 @@ def mechanical_energy(model: mujoco.MjModel, qpos: np.ndarray, qvel: np.ndarray)
     n = qpos.shape[1]
     m = model.body_mass[1:n + 1]
     I = model.body_inertia[1:n + 1]                       # (n, 3) principal moments
-    R = _quat_to_mat(qpos[..., 3:]) @ _quat_to_mat(model.body_iquat[1:n + 1])   # (T, n, 3, 3) inertial -> world
+    R = quat_to_mat(qpos[..., 3:]) @ quat_to_mat(model.body_iquat[1:n + 1])   # (T, n, 3, 3) inertial -> world
     w_local = np.einsum("tnji,tnj->tni", R, qvel[..., 3:])  # R^T w
     rot = 0.5 * (I * w_local**2).sum(-1)
     kin = 0.5 * m * (qvel[..., :3] ** 2).sum(-1)
     pot = -m * (qpos[..., :3] @ model.opt.gravity)
     return (kin + rot + pot).sum(-1)
-
-
-def _smallest_half_extent(model: mujoco.MjModel) -> float:
-    """Smallest half extent of any collidable geom but planes, m (``geom_size`` entries used
-    by the geom type)."""
-    used = {int(mujoco.mjtGeom.mjGEOM_SPHERE): 1, int(mujoco.mjtGeom.mjGEOM_CAPSULE): 2,
-            int(mujoco.mjtGeom.mjGEOM_CYLINDER): 2, int(mujoco.mjtGeom.mjGEOM_BOX): 3,
-            int(mujoco.mjtGeom.mjGEOM_ELLIPSOID): 3}
-    sizes = [model.geom_size[g, :used[int(t)]].min() for g, t in enumerate(model.geom_type) if int(t) in used]
-    return float(min(sizes)) if sizes else float("inf")
 
 
 def rollout_problems(model: mujoco.MjModel, qpos: np.ndarray, qvel: np.ndarray,
@@ -298,7 +276,7 @@ def rollout_problems(model: mujoco.MjModel, qpos: np.ndarray, qvel: np.ndarray,
                                        f"body, got {o.a} and {o.b} {o.depth:.3g} m deep at frame {k}")
         speed = np.linalg.norm(qvel[..., :3], axis=-1)
         travel = speed * float(model.opt.timestep)
-        half = _smallest_half_extent(model)
+        half = smallest_half_extent(model)
         if travel.max() > half:
             k, i = np.unravel_index(int(np.argmax(travel)), travel.shape)
             problems["step_travel"] = (f"must move less than the smallest half size ({half:.3g} m) per physics step "

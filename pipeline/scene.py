@@ -15,7 +15,9 @@ Example::
 
 from __future__ import annotations
 
+import json
 import math
+import re
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union
 
@@ -385,8 +387,6 @@ def json_schema() -> dict[str, Any]:
 
 def json_schema_text() -> str:
     """:func:`json_schema` as the text of ``docs/scene.schema.json`` (2-space indent, newline)."""
-    import json
-
     return json.dumps(json_schema(), indent=2) + "\n"
 
 
@@ -458,9 +458,6 @@ def _name(text: str) -> str:
     """A name (effect, parameter) as canonical YAML: bare when it is a plain identifier that YAML
     reads back as the same string (``quadratic_drag``), else a double-quoted JSON string (a key
     ``null`` was read back as None, a control character was refused)."""
-    import json
-    import re
-
     if re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", text) and text.lower() not in _YAML_WORDS:
         return text
     return json.dumps(text)

@@ -22,28 +22,10 @@ import math
 
 import numpy as np
 
+from pipeline.rotation import axis_angle_quat, quat_mul, quat_to_mat, yaw_quat
 from pipeline.scene import BoxSize, StaticBox, StaticPlane
 
 StaticGeomT = StaticBox | StaticPlane
-
-
-def quat_mul(a, b) -> np.ndarray:
-    """Hamilton product ``a * b`` of quaternions (w, x, y, z): rotate by ``b``, then by ``a``."""
-    aw, ax, ay, az = (float(c) for c in a)
-    bw, bx, by, bz = (float(c) for c in b)
-    return np.array([aw * bw - ax * bx - ay * by - az * bz,
-                     aw * bx + ax * bw + ay * bz - az * by,
-                     aw * by - ax * bz + ay * bw + az * bx,
-                     aw * bz + ax * by - ay * bx + az * bw])
-
-
-def rotation_matrix(q) -> np.ndarray:
-    """(3, 3) rotation matrix of quaternion ``q`` (w, x, y, z), normalised first (as MuJoCo
-    does on load); columns are the geom's local x, y, z axes in the world frame."""
-    w, x, y, z = np.asarray(q, dtype=np.float64) / np.linalg.norm(np.asarray(q, dtype=np.float64))
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
 
 
 def ramp(angle_deg: float, length: float, width: float, thickness: float, x: float, y: float,
@@ -79,8 +61,8 @@ def ramp(angle_deg: float, length: float, width: float, thickness: float, x: flo
         if not v > 0:
             raise ValueError(f"ramp {name} must be > 0, got {v}")
     th, yaw = math.radians(angle_deg), math.radians(yaw_deg)
-    q = quat_mul([math.cos(yaw / 2), 0.0, 0.0, math.sin(yaw / 2)], [math.cos(th / 2), 0.0, math.sin(th / 2), 0.0])
-    normal = rotation_matrix(q)[:, 2]
+    q = quat_mul(yaw_quat(yaw), axis_angle_quat((0.0, 1.0, 0.0), th))
+    normal = quat_to_mat(q)[:, 2]
     top = np.array([x, y, length / 2 * math.sin(th)])
     centre = top - thickness / 2 * normal
     return StaticBox(shape="box", size=BoxSize(width=length, depth=width, height=thickness),
@@ -89,7 +71,7 @@ def ramp(angle_deg: float, length: float, width: float, thickness: float, x: flo
 
 def _support(geom: StaticGeomT, x: float, y: float) -> tuple[float, np.ndarray] | None:
     """(height, outward normal) where the vertical line through (x, y) leaves the geom's top."""
-    R = rotation_matrix(geom.orientation)
+    R = quat_to_mat(geom.orientation)
     c = np.asarray(geom.position, dtype=np.float64)
     o = R.T @ (np.array([x, y, 0.0]) - c)  # line origin (z = 0) in the geom frame
     d = R.T @ np.array([0.0, 0.0, 1.0])    # line direction (+z) in the geom frame
@@ -133,4 +115,4 @@ def support_normal(geom: StaticGeomT, x: float, y: float) -> np.ndarray | None:
     return None if s is None else s[1]
 
 
-__all__ = ["ramp", "support_height", "support_normal", "rotation_matrix", "quat_mul"]
+__all__ = ["ramp", "support_height", "support_normal"]

@@ -24,19 +24,22 @@ import io
 import json
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Mapping
+from typing import Any, Mapping
 
+import mujoco
 import numpy as np
 import pyarrow as pa
+from absl import logging as absl_logging
 
-from pipeline import shards
+from pipeline import sanity as checks, shards
 from pipeline.events import EventConfig, events_to_json, events_to_text, extract_events
 from pipeline.mjcf import SimOptions, compile_model
+from pipeline.params import ParamsError, load_params, typed_section
+from pipeline.render import FrameRenderer
+from pipeline.sanity import PhysicsError, SanityConfig, resolve_overlaps
 from pipeline.scene import Scene, SceneError, load_scene
-from pipeline.simulate import Contact, Trace
-
-if TYPE_CHECKING:
-    from pipeline.sanity import SanityConfig
+from pipeline.simulate import Contact, Trace, mujoco_warnings, rollout
+from pipeline.viz import mask_overlay, side_by_side_mp4
 
 TRACES_SCHEMA = pa.schema([
     ("scene_id", pa.string()),
@@ -119,8 +122,6 @@ def check_stable(trace, data=None) -> None:
     Raises:
         SceneError: ``<scene>: simulation: must stay stable, got ...`` (one line).
     """
-    from pipeline.simulate import mujoco_warnings
-
     problems = []
     bad = ~np.isfinite(trace.qpos).all(axis=(1, 2))
     if bad.any():
@@ -157,13 +158,6 @@ def write_simulation(scene: Scene, out_dir: str | Path, width: int = 480, height
             unstable (MuJoCo).
         pipeline.sanity.PhysicsError: a failed physical check (one line naming the check).
     """
-    from pipeline import sanity as checks
-    from pipeline.render import FrameRenderer
-    from pipeline.simulate import rollout
-    from pipeline.viz import mask_overlay, side_by_side_mp4
-
-    import mujoco
-
     options = options or SimOptions()
     model = compile_model(scene, options)
     checks.check_initial(scene, model, sanity, source)
@@ -224,14 +218,8 @@ def simulate_cli(args: argparse.Namespace) -> int:
         print(msg, file=sys.stderr)
         return 2
 
-    try:  # MuJoCo's per-step "simulation is unstable" log lines (via absl): check_stable reports
-        from absl import logging as absl_logging
-
-        absl_logging.set_verbosity(absl_logging.ERROR)
-    except ImportError:  # pragma: no cover
-        pass
-
-    from pipeline.sanity import PhysicsError, SanityConfig, resolve_overlaps
+    # MuJoCo's per-step "simulation is unstable" log lines (via absl): check_stable reports
+    absl_logging.set_verbosity(absl_logging.ERROR)
 
     for name, value in (("width", args.width), ("height", args.height)):
         if not MIN_SIZE <= value <= MAX_SIZE:
@@ -242,8 +230,6 @@ def simulate_cli(args: argparse.Namespace) -> int:
         scene = load_scene(args.scene)
         options, events, sanity = SimOptions(), EventConfig(), SanityConfig()
         if args.params is not None:
-            from pipeline.params import ParamsError, load_params, typed_section
-
             p = load_params(args.params)
             try:
                 options, events, sanity = (typed_section(p, key, cls, str(args.params)) for key, cls in

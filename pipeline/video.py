@@ -22,6 +22,8 @@ import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
+import os
+import sys
 
 import cv2
 import numpy as np
@@ -93,9 +95,6 @@ def _open_capture(path: Path) -> cv2.VideoCapture:
     parser prints lines such as "Unexpected element. Expected: LIST" for a damaged header and
     its log a "can't be used to capture by name" warning, which would follow our one-line error.
     Decoding messages are silenced by ``OPENCV_FFMPEG_LOGLEVEL`` (``pipeline/__init__.py``)."""
-    import os
-    import sys
-
     sys.stderr.flush()
     saved = os.dup(2)
     try:

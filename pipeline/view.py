@@ -10,7 +10,6 @@ the rerun viewer when a display is available. Any stage shard can be given (``co
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import re
 import shutil
@@ -19,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline import shards
+from pipeline import shards, viz
 from pipeline.camera import extrinsics, intrinsics
 from pipeline.params import load_params, path_of
 from pipeline.scene import Scene
@@ -54,8 +53,6 @@ def record_shard(shard: str | Path, scene_id: str | None, out: str | Path, param
     Raises:
         ShardError: a shard is missing or does not hold ``scene_id``.
     """
-    from pipeline import viz
-
     shard = Path(shard)
     if not shard.exists():
         raise shards.ShardError(f"{shard}: missing shard")

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import functools
 import io
-import os
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 

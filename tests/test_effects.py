@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from pipeline import effects as fx
+from pipeline import engine
 from pipeline.mjcf import SimOptions, compile_model, to_xml
 from pipeline.scene import Scene, SceneError
 from pipeline.simulate import rollout
@@ -49,9 +50,9 @@ def test_in_place_edit_equals_rebuilt_model(combo):
                {**BALL, "position": [0.5, 0, 0.03], "linear_velocity": [1, 0, 0], "angular_velocity": [0, 0, 20]}]
     scene = _scene(objects, [{"effect": k, "parameters": VALUES[k]} for k in combo])
     rebuilt = rollout(compile_model(scene, OPTS), 2, 30, 30, record_contacts=False)
-    model, base, geoms = fx.compile_for_fit(scene, combo, OPTS)
-    fx.configure_model(model, base, geoms, {k: fx.resolve_params(k, {}, "x") for k in combo})  # other values first
-    fx.configure_model(model, base, geoms, {k: fx.resolve_params(k, VALUES[k], "x") for k in combo})
+    model, base, geoms = engine.compile_for_fit(scene, combo, OPTS)
+    engine.configure_model(model, base, geoms, {k: fx.resolve_params(k, {}, "x") for k in combo})  # other values first
+    engine.configure_model(model, base, geoms, {k: fx.resolve_params(k, VALUES[k], "x") for k in combo})
     fast = rollout(model, 2, 30, 30, record_contacts=False)
     np.testing.assert_allclose(fast.qpos, rebuilt.qpos, rtol=0, atol=1e-12)
     plain = rollout(compile_model(scene.replace(effects=[]), OPTS), 2, 30, 30, record_contacts=False)
@@ -170,6 +171,6 @@ def test_bad_effects_give_one_line_errors(effects, message):
 
 def test_configure_model_refuses_missing_structure():
     scene = _scene([{**BALL, "position": [0, 0, 1]}])
-    model, base, geoms = fx.compile_for_fit(scene, [], OPTS)
+    model, base, geoms = engine.compile_for_fit(scene, [], OPTS)
     with pytest.raises(ValueError, match="structural"):
-        fx.configure_model(model, base, geoms, {"magnus_lift": fx.MagnusLift.defaults()})
+        engine.configure_model(model, base, geoms, {"magnus_lift": fx.MagnusLift.defaults()})

@@ -23,7 +23,8 @@ from pipeline.render import render_scene
 from pipeline.sampler import SampleConfig, SceneFilter, iter_dataset, sample_scene, scene_seed
 from pipeline.scene import Scene, SceneError, StaticBox, StaticPlane, json_schema_text
 from pipeline.simulate import simulate
-from pipeline.static import ramp, rotation_matrix, support_height, support_normal
+from pipeline.rotation import quat_to_mat as rotation_matrix
+from pipeline.static import ramp, support_height, support_normal
 
 G = 9.81
 ROOT = Path(__file__).resolve().parents[1]

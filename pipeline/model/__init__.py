@@ -7,7 +7,8 @@
   Qwen2-VL patch layout;
 * :mod:`~pipeline.model.network`: tiny Qwen2.5-VL from a config (or real weights) and the
   auxiliary composition head;
-* :mod:`~pipeline.model.training`: batches, step-based schedule, the loop, checkpoints, curve;
+* :mod:`~pipeline.model.batch`: the model inputs of a batch (prompt, target ids, labels, padding);
+* :mod:`~pipeline.model.training`: batch sampling, step-based schedule, the loop, checkpoints, curve;
 * :mod:`~pipeline.model.sampling`: grammar-constrained sampling (xgrammar) and detokenising.
 
 The model reads the video and writes ``<think> event words </think> <answer> scene tokens
@@ -25,6 +26,7 @@ Example::
 
 from pathlib import Path
 
+from pipeline.model.batch import IGNORE_INDEX, collate, encode_target, prompt_ids
 from pipeline.model.config import SCRATCH, ModelConfig, ModelError
 from pipeline.model.network import (CompositionHead, build_model, check_checkpoint, checkpoint_config, load_model,
                                     n_parameters)
@@ -33,9 +35,8 @@ from pipeline.model.sampling import (CODEC_FILE, compiled_grammar, generate, gen
 from pipeline.model.tokenizer import (EOS, PAD, SPECIAL_TOKENS, VIDEO_PAD, VISION_END, VISION_START,
                                       build_tokenizer, decode_tokens, extend_tokenizer, load_tokenizer,
                                       think_vocab)
-from pipeline.model.training import (CURVE_FILE, CURVE_PNG, IGNORE_INDEX, batch_indices, collate,
-                                     encode_target, estimate_loss, evaluate_samples, get_batch, lr_at,
-                                     plot_curve, read_curve, save_checkpoint, train)
+from pipeline.model.training import (CURVE_FILE, CURVE_PNG, batch_indices, estimate_loss, evaluate_samples, get_batch,
+                                     lr_at, plot_curve, read_curve, save_checkpoint, train)
 from pipeline.model.vision import (IMAGE_MEAN, IMAGE_STD, fit_to_grid, frame_indices, model_input,
                                    n_video_tokens, read_inputs, video_patches)
 

@@ -11,13 +11,17 @@ attends to must carry the scene's content. It is used only in training.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import torch
+from pydantic import ValidationError
 
 from pipeline.errors import format_validation_error
+from pipeline.codec import SceneCodec
 from pipeline.model.config import ModelConfig, ModelError
+from pipeline.model.sampling import CODEC_FILE
 from pipeline.model.tokenizer import IMAGE_PAD, VIDEO_PAD, VISION_END, VISION_START, load_tokenizer, token_id
 from pipeline.scene import SHAPES
 
@@ -130,10 +134,6 @@ def check_checkpoint(model_dir: str | Path, need_codec: bool = True) -> None:
     Raises:
         ModelError: one line ``<folder>: <file>: <problem>``.
     """
-    import json
-
-    from pipeline.codec import SceneCodec
-
     model_dir = Path(model_dir)
     if not model_dir.is_dir():
         raise ModelError(f"{model_dir}: no such model folder (run `dvc repro` or point --model at a checkpoint folder)")
@@ -160,8 +160,6 @@ def check_checkpoint(model_dir: str | Path, need_codec: bool = True) -> None:
     if not any(model_dir.glob("*.safetensors")) and not any(model_dir.glob("*.bin")):
         raise ModelError(f"{model_dir}: no weights (*.safetensors) in the folder")
     if need_codec:
-        from pipeline.model.sampling import CODEC_FILE
-
         if not (model_dir / CODEC_FILE).exists():
             raise ModelError(f"{model_dir}: no {CODEC_FILE} (not a checkpoint of this project's finetune stage)")
         try:
@@ -170,8 +168,6 @@ def check_checkpoint(model_dir: str | Path, need_codec: bool = True) -> None:
             raise ModelError(f"{model_dir}: {CODEC_FILE}: written by another version of the project "
                              f"(cannot read it: {type(exc).__name__} {str(exc)[:80]})") from None
     if (model_dir / "dynamics_model.json").exists():
-        from pydantic import ValidationError
-
         saved = read_json("dynamics_model.json")
         missing = sorted(set(ModelConfig.model_fields) - set(saved))
         if missing:   # a default would silently stand in for what the checkpoint was trained with

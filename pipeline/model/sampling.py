@@ -19,17 +19,17 @@ import numpy as np
 import torch
 
 from pipeline.codec import END_THINK, THINK, CodecError, SceneCodec, split_completion
+from pipeline.model.batch import collate
 from pipeline.model.config import ModelConfig, ModelError
 from pipeline.model.tokenizer import SPECIAL_TOKENS, decode_tokens
 from pipeline.scene import Scene
+from pipeline.shards import write_json
 
 CODEC_FILE = "codec.json"
 
 
 def save_codec(model_dir: str | Path, codec: SceneCodec, think_words: Sequence[str]) -> None:
     """Write ``codec.json`` (quantisers, constants, think words) into a checkpoint folder."""
-    from pipeline.shards import write_json
-
     write_json(Path(model_dir) / CODEC_FILE, {**codec.to_dict(), "think_words": list(think_words)})
 
 
@@ -110,8 +110,6 @@ def generate_many(model, tokenizer, frames: Sequence[np.ndarray], cfg: ModelConf
         ModelError: constrained sampling without a codec.
     """
     from transformers import GenerationConfig, LogitsProcessorList
-
-    from pipeline.model.training import collate
 
     batch = collate([(f, None) for f in frames], tokenizer, cfg)
     prompt_len = batch["input_ids"].shape[1]

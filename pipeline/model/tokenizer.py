@@ -10,11 +10,16 @@ keeps working on another with the same ranges (the shipped checkpoint and ``mode
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 from typing import Any, Sequence
 
+from tokenizers import Tokenizer, models, pre_tokenizers
+
 from pipeline.codec import END_THINK, THINK, SceneCodec
 from pipeline.model.config import ModelError
+from pipeline.scene import SHAPES
+from pipeline.shards import replace_path, temp_dir_for
 
 PAD = "<|pad|>"
 EOS = "<|endoftext|>"
@@ -35,8 +40,6 @@ def think_vocab(params: dict[str, Any], max_objects: int) -> list[str]:
     Times ``t=0.00`` .. ``t=<duration>`` at ``events.decimals``, names ``<shape>_<i>`` for
     ``i < max_objects``, and :data:`EVENT_WORDS`.
     """
-    from pipeline.scene import SHAPES
-
     nd = int((params.get("events") or {}).get("decimals", 2))
     duration = float((params.get("sample") or {}).get("duration", 1.0))
     n = int(round(duration * 10**nd))
@@ -57,7 +60,6 @@ def build_tokenizer(codec: SceneCodec, think_words: Sequence[str], out_dir: str 
         ``transformers.PreTrainedTokenizerFast`` (``WordLevel`` model, whitespace split, no
         decoder: decoding joins tokens with single spaces) with pad, eos and unk set.
     """
-    from tokenizers import Tokenizer, models, pre_tokenizers
     from transformers import PreTrainedTokenizerFast
 
     vocab: dict[str, int] = {}
@@ -71,9 +73,6 @@ def build_tokenizer(codec: SceneCodec, think_words: Sequence[str], out_dir: str 
         clean_up_tokenization_spaces=False, model_max_length=1 << 20,
     )
     if out_dir is not None:   # into a temporary sibling, swapped in whole (no half-written folder)
-        import shutil
-
-        from pipeline.shards import replace_path, temp_dir_for
 
         out_dir = Path(out_dir)
         tmp = temp_dir_for(out_dir)

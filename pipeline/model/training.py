@@ -1,17 +1,13 @@
 """Training: batches, learning-rate schedule, the loop, checkpoints and the training curve.
 
-Sequence layout (one example)::
-
-    <|vision_start|> <|video_pad|> x N <|vision_end|> <think> ... </think> <answer> ... </answer> <eos>
-    \\________________ prompt: label -100 ______________/ \\_______________ target: labels ___________/
-
-``N = grid_t * grid_h * grid_w / spatial_merge_size**2`` (one token per merged 2x2 patch group).
-The schedule runs on optimiser steps only (a busy machine changes the time, never the result).
+Batches are built by :func:`pipeline.model.batch.collate` (sequence layout there). The schedule
+runs on optimiser steps only (a busy machine changes the time, never the result).
 """
 
 from __future__ import annotations
 
 import csv
+import io
 import math
 import shutil
 import time
@@ -20,18 +16,15 @@ from typing import Any, Sequence
 
 import numpy as np
 import torch
+from tqdm.auto import tqdm
 
 from pipeline.codec import SceneCodec, composition_of, split_completion
+from pipeline.model.batch import collate
 from pipeline.model.config import SCRATCH, ModelConfig, ModelError
 from pipeline.model.network import (AUX_HEAD_FILE, CompositionHead, VisionTap, build_model, composition_targets,
                                     load_model, n_parameters)
-from pipeline.model.tokenizer import VIDEO_PAD, VISION_END, VISION_START, token_id
-from pipeline.model.vision import n_video_tokens, video_patches
-
-IGNORE_INDEX = -100
-"""Label of positions that carry no loss (prompt, padding)."""
-VIDEO_TOKEN_TYPE = 2
-"""``mm_token_type_ids`` value of video tokens (0 = text, 1 = image), used for 3-D RoPE."""
+from pipeline.model.sampling import generate_many, load_codec, save_codec, to_scene
+from pipeline.shards import remove_stale_temps, replace_path, temp_dir_for, write_bytes, write_text
 
 CURVE_FILE = "train_curve.csv"
 CURVE_PNG = "train_curve.png"
@@ -45,75 +38,6 @@ Example = tuple[np.ndarray, str]
 
 
 # ----------------------------------------------------------------------------- batches
-def prompt_ids(tokenizer, n_video: int) -> list[int]:
-    """``<|vision_start|>`` + ``n_video`` x ``<|video_pad|>`` + ``<|vision_end|>`` as ids."""
-    return ([token_id(tokenizer, VISION_START)] + [token_id(tokenizer, VIDEO_PAD)] * n_video
-            + [token_id(tokenizer, VISION_END)])
-
-
-def encode_target(tokenizer, target: str) -> list[int]:
-    """Ids of a target text plus EOS.
-
-    Raises:
-        ModelError: a word of the target is not in the vocabulary (would become ``<|unk|>``).
-    """
-    ids = tokenizer.encode(target, add_special_tokens=False)
-    if tokenizer.unk_token_id is not None and tokenizer.unk_token_id in ids:
-        bad = [w for w, i in zip(target.split(), ids) if i == tokenizer.unk_token_id]
-        raise ModelError(f"target: word {bad[0]!r} is not in the tokenizer's vocabulary")
-    return ids + [tokenizer.eos_token_id]
-
-
-def collate(items: Sequence[tuple[np.ndarray, str | None]], tokenizer, cfg: ModelConfig) -> dict[str, torch.Tensor]:
-    """Build one batch of model inputs (right-padded).
-
-    Args:
-        items: ``(frames (n_input_frames, H, W, 3) uint8, target text or None)`` per example;
-            ``None`` builds the prompt only (for generation).
-        tokenizer: the model's tokenizer.
-        cfg: model config (patch geometry).
-
-    Returns:
-        Keyword arguments for ``model(**batch)``: ``input_ids (B, L) int64``,
-        ``attention_mask (B, L) int64``, ``mm_token_type_ids (B, L) int64``,
-        ``pixel_values_videos (sum N_patches, 3*tp*p*p) float32``, ``video_grid_thw (B, 3) int64``
-        and, when targets are given, ``labels (B, L) int64`` (-100 on prompt and padding; the
-        model shifts them by one internally).
-    """
-    video_id = token_id(tokenizer, VIDEO_PAD)
-    seqs, labels, patches, grids = [], [], [], []
-    for frames, target in items:
-        pv, grid = video_patches(frames, cfg)
-        prompt = prompt_ids(tokenizer, n_video_tokens(grid, cfg))
-        ids, lab = list(prompt), [IGNORE_INDEX] * len(prompt)
-        if target is not None:
-            tgt = encode_target(tokenizer, target)
-            ids += tgt
-            lab += tgt
-        seqs.append(ids)
-        labels.append(lab)
-        patches.append(pv)
-        grids.append(grid)
-    length = max(len(s) for s in seqs)
-    input_ids = torch.full((len(seqs), length), tokenizer.pad_token_id, dtype=torch.long)
-    label_t = torch.full((len(seqs), length), IGNORE_INDEX, dtype=torch.long)
-    mask = torch.zeros((len(seqs), length), dtype=torch.long)
-    for i, (s, lab) in enumerate(zip(seqs, labels)):
-        input_ids[i, : len(s)] = torch.tensor(s)
-        label_t[i, : len(s)] = torch.tensor(lab)
-        mask[i, : len(s)] = 1
-    batch = {
-        "input_ids": input_ids,
-        "attention_mask": mask,
-        "mm_token_type_ids": (input_ids == video_id).long() * VIDEO_TOKEN_TYPE,
-        "pixel_values_videos": torch.from_numpy(np.concatenate(patches)),
-        "video_grid_thw": torch.from_numpy(np.concatenate(grids)),
-    }
-    if any(t is not None for _, t in items):
-        batch["labels"] = label_t
-    return batch
-
-
 def batch_indices(n: int, cfg: ModelConfig, step: int) -> np.ndarray:
     """Indices of the training batch at ``step``: epoch-wise shuffles seeded by ``(seed, epoch)``.
 
@@ -170,8 +94,6 @@ def evaluate_samples(model, examples: Sequence[Example], tokenizer, cfg: ModelCo
         ``{"composition": fraction whose shape multiset equals the target's, "valid": fraction
         that detokenise to a scene}`` (``nan`` without examples).
     """
-    from pipeline.model.sampling import generate_many, to_scene
-
     ex = list(examples[: cfg.eval_samples])
     if not ex:
         return {"composition": float("nan"), "valid": float("nan")}
@@ -254,15 +176,10 @@ def train(
         ModelError: no training examples, no tokenizer, or an init checkpoint whose codec
         differs from ``codec``.
     """
-    from tqdm.auto import tqdm
-
-    from pipeline.model.sampling import load_codec, save_codec
-
     if not train_examples:
         raise ModelError("train: no training examples (is the train split empty?)")
     torch.set_num_threads(cfg.threads)
     out_dir = Path(out_dir)
-    from pipeline.shards import remove_stale_temps
 
     remove_stale_temps(out_dir)              # leftovers of a killed save (resume keeps out_dir itself)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -387,8 +304,6 @@ def save_checkpoint(out_dir: Path, model, tokenizer, head: torch.nn.Module, opti
     (:func:`pipeline.shards.replace_path`): after ``kill -9`` at any point ``out_dir`` holds the
     previous checkpoint or the new one, never a mix.
     """
-    from pipeline.shards import replace_path, temp_dir_for
-
     out_dir = Path(out_dir)
     tmp = temp_dir_for(out_dir)
     try:
@@ -409,10 +324,6 @@ def save_checkpoint(out_dir: Path, model, tokenizer, head: torch.nn.Module, opti
 
 
 def _write_curve(path: Path, curve: list[dict[str, float]]) -> None:
-    import io
-
-    from pipeline.shards import write_text
-
     buf = io.StringIO(newline="")
     writer = csv.DictWriter(buf, fieldnames=CURVE_COLUMNS)
     writer.writeheader()
@@ -463,9 +374,6 @@ def plot_curve(model_dir: str | Path, png: str | Path | None = None) -> Path | N
     ax2.legend()
     ax2.grid(alpha=0.3)
     fig.tight_layout()
-    import io
-
-    from pipeline.shards import write_bytes
 
     buf = io.BytesIO()
     fig.savefig(buf, format="png")          # temp-then-rename: a killed run leaves no half PNG

@@ -10,8 +10,12 @@ from pathlib import Path
 from typing import Iterable
 
 import numpy as np
+from PIL import Image
+from tqdm.auto import tqdm
 
+from pipeline.flow import flow_to_rgb
 from pipeline.model.config import ModelConfig, ModelError
+from pipeline.shards import iter_array_shards, scene_ids_of
 
 IMAGE_MEAN = (0.48145466, 0.4578275, 0.40821073)
 IMAGE_STD = (0.26862954, 0.26130258, 0.27577711)
@@ -75,7 +79,6 @@ def model_input(
         flow = np.asarray(flow)
         if flow.ndim != 4 or flow.shape[-1] != 2:
             raise ModelError(f"flow: must have shape (T-1, H, W, 2), got {flow.shape}")
-        from pipeline.flow import flow_to_rgb
 
         idx = frame_indices(len(flow), cfg.n_frames)
         parts.append(flow_to_rgb(flow[idx].astype(np.float32), max_magnitude))
@@ -95,7 +98,6 @@ def fit_to_grid(frames: np.ndarray, factor: int) -> np.ndarray:
     new_h, new_w = max(factor, round(h / factor) * factor), max(factor, round(w / factor) * factor)
     if (new_h, new_w) == (h, w):
         return frames
-    from PIL import Image
 
     return np.stack([np.asarray(Image.fromarray(f).resize((new_w, new_h), Image.BICUBIC)) for f in frames])
 
@@ -168,10 +170,6 @@ def read_inputs(
         ModelError: a requested scene is in no shard, or a needed directory is not given.
         pipeline.shards.ShardError: missing or unreadable shards.
     """
-    from tqdm.auto import tqdm
-
-    from pipeline.shards import iter_array_shards, scene_ids_of
-
     use_flow, use_rgb = cfg.input in ("flow", "flow+rgb"), cfg.input in ("rgb", "flow+rgb")
     if (use_flow and flow_dir is None) or (use_rgb and video_dir is None):
         raise ModelError(f"model.input {cfg.input!r}: needs {'flow and video' if use_flow and use_rgb else cfg.input} shards")

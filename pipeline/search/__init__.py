@@ -6,14 +6,10 @@ iterations) on the fitness *IoU − EPE* with the object types fixed. Here:
 * :class:`SceneEvaluator` compiles the MJCF **once per scene structure** (same shapes in the
   same order, same effects) and, for each candidate, edits the ``mjModel`` in place (masses,
   inertias, sizes, bounding volumes, friction, damping, camera, gravity, the ``init``
-  keyframe), then rolls out and renders segmentation and exact flow with one reused
-  :class:`pipeline.render.FrameRenderer`. DESIGN §10: in-place edits go wrong silently unless
-  ``mujoco.mj_setConst`` runs after mass/size changes, ``geom_rbound`` / ``geom_aabb`` (and the
-  body BVH) follow the sizes, and ``mj_camlight`` runs before rendering (``FrameRenderer``
-  does). ``mj_setConst`` of MuJoCo 3.17 does not refresh ``mjModel.stat`` (mean mass, mean
-  inertia, mean size, extent), which the compiler computes and the constraint solver and
-  renderer use, so :func:`_set_stat` recomputes it like the compiler. ``tests/test_search.py``
-  checks fast == naive (rebuild the XML per candidate).
+  keyframe) with the compile-once engine (:mod:`pipeline.engine`, which says what in-place
+  edits must refresh), then rolls out and renders segmentation and exact flow with one reused
+  :class:`pipeline.render.FrameRenderer`. ``tests/test_search.py`` checks fast == naive
+  (rebuild the XML per candidate).
 * :func:`fitness`: ``full_iou − lambda_epe · EPE − prior_weight · prior``.
 * :func:`best_of_k`: score K sampled scenes (None = parse error, fitness −inf).
 * :func:`cmaes_refine`: CMA-ES (``cma`` library) over a normalised vector of the free fields
@@ -30,7 +26,7 @@ Example::
     refined, history = cmaes_refine(candidates[best], obs_seg, obs_flow, cfg, sim, seed=0)
 
 Package layout: :mod:`.config` (SearchConfig, SearchRanges, FREE_FIELDS), :mod:`.evaluator`
-(SceneEvaluator, EvaluatorPool, evaluate_scene, structure_key), :mod:`.fitness` (fitness,
+(SceneEvaluator, EvaluatorPool, evaluate_scene; ``structure_key`` from :mod:`pipeline.engine`), :mod:`.fitness` (fitness,
 best_of_k), :mod:`.observations` (Observations, samples_by_scene, parse_sample,
 at_clip_timing), :mod:`.space` (SearchSpace, floor_height), :mod:`.cmaes` (cmaes_refine),
 :mod:`.parallel` (ParallelEvaluator: candidates over a process pool), :mod:`.baseline`
@@ -41,17 +37,17 @@ here, so ``from pipeline.search import X`` and ``search.X`` work as before the s
 from pipeline.search.baseline import _scenes_of, baseline_scene
 from pipeline.search.cmaes import cmaes_refine
 from pipeline.search.config import FREE_FIELDS, FreeField, SearchConfig, SearchRanges
-from pipeline.search.evaluator import (EvaluatorPool, SceneEvaluator, _half_extents, _set_stat, body_inertia,
-                                       evaluate_scene, structure_key)
+from pipeline.engine import structure_key
+from pipeline.search.evaluator import EvaluatorPool, SceneEvaluator, evaluate_scene
 from pipeline.search.fitness import _check_obs, _invalid_score, best_of_k, fitness
 from pipeline.search.observations import Observations, at_clip_timing, parse_sample, samples_by_scene
 from pipeline.search.parallel import ParallelEvaluator
 from pipeline.search.plot import plot_history
-from pipeline.search.space import SearchSpace, _yaw_quat, floor_height
+from pipeline.search.space import SearchSpace, floor_height
 
 __all__ = [
     "FREE_FIELDS", "EvaluatorPool", "FreeField", "Observations", "ParallelEvaluator", "SceneEvaluator",
-    "SearchConfig", "SearchRanges", "SearchSpace", "at_clip_timing", "baseline_scene", "best_of_k", "body_inertia", "cmaes_refine",
+    "SearchConfig", "SearchRanges", "SearchSpace", "at_clip_timing", "baseline_scene", "best_of_k", "cmaes_refine",
     "evaluate_scene", "fitness", "floor_height", "parse_sample", "plot_history", "samples_by_scene",
     "structure_key",
 ]

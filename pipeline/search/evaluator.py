@@ -1,16 +1,13 @@
 """Fast re-simulation of candidate scenes (compile once per structure, edit in place).
 
-:class:`SceneEvaluator` compiles the MJCF **once per scene structure** (same shapes in the
-same order, same effects, same static geometry) and, for each candidate, edits the
-``mjModel`` in place (masses, inertias, sizes, bounding volumes, friction, damping, camera,
-gravity, the ``init`` keyframe), then rolls out and renders segmentation and exact flow with
-one reused :class:`pipeline.render.FrameRenderer`. DESIGN §10: in-place edits go wrong
-silently unless ``mujoco.mj_setConst`` runs after mass/size changes, ``geom_rbound`` /
-``geom_aabb`` (and the body BVH) follow the sizes, and ``mj_camlight`` runs before rendering
-(``FrameRenderer`` does). ``mj_setConst`` of MuJoCo 3.17 does not refresh ``mjModel.stat``
-(mean mass, mean inertia, mean size, extent), which the compiler computes and the constraint
-solver and renderer use, so :func:`_set_stat` recomputes it like the compiler.
-``tests/test_search.py`` checks fast == naive (rebuild the XML per candidate).
+:class:`SceneEvaluator` compiles the MJCF **once per scene structure**
+(:func:`pipeline.engine.structure_key`: same shapes in the same order, same effects, same
+static geometry) and, for each candidate, edits the ``mjModel`` in place with the engine's
+functions (:mod:`pipeline.engine`: masses, inertias, sizes, bounding volumes, camera, then the
+derived constants and ``mjModel.stat``; here also friction, damping, gravity and the ``init``
+keyframe), then rolls out and renders segmentation and exact flow with one reused
+:class:`pipeline.render.FrameRenderer`. ``tests/test_search.py`` checks fast == naive (rebuild
+the XML per candidate).
 """
 
 from __future__ import annotations
@@ -18,103 +15,12 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from pipeline.camera import camera_pose
-from pipeline.mjcf import SimOptions, compile_model, geom_size, initial_state, object_ids
+from pipeline.engine import (object_bodies, refresh_constants, set_camera, set_object_mass, set_object_size,
+                             structure_key)
+from pipeline.mjcf import SimOptions, compile_model, initial_state
 from pipeline.render import FrameRenderer
 from pipeline.scene import Scene
 from pipeline.simulate import rollout
-
-
-def structure_key(scene: Scene) -> tuple:
-    """What a compiled model fixes: the shapes in order, the effects with their parameters and
-    the static geometry (``Scene.static``: fixed boxes / planes such as ramps and walls, compiled
-    into the worldbody; absent in scenes without it).
-
-    Scenes with equal keys share one :class:`SceneEvaluator`.
-    """
-    effects = tuple((e.effect, tuple(sorted(e.parameters.items()))) for e in scene.effects)
-    static = tuple(g.model_dump_json() if hasattr(g, "model_dump_json") else repr(g)
-                   for g in (getattr(scene, "static", None) or ()))
-    return tuple(o.shape for o in scene.objects), effects, static
-
-
-def _object_bodies(model: mujoco.MjModel, scene: Scene) -> tuple[np.ndarray, np.ndarray]:
-    """Body ids (n,) and geom ids (n,) of the scene's objects, found by name (``<shape>_<i>``
-    bodies, one geom each), so worldbody geoms (floor, static geometry ``static_<i>``) never
-    count as objects. Falls back to bodies ``1..n`` (:func:`pipeline.mjcf.object_ids`).
-    """
-    bodies = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name) for name in scene.object_names]
-    if any(b <= 0 for b in bodies):
-        return object_ids(model, len(scene.objects))
-    return np.asarray(bodies), np.asarray([int(model.body_geomadr[b]) for b in bodies])
-
-
-def body_inertia(obj) -> np.ndarray:
-    """Principal moments of inertia (3,) kg m^2 of a solid primitive about its body axes.
-
-    Uniform density solids (MuJoCo compiler, "inertia from geoms"): sphere ``2/5 m r^2``;
-    cylinder ``m (3 r^2 + h^2) / 12`` (x, y) and ``m r^2 / 2`` (z); box of full extents
-    (w, d, h): ``m (d^2 + h^2) / 12``, ``m (w^2 + h^2) / 12``, ``m (w^2 + d^2) / 12``.
-    """
-    m, s = obj.mass, obj.size
-    if obj.shape == "sphere":
-        return np.full(3, 0.4 * m * s.radius ** 2)
-    if obj.shape == "cylinder":
-        ixx = m * (3.0 * s.radius ** 2 + s.height ** 2) / 12.0
-        return np.array([ixx, ixx, 0.5 * m * s.radius ** 2])
-    w, d, h = s.width, s.depth, s.height
-    return m / 12.0 * np.array([d * d + h * h, w * w + h * h, w * w + d * d])
-
-
-def _half_extents(obj) -> np.ndarray:
-    """Axis-aligned half extents (3,) m of a primitive in its geom frame (``geom_aabb``)."""
-    g = geom_size(obj)
-    if obj.shape == "sphere":
-        return np.full(3, g[0])
-    if obj.shape == "cylinder":
-        return np.array([g[0], g[0], g[1]])
-    return np.asarray(g, dtype=np.float64)
-
-
-def _set_stat(model: mujoco.MjModel, data: mujoco.MjData) -> None:
-    """Recompute ``model.stat`` as MuJoCo's compiler does (``setStat`` in engine_setconst.c).
-
-    Needs ``data`` at ``qpos0`` after ``mj_kinematics`` and ``model.dof_M0`` from
-    ``mj_setConst``. Covers bodies, joints and geoms (the scene models have no sites/flexes).
-    """
-    pts, rad = [], []
-    for b in range(1, model.nbody):
-        pts += [data.xpos[b], data.xipos[b]]
-        rad += [0.0, 0.0]
-    for j in range(model.njnt):
-        pts.append(data.xanchor[j])
-        rad.append(0.0)
-    for g in range(model.ngeom):
-        r = float(model.geom_rbound[g])
-        if r <= 0 and model.geom_type[g] == mujoco.mjtGeom.mjGEOM_PLANE:
-            sx, sy = model.geom_size[g, :2]
-            r = max(sx, sy) * 0.1 if (sx or sy) else 1.0
-        pts.append(data.geom_xpos[g])
-        rad.append(r)
-    pts, rad = np.asarray(pts), np.asarray(rad)[:, None]
-    lo, hi = (pts - rad).min(axis=0), (pts + rad).max(axis=0)
-    model.stat.center[:] = (lo + hi) / 2.0
-    if hi[0] > lo[0]:
-        model.stat.extent = max(1e-5, float((hi - lo).max()))
-    size = np.zeros(model.nbody)
-    for j in range(model.njnt):
-        b = model.jnt_bodyid[j]
-        size[b] = max(size[b], float(np.linalg.norm(data.xipos[b] - data.xanchor[j])))
-    for b in range(1, model.nbody):
-        for g in range(model.body_geomadr[b], model.body_geomadr[b] + model.body_geomnum[b]):
-            if model.geom_rbound[g] > 0:
-                size[b] = max(size[b], model.geom_rbound[g] + float(np.linalg.norm(data.xipos[b] - data.geom_xpos[g])))
-    if model.nbody > 1:
-        model.stat.meansize = float(np.maximum(size[1:], 1e-5).mean())
-        model.stat.meanmass = float(model.body_mass[1:].mean())
-    model.stat.extent = max(model.stat.extent, 2.0 * model.stat.meansize)
-    if model.nv:
-        model.stat.meaninertia = float(model.dof_M0.mean())
 
 
 class SceneEvaluator:
@@ -136,7 +42,7 @@ class SceneEvaluator:
         self.width, self.height = int(width), int(height)
         self.model = compile_model(structure_scene, options)
         self.n = len(structure_scene.objects)
-        self.bodies, self.geoms = _object_bodies(self.model, structure_scene)
+        self.bodies, self.geoms = object_bodies(self.model, structure_scene)
         # The floor plane is drawn as a grid of size[2]-spaced quads (MuJoCo docs, "geom/size":
         # plane), 200 x 200 = 40,000 quads for the 10 m floor at 0.1 m: ~70 % of a segmentation
         # pass at 192x144. A plane's third size is only that rendering spacing (planes are
@@ -176,14 +82,8 @@ class SceneEvaluator:
         qpos, qvel = initial_state(scene)
         for i, obj in enumerate(scene.objects):
             b, g = self.bodies[i], self.geoms[i]
-            size = geom_size(obj)
-            m.geom_size[g, : len(size)] = size
-            half = _half_extents(obj)
-            m.geom_aabb[g] = [0.0, 0.0, 0.0, *half]  # centre, half sizes (geom frame)
-            m.geom_rbound[g] = half[0] if obj.shape == "sphere" else float(np.linalg.norm(half))
-            m.bvh_aabb[m.body_bvhadr[b]] = [0.0, 0.0, 0.0, *half]  # one geom per body
-            m.body_mass[b] = obj.mass
-            m.body_inertia[b] = body_inertia(obj)
+            set_object_size(m, b, g, obj.shape, obj.size)
+            set_object_mass(m, b, obj.shape, obj.size, obj.mass)
             m.body_pos[b] = qpos[7 * i: 7 * i + 3]
             m.body_quat[b] = qpos[7 * i + 3: 7 * i + 7]
             m.geom_friction[g, 0] = obj.material.sliding_friction  # [1] torsional: as compiled
@@ -197,18 +97,8 @@ class SceneEvaluator:
         m.qpos_spring[: len(qpos)] = qpos
         m.key_qpos[0, : len(qpos)] = qpos
         m.key_qvel[0, : len(qvel)] = qvel
-        pose = camera_pose(scene.camera)
-        mat = np.stack([pose.right, pose.up, np.cross(pose.right, pose.up)], axis=1)  # MuJoCo: x right, y up, z back
-        quat = np.zeros(4)
-        mujoco.mju_mat2Quat(quat, mat.reshape(-1))
-        m.cam_pos[self._cam] = pose.eye
-        m.cam_quat[self._cam] = quat
-        m.cam_fovy[self._cam] = scene.camera.fov
-        d = self._const_data
-        mujoco.mj_setConst(m, d)  # invweight0, M0, subtree masses, cam_pos0/mat0, dof_length
-        d.qpos[:] = m.qpos0
-        mujoco.mj_kinematics(m, d)
-        _set_stat(m, d)
+        set_camera(m, self._cam, scene.camera)
+        refresh_constants(m, self._const_data)  # invweight0, M0, subtree masses, cam_pos0/mat0, stat
 
     def evaluate(self, scene: Scene, n_frames: int | None = None, flow: bool = True,
                  ) -> tuple[np.ndarray, np.ndarray | None]:

@@ -6,7 +6,9 @@ from typing import Any, Iterable
 
 import numpy as np
 
+from pipeline import shards
 from pipeline.scene import Scene
+from pipeline.shards import ShardError
 
 
 def at_clip_timing(scene: Scene, n_frames: int, fps: int | None) -> Scene:
@@ -65,8 +67,6 @@ class Observations:
     """
 
     def __init__(self, video_dir, flow_dir):
-        from pipeline import shards
-
         self._video: dict[str, tuple[Any, int]] = {}
         self._flow: dict[str, tuple[Any, int]] = {}
         for _, group in shards.iter_array_shards(video_dir):
@@ -95,8 +95,6 @@ class Observations:
         Raises:
             ShardError: the scene is missing from the video or flow shards.
         """
-        from pipeline.shards import ShardError
-
         if sid not in self._video:
             raise ShardError(f"{self.video_dir}: no scene {sid!r}")
         if sid not in self._flow:

@@ -27,13 +27,19 @@ Example::
 
 from __future__ import annotations
 
+import multiprocessing
+import uuid
+from concurrent.futures import ProcessPoolExecutor
 from typing import Sequence
 
 import numpy as np
 
 from pipeline.mjcf import SimOptions
+from pipeline.parallel import _init_worker, make_pool
 from pipeline.scene import Scene
 from pipeline.search.config import SearchConfig
+from pipeline.search.evaluator import EvaluatorPool
+from pipeline.search.fitness import _check_obs, fitness
 
 _POOLS: dict = {}
 """Worker-side evaluator pools, by (width, height, options)."""
@@ -41,8 +47,6 @@ _POOLS: dict = {}
 
 def _evaluate_chunk(job: tuple) -> list[tuple[np.ndarray, np.ndarray | None]]:
     """Worker: evaluate a chunk of scenes with this process's cached evaluators."""
-    from pipeline.search.evaluator import EvaluatorPool
-
     width, height, options, scenes, n_frames, flow = job
     key = (width, height, None if options is None else options.model_dump_json())
     pool = _POOLS.get(key)
@@ -96,12 +100,8 @@ class ParallelEvaluator(_PoolOwner):
         self.workers = max(1, int(workers))
         self._pool = self._local = None
         if self.workers == 1:
-            from pipeline.search.evaluator import EvaluatorPool
-
             self._local = EvaluatorPool(self.width, self.height, options)
         else:
-            from pipeline.parallel import make_pool
-
             self._pool = make_pool(self.workers)
 
     def evaluate_many(self, scenes: Sequence[Scene], n_frames: int | None = None, flow: bool = True,
@@ -133,9 +133,6 @@ def _init_fitness_worker(token: str, width: int, height: int, options: SimOption
                          obs_seg: np.ndarray, obs_flow: np.ndarray | None) -> None:
     """Worker set-up (pool initializer): :func:`pipeline.parallel._init_worker`'s thread limits,
     then keep the observation and an evaluator pool for every later job."""
-    from pipeline.parallel import _init_worker
-    from pipeline.search.evaluator import EvaluatorPool
-
     _init_worker()
     _FITNESS.clear()
     _FITNESS.update(token=token, obs_seg=obs_seg, obs_flow=obs_flow,
@@ -145,8 +142,6 @@ def _init_fitness_worker(token: str, width: int, height: int, options: SimOption
 def _score_scenes(scenes: Sequence[Scene], priors: Sequence[float], cfg: SearchConfig, pool,
                   obs_seg: np.ndarray, obs_flow: np.ndarray | None) -> list[dict[str, float]]:
     """:func:`fitness` of each scene (evaluated with ``pool``) against the observation."""
-    from pipeline.search.fitness import fitness
-
     T = int(np.shape(obs_seg)[0])
     need_flow = obs_flow is not None and cfg.lambda_epe > 0
     out = []
@@ -187,10 +182,6 @@ class ParallelFitness(_PoolOwner):
 
     def __init__(self, obs_seg: np.ndarray, obs_flow: np.ndarray | None, cfg: SearchConfig | None = None,
                  options: SimOptions | None = None, workers: int = 2):
-        import uuid
-
-        from pipeline.search.fitness import _check_obs
-
         T, H, W = _check_obs(obs_seg, obs_flow)
         self.n_frames, self.height, self.width = T, H, W
         self.obs_seg, self.obs_flow = np.asarray(obs_seg), (None if obs_flow is None else np.asarray(obs_flow))
@@ -199,13 +190,8 @@ class ParallelFitness(_PoolOwner):
         self._token = uuid.uuid4().hex
         self._pool = self._local = None
         if self.workers == 1:
-            from pipeline.search.evaluator import EvaluatorPool
-
             self._local = EvaluatorPool(W, H, options)
         else:
-            import multiprocessing
-            from concurrent.futures import ProcessPoolExecutor
-
             self._pool = ProcessPoolExecutor(
                 max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"),
                 initializer=_init_fitness_worker,

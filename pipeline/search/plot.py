@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 from typing import Any, Sequence
 
 import numpy as np
@@ -17,8 +18,6 @@ def plot_history(histories: Sequence[Sequence[dict[str, Any]]], title: str = "CM
     Returns:
         PNG bytes (matplotlib, Agg backend), to write atomically.
     """
-    import io
-
     import matplotlib
 
     matplotlib.use("Agg")

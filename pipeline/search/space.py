@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import copy
 import math
-from typing import Iterable, Sequence
+from typing import Iterable
 
-import mujoco
 import numpy as np
 
+from pipeline.geometry import support_height
+from pipeline.rotation import quat_mul, quat_to_mat, yaw_quat
 from pipeline.scene import Scene
 from pipeline.search.config import FREE_FIELDS, SearchRanges
-from pipeline.search.evaluator import _half_extents
 
 
 class SearchSpace:
@@ -128,7 +128,7 @@ class SearchSpace:
                 v = math.exp(v)
             if kind == "yaw":
                 obj = d[path[0]][path[1]]
-                obj["orientation"] = tuple(_yaw_quat(math.radians(v), obj["orientation"]))
+                obj["orientation"] = tuple(quat_mul(yaw_quat(math.radians(v)), obj["orientation"]))
                 continue
             target = d
             for key in path[:-1]:
@@ -151,23 +151,5 @@ class SearchSpace:
 
 def floor_height(obj) -> float:
     """Height (m) of an object's centre when its lowest point touches the floor z = 0, for its
-    orientation: the half extent along world z of the rotated primitive."""
-    R = np.zeros(9)
-    q = np.asarray(obj.orientation, dtype=np.float64)
-    mujoco.mju_quat2Mat(R, q / np.linalg.norm(q))
-    axis_z = R.reshape(3, 3)[2]  # world z expressed in body axes (row 2 of R)
-    half = _half_extents(obj)
-    if obj.shape == "sphere":
-        return float(half[0])
-    if obj.shape == "cylinder":
-        r, h = half[0], half[2]
-        return float(abs(axis_z[2]) * h + r * math.sqrt(max(0.0, 1.0 - axis_z[2] ** 2)))
-    return float(np.abs(axis_z) @ half)
-
-
-def _yaw_quat(angle: float, q: Sequence[float]) -> np.ndarray:
-    """Quaternion (w, x, y, z) of rotating orientation ``q`` by ``angle`` rad about world z."""
-    rz = np.array([math.cos(angle / 2.0), 0.0, 0.0, math.sin(angle / 2.0)])
-    out = np.zeros(4)
-    mujoco.mju_mulQuat(out, rz, np.asarray(q, dtype=np.float64) / np.linalg.norm(q))
-    return out
+    orientation (:func:`pipeline.geometry.support_height`)."""
+    return float(support_height(obj.shape, obj.size, quat_to_mat(obj.orientation)))

@@ -14,12 +14,12 @@ the same motion weighs the same at any resolution.
 
 from __future__ import annotations
 
-import math
 from typing import Any, Callable
 
 import numpy as np
 
 from pipeline.camera import camera_pose
+from pipeline.geometry import bounding_radius
 from pipeline.mjcf import SimOptions
 from pipeline.scene import Scene
 from pipeline.search.cmaes import cmaes_refine
@@ -40,22 +40,13 @@ REFERENCE_WIDTH = 96
 """px: ``search.lambda_epe`` is per px of an image this wide (the small profile's renders)."""
 
 
-def _radius(obj) -> float:
-    s = obj.size.model_dump()
-    if obj.shape == "sphere":
-        return s["radius"]
-    if obj.shape == "cylinder":
-        return math.hypot(s["radius"], s["height"] / 2)
-    return 0.5 * math.sqrt(s["width"] ** 2 + s["depth"] ** 2 + s["height"] ** 2)
-
-
 def scaled_ranges(scene: Scene) -> SearchRanges:
     """Search box scaled to a scene: with ``L`` the median bounding radius of its objects (m),
     ``D`` the mean camera-to-object distance (m) and ``v`` the largest initial speed (m/s):
     positions ``+-(2 L + 0.05 D)``, velocities ``+-(0.3 v + 4 L / s)``, spin ``+-(2 / L)`` rad/s
     capped at 20, camera height / position ``+-0.1 D``, camera angles ``+-8`` deg, fov ``+-10``
     deg, sizes ``x/ 1.5``, friction ``+-0.4``."""
-    L = float(np.median([_radius(o) for o in scene.objects]))
+    L = float(np.median([bounding_radius(o.shape, o.size) for o in scene.objects]))
     eye = camera_pose(scene.camera).eye
     D = float(np.mean([np.linalg.norm(np.asarray(o.position) - eye) for o in scene.objects]))
     v = max(float(np.linalg.norm(o.linear_velocity)) for o in scene.objects)
