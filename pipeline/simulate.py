@@ -170,6 +170,38 @@ def interpolate_qpos(prev: np.ndarray, cur: np.ndarray, frac: np.ndarray | float
     return np.where(f >= 1.0, cur, out)
 
 
+def sample_qpos(model: mujoco.MjModel, data: mujoco.MjData, n: int, times: np.ndarray) -> np.ndarray:
+    """Simulate from the model's ``init`` keyframe and sample the free bodies' poses at
+    ``times`` by the rule of :func:`sample_steps` (on the step grid: the state itself;
+    between steps: :func:`interpolate_qpos` of the two states around ``t``).
+
+    Args:
+        model: compiled model whose first ``n`` bodies after the world are free bodies.
+        data: ``MjData`` of ``model`` (reset here).
+        n: number of free bodies.
+        times: ``(T,)`` non-decreasing sample times, s, >= 0.
+    Returns:
+        ``qpos (T, n, 7)`` float64 (x, y, z m; quaternion w, x, y, z).
+    Raises:
+        ValueError: negative or non-finite times (:func:`sample_steps`).
+    """
+    steps, frac = sample_steps(times, float(model.opt.timestep))
+    reset_to_scene(model, data)
+    out = np.empty((len(steps), n, 7))
+    prev = cur = data.qpos[: 7 * n].copy()
+    step = 0
+    for k, (target, f) in enumerate(zip(steps, frac)):
+        if step < target:
+            if target - 1 > step:
+                mujoco.mj_step(model, data, int(target - 1 - step))
+            prev = data.qpos[: 7 * n].copy()
+            mujoco.mj_step(model, data)
+            step = int(target)
+            cur = data.qpos[: 7 * n].copy()
+        out[k] = interpolate_qpos(prev.reshape(n, 7), cur.reshape(n, 7), f) if f < 1.0 else cur.reshape(n, 7)
+    return out
+
+
 def reset_to_scene(model: mujoco.MjModel, data: mujoco.MjData) -> None:
     """Reset ``data`` to the ``init`` keyframe (the scene's initial state) and run forward."""
     mujoco.mj_resetDataKeyframe(model, data, 0)

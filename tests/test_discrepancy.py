@@ -21,11 +21,11 @@ from pipeline import discrepancy as D
 from pipeline import effects as fx
 from pipeline.discrepancy.benchmark import _bench_summary, _trial_job
 from pipeline.discrepancy.cli import _main
-from pipeline.discrepancy.clip_model import _clip_scene, _sample_rollout
+from pipeline.discrepancy.clip_model import _clip_scene
 from pipeline.discrepancy.profile import _fmt_interval, _profile_candidate
 from pipeline.discrepancy.readers import _typical_acceleration
 from pipeline.mjcf import SimOptions, compile_model
-from pipeline.simulate import rollout
+from pipeline.simulate import rollout, sample_qpos
 
 OPTS = SimOptions(textured=False)  # the params timestep, 1/600 s (the library default since issue 12; was 2 ms)
 OPTS_2MS = SimOptions(textured=False, timestep=0.002)
@@ -318,7 +318,7 @@ def _foam_drop(seed: int = 0, noise: float = 0.003, fps: int = 30, density: floa
                                                        "damping": 0.0}}],
                              "effects": [{"effect": "quadratic_drag", "parameters": {"density": density}}]})
     model = compile_model(scene, OPTS)
-    q = _sample_rollout(model, mujoco.MjData(model), 1, times)[:, 0]
+    q = sample_qpos(model, mujoco.MjData(model), 1, times)[:, 0]
     keep = q[:, 2] > r + 0.01                                   # free flight: stop before the floor
     t = times[keep]
     pos = q[keep, :3] + np.random.default_rng(seed).normal(0.0, noise, (len(t), 3))

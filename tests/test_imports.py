@@ -26,9 +26,9 @@ HEAVY = {
 }
 """Modules that may be imported inside a function (dotted prefixes)."""
 
-FUNCTION_IMPORTS_PENDING = {"pipeline.discrepancy"}
-"""Modules (and packages, by prefix) not checked for function-level imports yet: the
-discrepancy workflow is being split into a package (issue 11); empty this set afterwards."""
+FUNCTION_IMPORTS_PENDING: set[str] = set()
+"""Modules (and packages, by prefix) exempt from the function-level check: none (the
+discrepancy package was the last; issue 11)."""
 
 
 def _module_name(path: Path) -> str:

@@ -5,7 +5,6 @@ noise-normalised residuals against the measurements (:func:`clip_residuals`)."""
 from __future__ import annotations
 
 import copy
-import math
 from dataclasses import dataclass
 from types import SimpleNamespace
 from typing import Any, Mapping, Sequence
@@ -14,12 +13,12 @@ import mujoco
 import numpy as np
 from mujoco import rollout as mj_rollout
 
-from pipeline import effects as fx
-from pipeline.discrepancy.quaternions import quat_conj, quat_mul, quat_to_mat, quat_to_rotvec, rotvec_to_quat
+from pipeline import engine
+from pipeline.rotation import quat_conj, quat_mul, quat_to_mat, quat_to_rotvec, rotvec_to_quat
 from pipeline.discrepancy.trajectories import Clip
 from pipeline.mjcf import SimOptions, initial_state
 from pipeline.scene import Scene
-from pipeline.simulate import reset_to_scene
+from pipeline.simulate import interpolate_qpos, sample_steps
 
 
 NUISANCE = ("px", "py", "pz", "vx", "vy", "vz", "rx", "ry", "rz", "wx", "wy", "wz",
@@ -29,41 +28,6 @@ perturbation (rotation vector, rad, body frame, relative to the reference orient
 linear velocity (m/s, world), angular velocity (rad/s, world), ``material.damping``
 (freejoint damping, N s/m) and ``material.sliding_friction``."""
 _P, _V, _R, _W, _D, _F = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), 12, 13
-
-
-def _sample_rollout(model: mujoco.MjModel, data: mujoco.MjData, n: int, times: np.ndarray) -> np.ndarray:
-    """Simulate from the model's ``init`` keyframe and sample ``qpos (T, n, 7)`` at ``times``
-    (s, from 0), interpolating linearly between the two physics steps around each time
-    (quaternions: normalised lerp). Same stepping as ``pipeline.simulate.rollout``."""
-    reset_to_scene(model, data)
-    dt = float(model.opt.timestep)
-    out = np.empty((len(times), n, 7))
-    prev = data.qpos[: 7 * n].copy()
-    cur = prev
-    step = 0
-    qpos = data.qpos
-    for k, t in enumerate(times):
-        s = t / dt
-        target = int(math.ceil(s - 1e-9))
-        if step < target:
-            while step < target - 1:
-                mujoco.mj_step(model, data)
-                step += 1
-            prev = qpos[: 7 * n].copy()
-            mujoco.mj_step(model, data)
-            step += 1
-            cur = qpos[: 7 * n].copy()
-        frac = 1.0 - (step - s) if step > 0 else 1.0
-        frac = min(max(frac, 0.0), 1.0)
-        q = (prev + frac * (cur - prev)).reshape(n, 7) if frac < 1.0 else cur.reshape(n, 7)
-        qa, qb = prev.reshape(n, 7)[:, 3:], cur.reshape(n, 7)[:, 3:]
-        if frac < 1.0:
-            sign = np.where(np.sum(qa * qb, 1, keepdims=True) < 0, -1.0, 1.0)
-            qq = (1 - frac) * qa + frac * sign * qb
-            q = q.copy()
-            q[:, 3:] = qq / np.linalg.norm(qq, axis=1, keepdims=True)
-        out[k] = q
-    return out
 
 
 def _clip_scene(clip: Clip, nuis: np.ndarray | None = None, effects: Mapping[str, Mapping[str, float]] | None = None,
@@ -122,7 +86,7 @@ class ClipModel:
         self.clip = clip
         self.effects = tuple(effects)
         scene = _clip_scene(clip).replace(gravity=gravity)
-        self.model, self.base, self.geoms = fx.compile_for_fit(scene, self.effects, options)
+        self.model, self.base, self.geoms = engine.compile_for_fit(scene, self.effects, options)
         self.threads = max(1, int(threads))
         self.datas = [mujoco.MjData(self.model) for _ in range(self.threads)]
         self.pool: list[mujoco.MjModel] = [self.model]
@@ -130,17 +94,14 @@ class ClipModel:
         self.times = clip.times
         self.qref = np.array([tr.quat[0] if tr.quat is not None else np.array([1.0, 0, 0, 0])
                               for tr in clip.tracks])
-        dt = float(self.model.opt.timestep)
-        s = self.times / dt
-        self._k = np.ceil(s - 1e-9).astype(int)                 # steps to the sample (or just past)
-        self._frac = np.clip(1.0 - (self._k - s), 0.0, 1.0)
-        self._frac[self._k == 0] = 1.0
+        # the rule of pipeline.simulate.sample_steps: step k (and k - 1 with weight 1 - frac)
+        self._k, self._frac = sample_steps(self.times, float(self.model.opt.timestep))
         self.nstep = int(self._k.max())
         self._spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
         self._nstate = mujoco.mj_stateSize(self.model, self._spec)
 
     def _configure(self, m: mujoco.MjModel, nuis: np.ndarray, effect_values: Mapping[str, Mapping[str, float]]) -> None:
-        fx.configure_model(m, self.base, self.geoms, effect_values)
+        engine.configure_model(m, self.base, self.geoms, effect_values)
         m.geom_friction[self.geoms, 0] = nuis[:, _F]
         m.dof_damping[: 6 * self.n] = np.repeat(nuis[:, _D], 6)
 
@@ -182,13 +143,7 @@ class ClipModel:
         B = qpos.shape[0]
         cur = qpos[:, self._k].reshape(B, len(self.times), -1, 7)[:, :, : self.n]
         prev = qpos[:, np.maximum(self._k - 1, 0)].reshape(B, len(self.times), -1, 7)[:, :, : self.n]
-        f = self._frac[None, :, None, None]
-        out = prev + f * (cur - prev)
-        qa, qb = prev[..., 3:], cur[..., 3:]
-        sign = np.where(np.sum(qa * qb, -1, keepdims=True) < 0, -1.0, 1.0)
-        qq = (1 - f) * qa + f * sign * qb
-        out[..., 3:] = qq / np.linalg.norm(qq, axis=-1, keepdims=True)
-        return out
+        return interpolate_qpos(prev, cur, self._frac[None, :, None])
 
     def simulate_many(self, nuis_list: Sequence[np.ndarray],
                       effects_list: Sequence[Mapping[str, Mapping[str, float]]]) -> np.ndarray:
@@ -202,13 +157,20 @@ class ClipModel:
 
     def trace(self, nuis: np.ndarray, effect_values: Mapping[str, Mapping[str, float]]
               ) -> tuple[np.ndarray, np.ndarray]:
-        """World-frame angular velocity ``(T, n, 3)`` (rad/s, at the physics step nearest each
-        sample) and ``qpos (T, n, 7)`` at the sample times."""
+        """World-frame angular velocity ``(T, n, 3)`` (rad/s) and ``qpos (T, n, 7)`` at the sample
+        times, both by the rule of :func:`pipeline.simulate.sample_steps` (angular velocity:
+        each step's body-frame ``qvel`` rotated to the world, then interpolated linearly)."""
         qpos, qvel = self.run([nuis], [effect_values])
-        steps = np.rint(self.times / float(self.model.opt.timestep)).astype(int)
-        q = qpos[0, steps, : 7 * self.n].reshape(len(steps), self.n, 7)[..., 3:]
-        w_body = qvel[0, steps, : 6 * self.n].reshape(len(steps), self.n, 6)[..., 3:]
-        omega = np.einsum("tnij,tnj->tni", quat_to_mat(q), w_body)
+        T = len(self.times)
+
+        def omega_at(steps: np.ndarray) -> np.ndarray:
+            q = qpos[0, steps, : 7 * self.n].reshape(T, self.n, 7)[..., 3:]
+            w_body = qvel[0, steps, : 6 * self.n].reshape(T, self.n, 6)[..., 3:]
+            return np.einsum("tnij,tnj->tni", quat_to_mat(q), w_body)
+
+        f = self._frac[:, None, None]
+        cur = omega_at(self._k)
+        omega = np.where(f >= 1.0, cur, omega_at(np.maximum(self._k - 1, 0)) * (1.0 - f) + cur * f)
         return omega, self.sample(qpos)[0]
 
 

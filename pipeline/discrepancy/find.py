@@ -13,8 +13,8 @@ from scipy.stats import chi2
 
 from pipeline.discrepancy.config import DiscrepancyConfig
 from pipeline.discrepancy.noise import Noise, _local_quadratic
-from pipeline.discrepancy.quaternions import quat_conj, quat_mul, quat_to_mat, quat_to_rotvec
 from pipeline.discrepancy.trajectories import Clip, Track
+from pipeline.rotation import quat_conj, quat_mul, quat_to_mat, quat_to_rotvec
 
 
 PHASES = ("flight", "contact", "sliding", "rolling", "rest")

@@ -14,10 +14,11 @@ from scipy.optimize import least_squares
 from threadpoolctl import threadpool_limits
 
 from pipeline import effects as fx
+from pipeline import geometry
 from pipeline.discrepancy.clip_model import _D, _F, _P, _R, _V, _W, NUISANCE, ClipModel, Weights, clip_residuals
 from pipeline.discrepancy.config import DiscrepancyConfig
-from pipeline.discrepancy.quaternions import quat_conj, quat_mul, quat_to_mat, quat_to_rotvec
-from pipeline.discrepancy.trajectories import Clip, ObjectSpec, Track
+from pipeline.discrepancy.trajectories import Clip, Track
+from pipeline.rotation import quat_conj, quat_mul, quat_to_mat, quat_to_rotvec
 
 try:   # an optional extra of MuJoCo; without it the same formula runs on a pseudo-inverse
     from mujoco import sysid
@@ -39,23 +40,10 @@ def _nuisance_scales(clip: Clip) -> np.ndarray:
     for tr in clip.tracks:
         # The free joint's damping acts on all 6 DoF: its decay rate is b/m on linear and
         # b/I on angular velocity; scale it by the faster (0.01 s^-1 per unit).
-        inertia = _min_inertia(tr.spec)
+        inertia = geometry.min_inertia(tr.spec.shape, tr.spec.size, tr.spec.mass)
         s = np.array([0.01] * 3 + [0.1] * 3 + [0.1] * 3 + [1.0] * 3 + [0.01 * min(tr.spec.mass, inertia), 0.1])
         out.append(s)
     return np.array(out)
-
-
-def _min_inertia(spec: ObjectSpec) -> float:
-    """Smallest principal moment of inertia (kg m^2) of a solid primitive (as MuJoCo computes
-    it from the geom's volume and mass)."""
-    s, m = spec.size, spec.mass
-    if spec.shape == "sphere":
-        return 0.4 * m * s["radius"] ** 2
-    if spec.shape == "box":
-        w, d, h = s["width"], s["depth"], s["height"]
-        return m / 12.0 * min(d * d + h * h, w * w + h * h, w * w + d * d)
-    r, h = s["radius"], s["height"]
-    return min(0.5 * m * r * r, m * (3 * r * r + h * h) / 12.0)
 
 
 def _nuisance_bounds(clip: Clip) -> tuple[np.ndarray, np.ndarray]:

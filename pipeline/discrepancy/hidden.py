@@ -11,12 +11,12 @@ import numpy as np
 from pydantic import Field
 
 from pipeline import effects as fx
-from pipeline.discrepancy.clip_model import _sample_rollout
 from pipeline.discrepancy.config import DISCREPANCY_DECIMALS, _Strict
-from pipeline.discrepancy.quaternions import quat_mul, rotvec_to_quat
 from pipeline.discrepancy.trajectories import QUAT_COLUMNS, SPEC_COLUMNS, TABLE_COLUMNS
 from pipeline.mjcf import SimOptions, compile_model
+from pipeline.rotation import quat_mul, rotvec_to_quat
 from pipeline.scene import Scene
+from pipeline.simulate import sample_qpos
 
 
 HIDDEN_KINDS = ("throw", "spin_slide", "throw", "roll")
@@ -167,7 +167,7 @@ def generate_hidden(seed: int, cfg: HiddenConfig | None = None, options: SimOpti
                                  "objects": [obj],
                                  "effects": [{"effect": name, "parameters": params}] if name else []})
         model = compile_model(scene, options)
-        qpos = _sample_rollout(model, mujoco.MjData(model), 1, times)[:, 0]
+        qpos = sample_qpos(model, mujoco.MjData(model), 1, times)[:, 0]
         clip_id = f"clip_{c:02d}_{kind}"
         obj_name = f"{obj['shape']}_0"
         pos = qpos[:, :3] + rng.normal(0.0, cfg.noise_position, (len(times), 3))

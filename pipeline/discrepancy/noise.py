@@ -7,8 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.discrepancy.quaternions import quat_conj, quat_mul, quat_to_rotvec
 from pipeline.discrepancy.trajectories import Clip
+from pipeline.rotation import quat_conj, quat_mul, quat_to_rotvec
 
 
 def _local_quadratic(t: np.ndarray, y: np.ndarray, half: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -73,7 +73,6 @@ def plot_trajectories(result: Result, path: str | Path, max_clips: int = 8) -> P
     axes = fig.subplots(len(clips), 3, squeeze=False)
     for c, clip in enumerate(clips):
         for i, tr in enumerate(clip.tracks):
-            idx = np.searchsorted(clip.times, tr.t)
             for a, name in enumerate("xyz"):
                 ax = axes[c, a]
                 if not tr.axes[a]:

@@ -3,12 +3,12 @@ every reader raises (:class:`DiscrepancyInputError`)."""
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from pipeline import geometry
 from pipeline.errors import UserError
 
 
@@ -40,25 +40,15 @@ class ObjectSpec:
     assumed: list[str] = field(default_factory=list)
 
     def support_height(self, R: np.ndarray) -> np.ndarray:
-        """Height (m) of the centre above the lowest point for rotations ``R (..., 3, 3)``."""
-        R = np.asarray(R)
-        if self.shape == "sphere":
-            return np.full(R.shape[:-2], self.size["radius"])
-        if self.shape == "box":
-            half = np.array([self.size["width"], self.size["depth"], self.size["height"]]) / 2
-            return np.abs(R[..., 2, :]) @ half
-        c = np.clip(np.abs(R[..., 2, 2]), 0.0, 1.0)  # cylinder axis = body z
-        return self.size["radius"] * np.sqrt(1.0 - c * c) + self.size["height"] / 2 * c
+        """Height (m) of the centre above the lowest point for rotations ``R (..., 3, 3)``
+        (:func:`pipeline.geometry.support_height`)."""
+        return geometry.support_height(self.shape, self.size, R)
 
     @property
     def bounding_radius(self) -> float:
-        """m, radius of the smallest sphere around the object (orientation residual scale)."""
-        s = self.size
-        if self.shape == "sphere":
-            return s["radius"]
-        if self.shape == "box":
-            return 0.5 * math.sqrt(s["width"] ** 2 + s["depth"] ** 2 + s["height"] ** 2)
-        return math.sqrt(s["radius"] ** 2 + (s["height"] / 2) ** 2)
+        """m, radius of the smallest sphere around the object (orientation residual scale;
+        :func:`pipeline.geometry.bounding_radius`)."""
+        return geometry.bounding_radius(self.shape, self.size)
 
     def scene_dict(self) -> dict[str, Any]:
         """``{shape, size, mass}`` of a scene-language object (m, kg)."""
