@@ -13,6 +13,7 @@ from pipeline import effects as fx
 from pipeline.discrepancy.config import DiscrepancyConfig
 from pipeline.discrepancy.hidden import HiddenConfig, generate_hidden
 from pipeline.discrepancy.readers import clips_from_columns
+from pipeline.discrepancy.report import table_lines
 from pipeline.discrepancy.workflow import run_workflow
 from pipeline.mjcf import SimOptions
 from pipeline.parallel import ComputeConfig, parallel_map
@@ -153,36 +154,35 @@ def benchmark_markdown(bench: Mapping[str, Any], command: str = "") -> str:
              "at a random strength (or none), runs the workflow without telling it, and checks what it names.", ""]
     if command:
         lines += ["```", command, "```", ""]
-    lines += ["| metric | value |", "|---|---|",
-              f"| naming accuracy ({s['effect_trials']} trials with a hidden effect) | {pct(s['naming_accuracy'])} |",
-              f"| false-positive rate ({s['null_trials']} trials without) | {pct(s['false_positive_rate'])} |",
-              f"| held-out gap shrink >= 50 % (effect trials) | {pct(s['shrink_at_least_50pct'])} |",
-              f"| held-out gap above the noise shrink >= 50 % | {pct(s.get('excess_shrink_at_least_50pct'))} |",
-              f"| median held-out gap shrink | {pct(s['median_shrink'])} |",
-              f"| median shrink of the gap above the noise | {pct(s.get('median_excess_shrink'))} |",
-              f"| held-out gap after naming within 1.5x the noise floor | {pct(s.get('gap_within_1p5_noise'))} |"]
+    rows = [[f"naming accuracy ({s['effect_trials']} trials with a hidden effect)", pct(s['naming_accuracy'])],
+            [f"false-positive rate ({s['null_trials']} trials without)", pct(s['false_positive_rate'])],
+            ["held-out gap shrink >= 50 % (effect trials)", pct(s['shrink_at_least_50pct'])],
+            ["held-out gap above the noise shrink >= 50 %", pct(s.get('excess_shrink_at_least_50pct'))],
+            ["median held-out gap shrink", pct(s['median_shrink'])],
+            ["median shrink of the gap above the noise", pct(s.get('median_excess_shrink'))],
+            ["held-out gap after naming within 1.5x the noise floor", pct(s.get('gap_within_1p5_noise'))]]
     one = s.get("single") or {}
     if one.get("trials"):
-        lines += [f"| single clip ({one['trials']} trials, 1 clip of {one['duration_s']:g} s, forward gap): naming accuracy | "
-                  f"{pct(one['naming_accuracy'])} |",
-                  f"| single clip: median forward-gap shrink / above the noise | {pct(one['median_shrink'])} / "
-                  f"{pct(one['median_excess_shrink'])} |",
-                  f"| single clip: forward gap after naming within 1.5x the noise floor | {pct(one['gap_within_1p5_noise'])} |"]
-    lines += [f"| runtime | {s['runtime_s'] / 60:.1f} min ({s['jobs']} jobs) |", "",
+        rows += [[f"single clip ({one['trials']} trials, 1 clip of {one['duration_s']:g} s, forward gap): naming accuracy",
+                  pct(one['naming_accuracy'])],
+                 ["single clip: median forward-gap shrink / above the noise",
+                  f"{pct(one['median_shrink'])} / {pct(one['median_excess_shrink'])}"],
+                 ["single clip: forward gap after naming within 1.5x the noise floor", pct(one['gap_within_1p5_noise'])]]
+    rows.append(["runtime", f"{s['runtime_s'] / 60:.1f} min ({s['jobs']} jobs)"])
+    lines += [*table_lines(["metric", "value"], rows), "",
               "Naming is scored as the exact set of named effects (an extra effect is a miss).", ""]
     for title, per in (("", bench["per_effect"]), ("single clip ", bench.get("per_effect_single") or {})):
         if not per:
             continue
-        lines += [f"| {title}effect | trials | correct | accuracy | median shrink | min shrink | gap ≤ 1.5x noise |",
-                  "|---|---|---|---|---|---|---|"]
-        for name, p in per.items():
-            lines.append(f"| {name} | {p['trials']} | {p['correct']} | {pct(p['accuracy'])} | {pct(p['median_shrink'])} | "
-                         f"{pct(p['min_shrink'])} | {pct(p.get('gap_within_1p5_noise'))} |")
+        lines += table_lines([f"{title}effect", "trials", "correct", "accuracy", "median shrink", "min shrink",
+                              "gap ≤ 1.5x noise"],
+                             [[name, p['trials'], p['correct'], pct(p['accuracy']), pct(p['median_shrink']),
+                               pct(p['min_shrink']), pct(p.get('gap_within_1p5_noise'))] for name, p in per.items()])
         lines.append("")
     wrong = [r for r in bench["trials"] if not r["correct"]]
     if wrong:
-        lines += ["", "Misnamed trials:", "", "| seed | group | truth | named | gap before → after (mm) |", "|---|---|---|---|---|"]
-        for r in wrong:
-            lines.append(f"| {r['seed']} | {r.get('group', '')} | {r['truth'] or 'none'} | {', '.join(r['named']) or 'none'} | "
-                         f"{r['gap_before'] * 1e3:.2f} → {r['gap_after'] * 1e3:.2f} |")
+        lines += ["", "Misnamed trials:", "",
+                  *table_lines(["seed", "group", "truth", "named", "gap before → after (mm)"],
+                               [[r['seed'], r.get('group', ''), r['truth'] or 'none', ', '.join(r['named']) or 'none',
+                                 f"{r['gap_before'] * 1e3:.2f} → {r['gap_after'] * 1e3:.2f}"] for r in wrong])]
     return "\n".join(lines) + "\n"

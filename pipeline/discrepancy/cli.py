@@ -1,12 +1,13 @@
-"""Command line of the workflow: ``dynamics discrepancy`` and ``dynamics discrepancy-benchmark``
-(also ``python -m pipeline.discrepancy run|benchmark``), and the typed configs of params.yaml."""
+"""Command line of the workflow: the ``dynamics discrepancy`` and ``dynamics
+discrepancy-benchmark`` subcommands (registered by :mod:`pipeline.cli`, the one entry point),
+and the typed configs of params.yaml."""
 
 from __future__ import annotations
 
 import argparse
-import sys
+import logging
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Mapping
 
 from pydantic import ValidationError
 
@@ -24,6 +25,8 @@ from pipeline.parallel import ComputeConfig
 from pipeline.params import load_params, typed_section
 from pipeline.atomic import write_json, write_text
 
+
+logger = logging.getLogger(__name__)
 
 def load_config(params: Mapping[str, Any] | None) -> tuple[DiscrepancyConfig, HiddenConfig, SimOptions]:
     """Typed configs from parsed params (sections ``discrepancy``, ``measure_hidden``, ``sim``;
@@ -94,7 +97,8 @@ def main_cli(args: argparse.Namespace) -> int:
         DiscrepancyInputError: bad trajectories, objects or options (the CLI prints it, exit 2).
     """
     cfg, _, sim = _config_from_args(args)
-    say = None if args.quiet else (lambda m: print(m, file=sys.stderr, flush=True))
+    if args.quiet:  # progress lines are INFO records of pipeline.discrepancy (stderr, pipeline.entry)
+        logging.getLogger("pipeline.discrepancy").setLevel(logging.WARNING)
     video, gravity = None, 9.81
     if any(infer_tracks.is_infer_dir(t) for t in args.trajectories):
         if len(args.trajectories) != 1:
@@ -106,7 +110,7 @@ def main_cli(args: argparse.Namespace) -> int:
               f"(axes {video['camera_axes']})")
     else:
         clips = read_trajectories(args.trajectories, args.objects, cfg.default_object)
-    result = run_workflow(clips, cfg, sim, gravity=gravity, log=say)
+    result = run_workflow(clips, cfg, sim, gravity=gravity, log=None)
     rep = write_report(result, args.out, video=video)
     named = ", ".join(f"{n['effect']} ({', '.join(f'{k}={v:.4g}' for k, v in n['parameters'].items())})"
                       for n in rep["named"]) or "none"
@@ -150,7 +154,7 @@ def benchmark_cli(args: argparse.Namespace) -> int:
     jobs = args.jobs if args.backend == "local" else ComputeConfig(backend="ray", address=args.address,
                                                                         workers=args.jobs)
     bench = run_benchmark(args.trials, args.null_trials, args.seed, jobs, cfg, hidden, sim,
-                          log=lambda m: print(m, flush=True), single_trials=args.single_trials,
+                          log=logger.info, single_trials=args.single_trials,
                           single_duration=args.single_duration)
     out = Path(args.out)
     command = "dynamics discrepancy-benchmark " + " ".join(
@@ -165,25 +169,3 @@ def benchmark_cli(args: argparse.Namespace) -> int:
     print(f"naming accuracy {s['naming_accuracy']:.3f} over {s['effect_trials']} trials; false-positive rate "
           f"{s['false_positive_rate']:.3f} over {s['null_trials']}; wrote {out}")
     return 0
-
-
-def _main(argv: Sequence[str] | None = None) -> int:
-    """``python -m pipeline.discrepancy {run,benchmark} ...``: the same functions as ``dynamics
-    discrepancy`` (:func:`main_cli`) and ``dynamics discrepancy-benchmark`` (:func:`benchmark_cli`);
-    a :class:`DiscrepancyInputError` prints one line and returns 2."""
-    parser = argparse.ArgumentParser(prog="python -m pipeline.discrepancy",
-                                     description="Discrepancy workflow (DESIGN.md §8): find -> name -> add -> show.")
-    sub = parser.add_subparsers(dest="command", required=True)
-    run = sub.add_parser("run", help="the workflow on trajectories (same as `dynamics discrepancy`)")
-    add_arguments(run)
-    run.set_defaults(func=main_cli)
-    bench = sub.add_parser("benchmark", help="naming accuracy on hidden-effect data "
-                                             "(same as `dynamics discrepancy-benchmark`)")
-    add_benchmark_arguments(bench)
-    bench.set_defaults(func=benchmark_cli)
-    args = parser.parse_args(argv)
-    try:
-        return args.func(args)
-    except DiscrepancyInputError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2

@@ -6,18 +6,19 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import yaml
+from tabulate import tabulate
 
+from pipeline.atomic import write_json, write_text
 from pipeline.discrepancy.clip_model import _clip_scene
 from pipeline.discrepancy.config import DISCREPANCY_DECIMALS
 from pipeline.discrepancy.plots import _safe_name, plot_residuals, plot_trajectories, record
 from pipeline.discrepancy.profile import _fmt_interval
 from pipeline.discrepancy.workflow import Result
 from pipeline.scene import Decimals, Scene
-from pipeline.atomic import write_json, write_text
 
 
 def extended_scenes(result: Result) -> dict[str, Scene]:
@@ -99,10 +100,9 @@ def _gap_lines(rep: Mapping[str, Any]) -> list[str]:
                       f"{g.get('n_predicted', 0)} samples after the split are scored (a forecast).",
            "in_sample": "In sample: the models are fitted to the whole clip (no data left to forecast)."}[kind]
     lines = [f"## Gap: {label}", "", f"Which gap and why: {g.get('why', '>= 2 clips: leave one clip out')}.", "",
-             "| | RMSE (mm) |", "|---|---|",
-             f"| before (base model) | {_fmt(g['before'], mm)} |",
-             f"| after ({after}) | {_fmt(g['after'], mm)} |",
-             f"| noise floor (measurement sigma) | {_fmt(rep['noise_floor'], mm)} |", "",
+             *table_lines(["", "RMSE (mm)"], [["before (base model)", _fmt(g['before'], mm)],
+                                         [f"after ({after})", _fmt(g['after'], mm)],
+                                         ["noise floor (measurement sigma)", _fmt(rep['noise_floor'], mm)]]), "",
              f"Shrink: {100 * g['shrink']:.1f} % (of the part above the noise, "
              f"sqrt(RMSE² − σ²): {mm * g['excess_before']:.2f} → {mm * g['excess_after']:.2f} mm, "
              f"{100 * g['excess_shrink']:.1f} %). {how}", ""]
@@ -110,9 +110,9 @@ def _gap_lines(rep: Mapping[str, Any]) -> list[str]:
     if ins:
         lines += ["In-sample fit (all samples, every clip), for comparison: it always improves with more "
                   "parameters, so it is not the evidence.", "",
-                  "| model | in-sample RMSE (mm) | fitted parameters k |", "|---|---|---|",
-                  f"| base | {_fmt(ins['before'], mm)} | {ins['k_before']} |",
-                  f"| base + {after} | {_fmt(ins['after'], mm)} | {ins['k_after']} |", ""]
+                  *table_lines(["model", "in-sample RMSE (mm)", "fitted parameters k"],
+                          [["base", _fmt(ins['before'], mm), ins['k_before']],
+                           [f"base + {after}", _fmt(ins['after'], mm), ins['k_after']]]), ""]
         if kind == "forward":
             lines += [f"Forward fits: k = {g['k_before']} (base) and {g['k_after']} (with the effects).", ""]
     for v in g.get("variants") or []:
@@ -121,6 +121,12 @@ def _gap_lines(rep: Mapping[str, Any]) -> list[str]:
                   f"{v['bic_held']:.1f}): kept with the damping {v['damping']} (lower BIC; the two laws are "
                   f"nearly collinear over a short first part).", ""]
     return lines
+
+
+def table_lines(header: Sequence[str], rows: Sequence[Sequence[Any]]) -> list[str]:
+    """Lines of a GitHub-flavoured Markdown table (tabulate; cells exactly as formatted by the
+    caller: no number parsing)."""
+    return tabulate([list(r) for r in rows], list(header), tablefmt="github", disable_numparse=True).splitlines()
 
 
 def _video_lines(rep: Mapping[str, Any]) -> list[str]:
@@ -134,9 +140,9 @@ def _video_lines(rep: Mapping[str, Any]) -> list[str]:
              f"scene's world frame at the re-simulated object's depth; observed axes: {v['camera_axes']}. "
              f"The re-simulated scene (`scene.yaml`) leaves the observed motion at "
              f"{_fmt(g['rmse_m'], 1e3)} mm ({_fmt(g['rmse_px'], 1, 1)} px) RMSE:", "",
-             "| object | samples | RMSE (mm) | RMSE (px) |", "|---|---|---|---|"]
-    for name, o in g["per_object"].items():
-        lines.append(f"| {name} | {o['samples']} | {o['rmse_m'] * 1e3:.2f} | {o['rmse_px']:.1f} |")
+             *table_lines(["object", "samples", "RMSE (mm)", "RMSE (px)"],
+                     [[name, o['samples'], f"{o['rmse_m'] * 1e3:.2f}", f"{o['rmse_px']:.1f}"]
+                      for name, o in g["per_object"].items()])]
     return lines + ["", "The base model below is refitted to the tracks; the named effects close what it leaves.", ""]
 
 
@@ -154,24 +160,23 @@ def report_markdown(rep: Mapping[str, Any]) -> str:
              *_gap_lines(rep),
              "## Named effects", ""]
     if rep["named"]:
-        lines += ["| effect | mechanism | parameter | value | 95 % CI | unit |", "|---|---|---|---|---|---|"]
-        for n in rep["named"]:
-            for p, v in n["parameters"].items():
-                cis = _fmt_interval(n["ci"].get(p))
-                lines.append(f"| {n['effect']} | {n['mechanism']} | {p} | {v:.4g} | {cis} | {n['units'].get(p, '')} |")
+        lines += table_lines(["effect", "mechanism", "parameter", "value", "95 % CI", "unit"],
+                        [[n['effect'], n['mechanism'], p, f"{v:.4g}", _fmt_interval(n["ci"].get(p)),
+                          n['units'].get(p, '')] for n in rep["named"] for p, v in n["parameters"].items()])
     else:
         lines.append("None: no candidate cleared the noise floor (BIC and held-out gates).")
     lines += ["", "## Candidates", ""]
     for st in rep["steps"]:
         model = " + ".join(["base"] + st["model"])
         lines += [f"### Step {st['step']}: {model} + candidate -> named: {st['named'] or 'none'}", "",
-                  "| candidate | fit gain (mm) | fit gain (%) | ΔBIC | profile Δχ² | held-out RMSE (mm) | held-out gain (mm) | held-out Δχ² | named? |",
-                  "|---|---|---|---|---|---|---|---|---|"]
-        for cd in sorted(st["candidates"], key=lambda d: d["delta_bic"]):
-            params = ", ".join(f"{k}={v:.3g}" for k, v in cd["parameters"].items())
-            lines.append(f"| {cd['effect']} ({params}) | {_fmt(cd['fit_gain'], mm)} | {cd['fit_gain_pct']:.1f} | "
-                         f"{cd['delta_bic']:.1f} | {cd['profile_gain']:.1f} | {_fmt(cd['heldout_rmse'], mm)} | {_fmt(cd['heldout_gain'], mm)} | "
-                         f"{_fmt(cd['heldout_delta_chi2'], 1, 1)} | {'yes' if cd['named'] else 'no: ' + cd['reason'] if not cd['eligible'] else 'eligible'} |")
+                  *table_lines(["candidate", "fit gain (mm)", "fit gain (%)", "ΔBIC", "profile Δχ²", "held-out RMSE (mm)",
+                           "held-out gain (mm)", "held-out Δχ²", "named?"],
+                          [[f"{cd['effect']} ({', '.join(f'{k}={v:.3g}' for k, v in cd['parameters'].items())})",
+                            _fmt(cd['fit_gain'], mm), f"{cd['fit_gain_pct']:.1f}", f"{cd['delta_bic']:.1f}",
+                            f"{cd['profile_gain']:.1f}", _fmt(cd['heldout_rmse'], mm), _fmt(cd['heldout_gain'], mm),
+                            _fmt(cd['heldout_delta_chi2'], 1, 1),
+                            'yes' if cd['named'] else 'no: ' + cd['reason'] if not cd['eligible'] else 'eligible']
+                           for cd in sorted(st["candidates"], key=lambda d: d["delta_bic"])])]
         out = {e: v for e, v in (st.get("screen") or {}).items() if not v.get("passed", True)}
         if out:
             lines.append("")
@@ -182,27 +187,29 @@ def report_markdown(rep: Mapping[str, Any]) -> str:
         if clip_names:
             lines += ["Per-clip evidence: χ² drop when the effect's strength is chosen for each clip alone "
                       "(profile minimum; about 4 is the 95 % level for one parameter).", "",
-                      "| candidate | " + " | ".join(clip_names) + " |", "|---|" + "---|" * len(clip_names)]
-            for cd in st["candidates"]:
-                lines.append(f"| {cd['effect']} | " + " | ".join(f"{cd['per_clip_gain'][c]:.1f}" for c in clip_names) + " |")
+                      *table_lines(["candidate", *clip_names],
+                              [[cd['effect'], *(f"{cd['per_clip_gain'][c]:.1f}" for c in clip_names)]
+                               for cd in st["candidates"]])]
             lines.append("")
-    lines += ["## Clips", "", "| clip | objects | samples | noise (mm) | noise (deg) | base RMSE (mm) | extended RMSE (mm) | held-out before / after (mm) |",
-              "|---|---|---|---|---|---|---|---|"]
+    rows = []
     for c in rep["clips"]:
         objs = ", ".join(f"{o['object']} ({o['shape']}, {o['mass'] * 1e3:.3g} g{', assumed ' + '/'.join(o['assumed']) if o['assumed'] else ''})"
                          for o in c["objects"])
-        lines.append(f"| {c['clip']} | {objs} | {c['n_samples']} | {_fmt(c['noise']['position'], mm, 3)} | "
-                     f"{_fmt(c['noise']['angle_deg'])} | {_fmt(c['rmse_base'], mm)} | {_fmt(c['rmse_final'], mm)} | "
-                     f"{_fmt(c['heldout_rmse_before'], mm)} / {_fmt(c['heldout_rmse_after'], mm)} |")
+        rows.append([c['clip'], objs, c['n_samples'], _fmt(c['noise']['position'], mm, 3), _fmt(c['noise']['angle_deg']),
+                     _fmt(c['rmse_base'], mm), _fmt(c['rmse_final'], mm),
+                     f"{_fmt(c['heldout_rmse_before'], mm)} / {_fmt(c['heldout_rmse_after'], mm)}"])
+    lines += ["## Clips", "", *table_lines(["clip", "objects", "samples", "noise (mm)", "noise (deg)", "base RMSE (mm)",
+                                      "extended RMSE (mm)", "held-out before / after (mm)"], rows)]
     lines += ["", "## Where the base model disagrees (residual segments above the noise)", ""]
     if rep["segments"]:
-        lines += ["| clip | object | channel | time (s) | phase | samples | max | threshold |", "|---|---|---|---|---|---|---|---|"]
+        rows = []
         for s in rep["segments"][:60]:
             unit, k = ("mm", mm) if s["channel"] == "position" else ("deg", 1.0)
-            lines.append(f"| {s['clip']} | {s['object']} | {s['channel']} | {s['t_start']:.3f}–{s['t_end']:.3f} | "
-                         f"{s['phase']} | {s['n_samples']} | {s['max'] * k:.2f} {unit} | {s['threshold'] * k:.2f} {unit} |")
+            rows.append([s['clip'], s['object'], s['channel'], f"{s['t_start']:.3f}–{s['t_end']:.3f}", s['phase'],
+                         s['n_samples'], f"{s['max'] * k:.2f} {unit}", f"{s['threshold'] * k:.2f} {unit}"])
         if len(rep["segments"]) > 60:
-            lines.append(f"| … {len(rep['segments']) - 60} more in discrepancy.json | | | | | | | |")
+            rows.append([f"… {len(rep['segments']) - 60} more in discrepancy.json", "", "", "", "", "", "", ""])
+        lines += table_lines(["clip", "object", "channel", "time (s)", "phase", "samples", "max", "threshold"], rows)
     else:
         lines.append("None: the base model fits every clip within the noise.")
     lines += ["", f"After adding the named effects: {len(rep['segments_after'])} segments remain "

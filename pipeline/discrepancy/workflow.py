@@ -3,6 +3,7 @@ BIC gates), final fit with intervals, and its :class:`Result`."""
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from dataclasses import dataclass
@@ -22,6 +23,8 @@ from pipeline.discrepancy.trajectories import MIN_SAMPLES, Clip
 from pipeline.discrepancy.workspace import HeldOut, Workspace
 from pipeline.mjcf import SimOptions
 from pipeline.parallel import available_cores
+
+logger = logging.getLogger(__name__)
 
 
 def _gate(cand: dict[str, Any], cfg: DiscrepancyConfig) -> tuple[bool, str]:
@@ -142,7 +145,8 @@ def run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None = None,
         cfg: settings (default :class:`DiscrepancyConfig`).
         options: simulation options (params ``sim``; ``textured`` is switched off).
         gravity: m/s^2.
-        log: optional ``print``-like callable for progress lines.
+        log: optional ``print``-like callable for progress lines (default: this module's
+            logger at INFO, shown by the ``dynamics`` CLI unless ``--quiet``).
 
     Returns:
         :class:`Result`; ``runtime_s`` is the wall time, s.
@@ -155,7 +159,7 @@ def _run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None, options:
                   gravity: float, log) -> Result:
     cfg = cfg or DiscrepancyConfig()
     options = (options or SimOptions()).model_copy(update={"textured": False})
-    say = log or (lambda *a, **k: None)
+    say = log or logger.info  # progress lines: logging (configured by the entry point) unless a callable is given
     t_start = time.perf_counter()
     ws = Workspace(clips, cfg, options, gravity)
     try:
