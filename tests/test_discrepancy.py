@@ -22,9 +22,10 @@ from pipeline import discrepancy as D
 from pipeline import effects as fx
 from pipeline.discrepancy.benchmark import _bench_summary, _trial_job
 from pipeline.cli import main as dynamics_main
-from pipeline.discrepancy.clip_model import _clip_scene
+from pipeline.discrepancy.clip_model import _clip_scene, simulate_clips
 from pipeline.discrepancy.profile import _fmt_interval, _profile_candidate
 from pipeline.discrepancy.readers import _typical_acceleration
+from pipeline.discrepancy.trajectories import _truncate
 from pipeline.mjcf import SimOptions, compile_model
 from pipeline.simulate import rollout, sample_qpos
 
@@ -537,6 +538,29 @@ def test_clip_pool_gives_the_same_fit_to_the_last_bit():
     assert fits[0].chi2 == fits[1].chi2
     for a, b in zip(fits[0].nuisance, fits[1].nuisance):
         assert np.array_equal(a, b)
+
+
+def test_clips_rolled_out_together_equal_each_alone():
+    """simulate_clips (all clips' variants in one mujoco.rollout call per size signature, on 2
+    threads) == each clip's own simulate_many on the calling thread, bit for bit, a shorter
+    clip in the batch (stepped on to the longest one's length and cut) included."""
+    cols, _ = D.generate_hidden(11, D.HiddenConfig(n_clips=3, duration=0.6, fps=50), OPTS, effect="quadratic_drag")
+    clips = D.clips_from_columns(cols, "hidden")
+    clips[1] = _truncate(clips[1], 0.3)   # a shorter clip in the same call
+    eff = {"quadratic_drag": {"density": 2.0}}
+    models = [D.ClipModel(c, tuple(eff), OPTS, threads=2) for c in clips]
+    variants = []
+    for c in clips:
+        base = D.initial_nuisance(c)
+        moved = base.copy()
+        moved[:, 3] += 0.05
+        variants.append([base, moved])
+    effs = [[eff, {"quadratic_drag": {"density": 5.0}}] for _ in clips]
+    together = simulate_clips(list(zip(models, variants, effs)), threads=2)
+    alone = [D.ClipModel(c, tuple(eff), OPTS, threads=1).simulate_many(v, e) for c, v, e in zip(clips, variants, effs)]
+    assert len(together[1][0]) < len(together[0][0])
+    for a, b in zip(together, alone):
+        assert a.shape == b.shape and np.array_equal(a, b)
 
 
 def test_benchmark_scores_the_exact_set_and_the_noise_floor():

@@ -112,12 +112,14 @@ class ClipModel:
                                 linear_velocity=x[_V], angular_velocity=x[_W]) for i, x in enumerate(nuis)]
         return initial_state(SimpleNamespace(objects=objs))
 
-    def run(self, nuis_list: Sequence[np.ndarray], effects_list: Sequence[Mapping[str, Mapping[str, float]]]
-            ) -> tuple[np.ndarray, np.ndarray]:
-        """Roll out variants: per variant ``(n, 14)`` parameters and effect values.
+    def prepare(self, nuis_list: Sequence[np.ndarray],
+                effects_list: Sequence[Mapping[str, Mapping[str, float]]]) -> tuple[list[mujoco.MjModel], np.ndarray]:
+        """Configure one model copy per variant (per-object parameters ``(n, 14)`` and effect
+        values) and compute its initial MuJoCo state.
 
         Returns:
-            ``(qpos (B, nstep+1, nq), qvel (B, nstep+1, nv))`` after 0..nstep physics steps.
+            ``(models, init)``: ``B`` configured ``MjModel`` copies (owned by this object, valid
+            until its next ``prepare``) and ``init (B, nstate)`` full-physics initial states.
         """
         B = len(nuis_list)
         while len(self.pool) < B:
@@ -132,11 +134,26 @@ class ClipModel:
             mujoco.mj_resetData(m, d)
             d.qpos[: 7 * self.n], d.qvel[: 6 * self.n] = qpos, qvel
             mujoco.mj_getState(m, d, init[b], self._spec)
+        return models, init
+
+    def split(self, init: np.ndarray, state: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(qpos (B, nstep+1, nq), qvel (B, nstep+1, nv))`` of this model's rollout states
+        ``state (B, >= nstep, nstate)`` (``mjSTATE_FULLPHYSICS``) after ``init (B, nstate)``."""
+        nq, nv = self.model.nq, self.model.nv
+        full = np.concatenate([init[:, None], state[:, : max(self.nstep, 1)]], 1)
+        return full[..., 1:1 + nq], full[..., 1 + nq:1 + nq + nv]
+
+    def run(self, nuis_list: Sequence[np.ndarray], effects_list: Sequence[Mapping[str, Mapping[str, float]]]
+            ) -> tuple[np.ndarray, np.ndarray]:
+        """Roll out variants: per variant ``(n, 14)`` parameters and effect values.
+
+        Returns:
+            ``(qpos (B, nstep+1, nq), qvel (B, nstep+1, nv))`` after 0..nstep physics steps.
+        """
+        models, init = self.prepare(nuis_list, effects_list)
         runner = _rollout_runner(self.threads if self.threads > 1 else 0)
         state, _ = runner.rollout(models, self.datas, init, nstep=max(self.nstep, 1))
-        nq, nv = self.model.nq, self.model.nv
-        full = np.concatenate([init[:, None], state], 1)
-        return full[..., 1:1 + nq], full[..., 1 + nq:1 + nq + nv]
+        return self.split(init, state)
 
     def sample(self, qpos: np.ndarray) -> np.ndarray:
         """``(B, nstep+1, nq)`` per-step qpos -> ``(B, T, n, 7)`` at the sample times."""
@@ -172,6 +189,49 @@ class ClipModel:
         cur = omega_at(self._k)
         omega = np.where(f >= 1.0, cur, omega_at(np.maximum(self._k - 1, 0)) * (1.0 - f) + cur * f)
         return omega, self.sample(qpos)[0]
+
+
+def simulate_clips(requests: Sequence[tuple["ClipModel", Sequence[np.ndarray],
+                                           Sequence[Mapping[str, Mapping[str, float]]]]],
+                   threads: int = 1) -> list[np.ndarray]:
+    """Roll out the variants of several clips together: one ``mujoco.rollout`` call per group of
+    models with the same size signature (``MjModel.signature``), on ``threads`` threads, so
+    that the clips of a joint fit (each one rollout per evaluation) keep every core busy.
+
+    Each rollout is the same deterministic computation from its own model and initial state
+    as in :meth:`ClipModel.simulate_many`, so the result is the same to the last bit; a
+    shorter clip in a group is stepped on to the longest one's ``nstep`` and its states are
+    cut at its own.
+
+    Args:
+        requests: per request, a :class:`ClipModel` (each at most once), its variants'
+            parameters ``(n, 14)`` and effect values.
+        threads: rollout threads (1: the calling thread).
+
+    Returns:
+        per request, ``qpos (B, T, n, 7)`` at that clip's sample times.
+    """
+    prepared = [cm.prepare(list(nl), list(el)) for cm, nl, el in requests]
+    groups: dict[tuple[int, int], list[int]] = {}
+    for i, (cm, _, _) in enumerate(requests):
+        if len(prepared[i][0]):
+            groups.setdefault((int(cm.model.signature), cm._nstate), []).append(i)
+    out: list[np.ndarray | None] = [None] * len(requests)
+    runner = _rollout_runner(threads if threads > 1 else 0)
+    for members in groups.values():
+        first = requests[members[0]][0]
+        while len(first.datas) < max(threads, 1):
+            first.datas.append(mujoco.MjData(first.model))
+        models = [m for i in members for m in prepared[i][0]]
+        init = np.concatenate([prepared[i][1] for i in members])
+        nstep = max(max(requests[i][0].nstep, 1) for i in members)
+        state, _ = runner.rollout(models, first.datas[: max(threads, 1)], init, nstep=nstep)
+        at = 0
+        for i in members:
+            cm, b = requests[i][0], len(prepared[i][0])
+            out[i] = cm.sample(cm.split(prepared[i][1], state[at:at + b])[0])
+            at += b
+    return [o if o is not None else np.zeros((0, len(r[0].times), r[0].n, 7)) for o, r in zip(out, requests)]
 
 
 @dataclass

@@ -15,7 +15,8 @@ from threadpoolctl import threadpool_limits
 
 from pipeline import effects as fx
 from pipeline import geometry
-from pipeline.discrepancy.clip_model import _D, _F, _P, _R, _V, _W, NUISANCE, ClipModel, Weights, clip_residuals
+from pipeline.discrepancy.clip_model import (_D, _F, _P, _R, _V, _W, NUISANCE, ClipModel, Weights, clip_residuals,
+                                             simulate_clips)
 from pipeline.discrepancy.config import DiscrepancyConfig
 from pipeline.discrepancy.trajectories import Clip, Track
 from pipeline.rotation import quat_conj, quat_mul, quat_to_mat, quat_to_rotvec
@@ -212,7 +213,9 @@ def fit_clips(clips: Sequence[Clip], models: Sequence[ClipModel], weights: Seque
 
     The Jacobian is computed by forward differences clip by clip (a clip's residuals depend
     only on its own parameters and the shared coefficients), so one Jacobian costs one
-    rollout per free parameter of each clip plus one rollout of every clip per coefficient.
+    rollout per free parameter of each clip plus one rollout of every clip per coefficient;
+    all clips' rollouts of one evaluation (or one Jacobian) go to MuJoCo in one batched call
+    (:func:`simulate_clips`, on the models' ``threads``).
     Parameters are normalised by their scale (:func:`_nuisance_scales`, ``ParamSpec.scale``).
 
     Args:
@@ -272,19 +275,18 @@ def fit_clips(clips: Sequence[Clip], models: Sequence[ClipModel], weights: Seque
     lo, hi = (x_lo - x_start) / x_scale, (x_hi - x_start) / x_scale
     counter = {"nfev": 0}
 
-    def clip_res(c: int, nuis_c: np.ndarray, theta: np.ndarray) -> np.ndarray:
-        counter["nfev"] += 1
-        qpos = models[c].simulate(nuis_c, _effect_values(start_effects, keys, theta))
-        return clip_residuals(clips[c], qpos, weights[c])[0]
-
+    threads = max(m.threads for m in models) if models else 1
     cache: dict[bytes, list[np.ndarray]] = {}
 
     def all_res(u: np.ndarray) -> list[np.ndarray]:
         key = u.tobytes()
         if key not in cache:
             nuis, theta = unpack(u)
+            values = _effect_values(start_effects, keys, theta)
             cache.clear()
-            cache[key] = [clip_res(c, nuis[c], theta) for c in range(len(clips))]
+            counter["nfev"] += len(clips)
+            qs = simulate_clips([(models[c], [nuis[c]], [values]) for c in range(len(clips))], threads)
+            cache[key] = [clip_residuals(clips[c], qs[c][0], weights[c])[0] for c in range(len(clips))]
         return cache[key]
 
     def fun(u: np.ndarray) -> np.ndarray:
@@ -304,7 +306,8 @@ def fit_clips(clips: Sequence[Clip], models: Sequence[ClipModel], weights: Seque
             th = theta.copy()
             th[j] += th_steps[j] * th_scale[j]
             th_values.append(_effect_values(start_effects, keys, th))
-        for c in range(len(clips)):  # one batched rollout per clip: its columns + the coefficients
+        requests, columns = [], []
+        for c in range(len(clips)):  # every clip's variants: its columns + the coefficients
             free = np.flatnonzero(masks[c].ravel())
             variants, steps = [], []
             for j, flat in enumerate(free):
@@ -316,12 +319,13 @@ def fit_clips(clips: Sequence[Clip], models: Sequence[ClipModel], weights: Seque
                 steps.append(step)
             effs = [values] * len(variants) + th_values
             variants += [nuis[c]] * n_theta
-            if not variants:
-                continue
             counter["nfev"] += len(variants)
-            qs = models[c].simulate_many(variants, effs)
-            cols = [offs[c] + j for j in range(len(free))] + [offs[-1] + j for j in range(n_theta)]
-            for q, col, step in zip(qs, cols, steps + th_steps):
+            requests.append((models[c], variants, effs))
+            columns.append(([offs[c] + j for j in range(len(free))] + [offs[-1] + j for j in range(n_theta)],
+                            steps + th_steps))
+        # one rollout call for all clips' variants (both cores busy; same numbers as per clip)
+        for c, qs in enumerate(simulate_clips(requests, threads)):
+            for q, col, step in zip(qs, *columns[c]):
                 J[rows[c]:rows[c + 1], col] = (clip_residuals(clips[c], q, weights[c])[0] - base[c]) / step
         return J
 
@@ -339,9 +343,9 @@ def fit_clips(clips: Sequence[Clip], models: Sequence[ClipModel], weights: Seque
     nuis, theta = unpack(u)
     values = _effect_values(start_effects, keys, theta)
     chi2, sq, n_res, n_pos = [], [], [], []
+    final = simulate_clips([(models[c], [nuis[c]], [values]) for c in range(len(clips))], threads)
     for c in range(len(clips)):
-        qpos = models[c].simulate(nuis[c], values)
-        r, d = clip_residuals(clips[c], qpos, weights[c])
+        r, d = clip_residuals(clips[c], final[c][0], weights[c])
         chi2.append(float(r @ r))
         sq.append(float(d @ d))
         n_res.append(int(r.size))
