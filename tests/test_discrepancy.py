@@ -470,7 +470,7 @@ def _drag_interval(clips):
     with D.single_threaded_blas():
         base = ws.fit_each([0], [D.initial_nuisance(clips[0])], {}, converge=True)
         joint = ws.fit([0], base.nuisance, {"quadratic_drag": {"density": 1.0}}, with_ci=True, converge=True)
-        ci, how = D.profile_intervals(ws, [0], joint)
+        ci, how, _ = D.profile_intervals(ws, [0], joint)
     return joint, ci["quadratic_drag"]["density"], how["quadratic_drag"]["density"]
 
 

@@ -135,7 +135,8 @@ def run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None = None,
        per residual is at most ``noise_floor_chi2``.
     3. **Add.** With effects named, a converged joint refit with Gauss-Newton intervals (the
        selection fit is kept if the refit is worse), then profile-likelihood intervals
-       (:func:`profile_intervals`).
+       (:func:`profile_intervals`); where the profile finds a lower chi-square than the joint
+       fit (which can stall a few chi-square units short), its minimum is the final fit.
     4. **Find.** Per clip, the motion phases (:func:`motion_phases`, with the base model's
        spin where none is measured) and the residual segments of the base and the final model
        (:func:`residual_segments`); with one clip, the forward gap (:func:`forward_gap`).
@@ -271,7 +272,13 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
         else:
             final.start = "selection fit"
         say(f"final fit: chi2 {final.rss:.1f}, optimiser status {final.status}, {final.iterations} evaluations")
-        final.ci, final.ci_method = profile_intervals(ws, idx, final, log=say)
+        ci, ci_method, better = profile_intervals(ws, idx, final, log=say)
+        if better is not None:   # the profile found a lower chi-square than the joint fit: its minimum
+            say(f"final fit: the profile minimum lowers chi2 {final.rss:.1f} -> {better.rss:.1f} (taken)")
+            better.ci_gn, better.nfev, better.status = final.ci_gn, final.nfev, final.status
+            better.iterations, better.converged = final.iterations, final.converged
+            final = better
+        final.ci, final.ci_method = ci, ci_method
     named = []
     for e in named_order:
         cls = fx.REGISTRY[e]
