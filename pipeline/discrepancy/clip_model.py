@@ -164,8 +164,9 @@ class ClipModel:
 
     def simulate_many(self, nuis_list: Sequence[np.ndarray],
                       effects_list: Sequence[Mapping[str, Mapping[str, float]]]) -> np.ndarray:
-        """``qpos (B, T, n, 7)`` at the clip's sample times for B variants."""
-        return self.sample(self.run(nuis_list, effects_list)[0])
+        """``qpos (B, T, n, 7)`` at the clip's sample times for B variants (:func:`simulate_clips`
+        with this clip alone, on this model's threads)."""
+        return simulate_clips([(self, nuis_list, effects_list)], self.threads)[0]
 
     def simulate(self, nuis: np.ndarray, effect_values: Mapping[str, Mapping[str, float]]) -> np.ndarray:
         """``qpos (T, n, 7)`` at the clip's sample times for per-object parameters
