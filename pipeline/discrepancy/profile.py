@@ -221,7 +221,10 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
         parts = ws.refit_each([idx[c] for c, _, _ in group], [prof.nuis[near][c] for c, near, _ in group],
                               group[0][2], max_nfev=ws.cfg.max_nfev_warm)
         for (c, near, _), part in zip(group, parts):
-            ho.chi2[c], ho.sq_pos[c] = min(part.chi2[0], prof.chi2[near][c]), part.sq_pos[0]
+            if part.chi2[0] < prof.chi2[near][c]:
+                ho.chi2[c], ho.sq_pos[c] = part.chi2[0], part.sq_pos[0]
+            else:
+                ho.chi2[c], ho.sq_pos[c] = prof.chi2[near][c], prof.sq[near][c]
     return joint, ho, prof
 
 
@@ -268,7 +271,11 @@ PROFILE_GROW = 3.0
 """Outward step factor when the profile has not yet risen to the threshold."""
 PROFILE_BISECT = 6
 """Most interpolation steps (Illinois regula falsi on the square root of the rise) to locate
-a crossing (stops earlier when the rise is within 5 % of the threshold)."""
+a crossing (stops earlier when the rise is within :data:`PROFILE_TOL` of the threshold)."""
+PROFILE_TOL = 0.1
+"""A crossing is located when the profile's rise is within this fraction of the threshold
+(10 % of the threshold in chi-square moves a quadratic profile's end by about 5 % of the
+half-width)."""
 
 
 def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None
@@ -279,9 +286,10 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None
     The threshold is ``Δχ² = q s²``: ``q`` the chi-square(1) quantile at ``cfg.ci_level``
     (3.84 for 95 %), ``s² = χ²/dof`` of the fit (the residual variance factor; 1 when the
     noise model is right). A profile point fixes the coefficient, refits every other parameter
-    (all clips' parameters and the other coefficients) from the optimum to the tolerance, and
-    its rise is ``χ²(point) − χ²(minimum)`` (with one coefficient the clips separate and are
-    refitted one by one: small, well-conditioned fits). The minimum is the profile's own: the
+    (all clips' parameters and the other coefficients) to the tolerance, warm-started from the
+    nearest point already profiled (from the fit itself at first), and its rise is
+    ``χ²(point) − χ²(minimum)`` (with one coefficient the clips separate and are refitted one
+    by one: small, well-conditioned fits). The minimum is the profile's own: the
     joint fit's value ``v`` and ``v ± h`` (``h`` the Gauss-Newton half-width) are profiled,
     and the vertex of the parabola through them too; the lowest is the centre and its χ² the
     reference. (A joint fit of many clips stalls short of its optimum by a few χ² units,
@@ -316,22 +324,25 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None
         v0 = float(fit.effects[e][p])
         gn = (fit.ci_gn.get(e) or {}).get(p) or [None, None]
         cache: dict[float, float] = {}
+        points: dict[float, Fit] = {}
 
         def total(x: float) -> float:
             nonlocal better
             x = float(x)
             if x not in cache:
-                eff = {k: dict(d) for k, d in fit.effects.items()}
+                # warm start: the evaluated point nearest to x (else the fit itself)
+                near = points[min(points, key=lambda y: abs(y - x))] if points else fit
+                eff = {k: dict(d) for k, d in near.effects.items()}
                 eff[e][p] = x
                 if len(fit.theta_keys) == 1:   # nothing else shared: the clips separate
-                    parts = ws.refit_each(idx, fit.nuisance, eff, converge=True)
+                    parts = ws.refit_each(idx, near.nuisance, eff, converge=True)
                     point = Fit(eff, [f.nuisance[0] for f in parts], [f.chi2[0] for f in parts],
                                 [f.sq_pos[0] for f in parts], [f.n_res[0] for f in parts],
                                 [f.n_pos[0] for f in parts], fit.k, list(fit.theta_keys))
                 else:
-                    point = ws.fit(idx, fit.nuisance, eff, converge=True, fixed=[(e, p)])
+                    point = ws.fit(idx, near.nuisance, eff, converge=True, fixed=[(e, p)])
                     point.k, point.theta_keys = fit.k, list(fit.theta_keys)
-                cache[x] = point.rss
+                cache[x], points[x] = point.rss, point
                 if point.rss < (better or fit).rss - cfg.ftol * fit.rss:
                     point.start = f"profile minimum ({e}.{p})"
                     better = point
@@ -385,7 +396,7 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None
                 xm = inner + (outer - inner) * (-g_in) / (g_out - g_in) if g_out > g_in else 0.5 * (inner + outer)
                 rm = rise(xm)
                 gm = math.sqrt(rm) - math.sqrt(thr)
-                if abs(rm - thr) <= 0.05 * thr:
+                if abs(rm - thr) <= PROFILE_TOL * thr:
                     inner = outer = xm
                     break
                 if gm < 0:

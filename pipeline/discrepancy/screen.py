@@ -84,7 +84,7 @@ def screen_candidates(ws: "Workspace", idx: Sequence[int], current: Fit, names: 
         clip, nuis, w = ws.clips[c], current.nuisance[c], ws.weights[c]
         model = ws.model(c, current.effects)
         mask = free_mask(clip, tuple(current.effects), ws.cfg)
-        scale = _nuisance_scales(clip)
+        scale = _nuisance_scales(clip, mask)
         lo, hi = _nuisance_bounds(clip)
         variants, steps = [], []
         for flat in np.flatnonzero(mask.ravel()):

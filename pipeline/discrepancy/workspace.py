@@ -3,6 +3,9 @@ worker pool that fits clips one by one in parallel; held-out scores."""
 
 from __future__ import annotations
 
+import copy
+import hashlib
+import json
 import math
 import multiprocessing
 from concurrent.futures import ProcessPoolExecutor
@@ -84,6 +87,7 @@ class Workspace:
         self.noise = [estimate_noise(c) for c in self.clips]
         self.weights = [Weights(n.position, n.angle) for n in self.noise]
         self._models: dict[tuple[int, tuple[str, ...]], ClipModel] = {}
+        self._fits: dict[bytes, Fit] = {}   # per-clip fits of fit_each, by their arguments
         self._pool = None
 
     def model(self, c: int, effects: Iterable[str]) -> ClipModel:
@@ -111,13 +115,20 @@ class Workspace:
         Each clip is fitted by continuation over the time horizon (:meth:`fit_clip`). The
         clips are independent, so with a worker pool (:meth:`start_pool`) they are fitted in
         parallel; the result is the same to the last bit (each clip's fit runs the same
-        arithmetic in whichever process)."""
+        arithmetic in whichever process). A clip's fit is deterministic in its arguments, so
+        it is kept and reused when the same fit is asked for again (e.g. the current model
+        from the data after naming, then as the next step's baseline)."""
         jobs = [(c, start, {e: dict(p) for e, p in effects.items()}, max_nfev, converge)
                 for c, start in zip(idx, starts)]
-        if self._pool is not None and len(jobs) > 1:
-            parts = list(self._pool.map(_pool_fit_clip, jobs))
+        keys = [_job_key(job) for job in jobs]
+        todo = [job for job, key in zip(jobs, keys) if key not in self._fits]
+        if self._pool is not None and len(todo) > 1:
+            done = list(self._pool.map(_pool_fit_clip, todo))
         else:
-            parts = [self.fit_clip(*job) for job in jobs]
+            done = [self.fit_clip(*job) for job in todo]
+        for job, part in zip(todo, done):
+            self._fits[_job_key(job)] = part
+        parts = [copy.deepcopy(self._fits[key]) for key in keys]
         return Fit({e: dict(p) for e, p in effects.items()}, [p.nuisance[0] for p in parts],
                    [p.chi2[0] for p in parts], [p.sq_pos[0] for p in parts], [p.n_res[0] for p in parts],
                    [p.n_pos[0] for p in parts], k=sum(p.k for p in parts), nfev=sum(p.nfev for p in parts),
@@ -157,13 +168,16 @@ class Workspace:
         return part
 
     def refit_each(self, idx: Sequence[int], starts: Sequence[np.ndarray],
-                   effects: Mapping[str, Mapping[str, float]], max_nfev: int | None = None,
-                   converge: bool = False) -> list[Fit]:
+                   effects: Mapping[str, Mapping[str, float]] | Sequence[Mapping[str, Mapping[str, float]]],
+                   max_nfev: int | None = None, converge: bool = False) -> list[Fit]:
         """Warm-started fits of each clip alone from ``starts`` (effects held; one horizon,
         no friction scan): ``[ws.fit([c], [start], effects, fit_effects=False, ...)]`` for the
-        clips ``idx``, in parallel when a pool is running (same result to the last bit)."""
-        jobs = [(c, start, {e: dict(p) for e, p in effects.items()}, max_nfev, converge)
-                for c, start in zip(idx, starts)]
+        clips ``idx``, in parallel when a pool is running (same result to the last bit).
+        ``effects`` is one ``{effect: parameters}`` for every clip, or a list of them, one per
+        clip of ``idx``."""
+        per_clip = [effects] * len(idx) if isinstance(effects, Mapping) else list(effects)
+        jobs = [(c, start, {e: dict(p) for e, p in eff.items()}, max_nfev, converge)
+                for c, start, eff in zip(idx, starts, per_clip)]
         if self._pool is not None and len(jobs) > 1:
             return list(self._pool.map(_pool_refit_clip, jobs))
         return [self.fit([c], [start], eff, fit_effects=False, max_nfev=m, converge=cv)
@@ -189,6 +203,14 @@ class Workspace:
         if self._pool is not None:
             self._pool.shutdown(cancel_futures=True)
             self._pool = None
+
+
+def _job_key(job: tuple) -> bytes:
+    """Digest of a per-clip fit's arguments ``(clip, start, effects, max_nfev, converge)``."""
+    c, start, effects, max_nfev, converge = job
+    h = hashlib.sha256(np.ascontiguousarray(start, dtype=float).tobytes())
+    h.update(json.dumps([c, effects, max_nfev, converge], sort_keys=True).encode())
+    return h.digest()
 
 
 _POOL_WS: "Workspace | None" = None
