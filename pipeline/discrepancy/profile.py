@@ -286,11 +286,10 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None
     The threshold is ``Δχ² = q s²``: ``q`` the chi-square(1) quantile at ``cfg.ci_level``
     (3.84 for 95 %), ``s² = χ²/dof`` of the fit (the residual variance factor; 1 when the
     noise model is right). A profile point fixes the coefficient, refits every other parameter
-    (all clips' parameters and the other coefficients) to the tolerance, warm-started from the
-    nearest point already profiled (from the fit itself at first), and its rise is
-    ``χ²(point) − χ²(minimum)`` (with one coefficient the clips separate and are refitted one
-    by one: small, well-conditioned fits). The minimum is the profile's own: the
-    joint fit's value ``v`` and ``v ± h`` (``h`` the Gauss-Newton half-width) are profiled,
+    (all clips' parameters and the other coefficients) to the tolerance from the fit's
+    optimum, and its rise is ``χ²(point) − χ²(minimum)`` (with one coefficient the clips
+    separate and are refitted one by one: small, well-conditioned fits). The minimum is the
+    profile's own: the joint fit's value ``v`` and ``v ± h`` (``h`` the Gauss-Newton half-width) are profiled,
     and the vertex of the parabola through them too; the lowest is the centre and its χ² the
     reference. (A joint fit of many clips stalls short of its optimum by a few χ² units,
     comparable with the threshold; measured with the joint fit as the reference, a 3-clip drag
@@ -324,25 +323,25 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None
         v0 = float(fit.effects[e][p])
         gn = (fit.ci_gn.get(e) or {}).get(p) or [None, None]
         cache: dict[float, float] = {}
-        points: dict[float, Fit] = {}
 
         def total(x: float) -> float:
             nonlocal better
             x = float(x)
             if x not in cache:
-                # warm start: the evaluated point nearest to x (else the fit itself)
-                near = points[min(points, key=lambda y: abs(y - x))] if points else fit
-                eff = {k: dict(d) for k, d in near.effects.items()}
+                # every point starts from the fit itself (warm-starting from the nearest point
+                # walked the clips into other basins: on the DVC stage a point at the interval's
+                # end came out lowest, lift 1.075 for a true 0.978)
+                eff = {k: dict(d) for k, d in fit.effects.items()}
                 eff[e][p] = x
                 if len(fit.theta_keys) == 1:   # nothing else shared: the clips separate
-                    parts = ws.refit_each(idx, near.nuisance, eff, converge=True)
+                    parts = ws.refit_each(idx, fit.nuisance, eff, converge=True)
                     point = Fit(eff, [f.nuisance[0] for f in parts], [f.chi2[0] for f in parts],
                                 [f.sq_pos[0] for f in parts], [f.n_res[0] for f in parts],
                                 [f.n_pos[0] for f in parts], fit.k, list(fit.theta_keys))
                 else:
-                    point = ws.fit(idx, near.nuisance, eff, converge=True, fixed=[(e, p)])
+                    point = ws.fit(idx, fit.nuisance, eff, converge=True, fixed=[(e, p)])
                     point.k, point.theta_keys = fit.k, list(fit.theta_keys)
-                cache[x], points[x] = point.rss, point
+                cache[x] = point.rss
                 if point.rss < (better or fit).rss - cfg.ftol * fit.rss:
                     point.start = f"profile minimum ({e}.{p})"
                     better = point
