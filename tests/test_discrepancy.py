@@ -560,6 +560,39 @@ def test_clips_rolled_out_together_equal_each_alone():
         assert a.shape == b.shape and np.array_equal(a, b)
 
 
+def test_fit_each_reuses_a_fit_asked_for_again():
+    """The same per-clip fit asked for twice is computed once and handed out as independent
+    copies equal to a fresh workspace's fit (bit for bit)."""
+    cols, _ = D.generate_hidden(12, D.HiddenConfig(n_clips=2, duration=0.5, fps=40), OPTS, effect="none")
+    clips = D.clips_from_columns(cols, "hidden")
+    cfg = D.DiscrepancyConfig(threads=1, horizons=(1.0,))
+    ws = D.Workspace(clips, cfg, OPTS)
+    starts = [D.initial_nuisance(c) for c in clips]
+    a = ws.fit_each([0, 1], starts, {})
+    n_cached = len(ws._fits)
+    b = ws.fit_each([0, 1], starts, {})
+    assert n_cached == 2 and len(ws._fits) == 2              # nothing fitted the second time
+    fresh = D.Workspace(clips, cfg, OPTS).fit_each([0, 1], starts, {})
+    for f in (a, b):
+        assert f.chi2 == fresh.chi2 and all(np.array_equal(x, y) for x, y in zip(f.nuisance, fresh.nuisance))
+    a.nuisance[0][0, 0] += 1.0                               # a copy: the cached fit is untouched
+    assert np.array_equal(ws.fit_each([0, 1], starts, {}).nuisance[0], fresh.nuisance[0])
+    c = ws.fit_each([0, 1], starts, {"quadratic_drag": {"density": 3.0}})
+    assert len(ws._fits) == 4 and c.chi2 != fresh.chi2       # other effects: fitted anew
+
+
+def test_single_clip_free_flight_base_fit_reaches_the_noise():
+    """A light ball in free flight, spin unobserved (held at 0): the base model's linear
+    damping stands in for the drag and the converged base fit reaches the noise floor. Before
+    the damping was scaled by b/m there (it was scaled by b/I, 1e-10 for this ball) the trust
+    region never reached the needed 8e-4 N s/m and the fit stalled at 20.2 mm RMSE."""
+    clips = _foam_drop(seed=0)
+    ws = D.Workspace(clips, D.DiscrepancyConfig(threads=1), OPTS)
+    base = ws.fit_each([0], [D.initial_nuisance(clips[0])], {}, converge=True)
+    assert base.rmse < 1.2 * ws.noise[0].position, (base.rmse, ws.noise[0].position)
+    assert base.nuisance[0][0, 12] > 1e-4                     # damping N s/m: drag-like, off its bound
+
+
 def test_benchmark_scores_the_exact_set_and_the_noise_floor():
     """An extra named effect is a miss; the gap-within-1.5x-noise fraction counts trials."""
     trials = [{"correct": ["wind"] == ["wind"], "shrink": 0.9, "excess_shrink": 0.95, "gap_after": 0.0012, "noise": 0.001},
