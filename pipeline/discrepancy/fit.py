@@ -35,8 +35,9 @@ def single_threaded_blas() -> threadpool_limits:
     return threadpool_limits(limits=1, user_api="blas")
 
 
-def _nuisance_scales(clip: Clip, mask: np.ndarray | None = None) -> np.ndarray:
-    """``(n, 14)`` typical magnitudes of the per-object parameters (normalisation).
+def _nuisance_scales(clip: Clip, mask: np.ndarray) -> np.ndarray:
+    """``(n, 14)`` typical magnitudes of the per-object parameters (normalisation); ``mask``
+    the clip's free parameters (:func:`free_mask`).
 
     The free joint's damping ``b`` acts on all 6 DoF: its decay rate is ``b/m`` on linear and
     ``b/I`` on angular velocity (MuJoCo ``dof_damping``); it is scaled by the faster of the
@@ -48,8 +49,7 @@ def _nuisance_scales(clip: Clip, mask: np.ndarray | None = None) -> np.ndarray:
     out = []
     for i, tr in enumerate(clip.tracks):
         inertia = geometry.min_inertia(tr.spec.shape, tr.spec.size, tr.spec.mass)
-        spin = mask is None or bool(mask[i, _W].any())
-        rate = min(tr.spec.mass, inertia) if spin else tr.spec.mass
+        rate = min(tr.spec.mass, inertia) if mask[i, _W].any() else tr.spec.mass
         s = np.array([0.01] * 3 + [0.1] * 3 + [0.1] * 3 + [1.0] * 3 + [0.01 * rate, 0.1])
         out.append(s)
     return np.array(out)

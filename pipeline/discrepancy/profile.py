@@ -289,12 +289,12 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None
     (all clips' parameters and the other coefficients) to the tolerance from the fit's
     optimum, and its rise is ``χ²(point) − χ²(minimum)`` (with one coefficient the clips
     separate and are refitted one by one: small, well-conditioned fits). The minimum is the
-    profile's own: the joint fit's value ``v`` and ``v ± h`` (``h`` the Gauss-Newton half-width) are profiled,
-    and the vertex of the parabola through them too; the lowest is the centre and its χ² the
-    reference. (A joint fit of many clips stalls short of its optimum by a few χ² units,
-    comparable with the threshold; measured with the joint fit as the reference, a 3-clip drag
-    interval came out [7.505, 7.814] around 7.785 while the profile at 7.708 was already 4.4
-    below it.) Each side of each coefficient, from the centre:
+    profile's own: the joint fit's value ``v`` and ``v ± h`` (``h`` the Gauss-Newton
+    half-width) are profiled, and the vertex of the parabola through them too; the lowest is
+    the centre and its χ² the reference. (A joint fit of many clips stalls short of its
+    optimum by a few χ² units, comparable with the threshold; measured with the joint fit as
+    the reference, a 3-clip drag interval came out [7.505, 7.814] around 7.785 while the
+    profile at 7.708 was already 4.4 below it.) Each side of each coefficient, from the centre:
 
     1. the Gauss-Newton end is checked with one profile point: a rise within
        :data:`PROFILE_ACCEPT_GN` of the threshold accepts it (``gauss-newton``);

@@ -3,6 +3,7 @@ BIC gates), final fit with intervals, and its :class:`Result`."""
 
 from __future__ import annotations
 
+import copy
 import logging
 import math
 import time
@@ -54,13 +55,13 @@ def _converged_heldout(ws: "Workspace", idx: Sequence[int], base: Fit, base_ho: 
     (``ho.theta``), from the final fit's parameters of that clip, where that is better than
     the selection's screening-budget refit (``cfg.max_nfev_warm`` evaluations, which left
     correctly named drag at 1.8 mm for 1 mm noise)."""
-    before = HeldOut(list(base_ho.chi2), list(base_ho.sq_pos), list(base_ho.n_res), list(base_ho.n_pos))
+    before = copy.deepcopy(base_ho)
     for c in range(len(idx)):
         if base.chi2[c] < before.chi2[c]:
             before.chi2[c], before.sq_pos[c] = base.chi2[c], base.sq_pos[c]
     if ho is None:
-        return before, HeldOut(list(before.chi2), list(before.sq_pos), list(before.n_res), list(before.n_pos))
-    after = HeldOut(list(ho.chi2), list(ho.sq_pos), list(ho.n_res), list(ho.n_pos), list(ho.theta))
+        return before, copy.deepcopy(before)
+    after = copy.deepcopy(ho)
     parts = ws.refit_each(idx, [final.nuisance[c] for c in range(len(idx))], list(ho.theta), converge=True)
     for c, part in enumerate(parts):
         if part.chi2[0] < after.chi2[c]:

@@ -121,13 +121,12 @@ class Workspace:
         jobs = [(c, start, {e: dict(p) for e, p in effects.items()}, max_nfev, converge)
                 for c, start in zip(idx, starts)]
         keys = [_job_key(job) for job in jobs]
-        todo = [job for job, key in zip(jobs, keys) if key not in self._fits]
+        todo = {key: job for key, job in zip(keys, jobs) if key not in self._fits}
         if self._pool is not None and len(todo) > 1:
-            done = list(self._pool.map(_pool_fit_clip, todo))
+            done = list(self._pool.map(_pool_fit_clip, todo.values()))
         else:
-            done = [self.fit_clip(*job) for job in todo]
-        for job, part in zip(todo, done):
-            self._fits[_job_key(job)] = part
+            done = [self.fit_clip(*job) for job in todo.values()]
+        self._fits.update(zip(todo, done))
         parts = [copy.deepcopy(self._fits[key]) for key in keys]
         return Fit({e: dict(p) for e, p in effects.items()}, [p.nuisance[0] for p in parts],
                    [p.chi2[0] for p in parts], [p.sq_pos[0] for p in parts], [p.n_res[0] for p in parts],
