@@ -581,6 +581,29 @@ def test_fit_each_reuses_a_fit_asked_for_again():
     assert len(ws._fits) == 4 and c.chi2 != fresh.chi2       # other effects: fitted anew
 
 
+def test_fit_many_in_a_pool_equals_fit_each_one_by_one():
+    """Several ``fit_each`` requests in one pool map (2 worker processes) give, bit for bit, the
+    fits of one ``fit_each`` per request without a pool; a request asked twice is fitted once."""
+    cols, _ = D.generate_hidden(13, D.HiddenConfig(n_clips=2, duration=0.5, fps=40), OPTS, effect="none")
+    clips = D.clips_from_columns(cols, "hidden")
+    cfg = D.DiscrepancyConfig(threads=1, horizons=(0.5, 1.0))
+    starts = [D.initial_nuisance(c) for c in clips]
+    effects = [{}, {"quadratic_drag": {"density": 3.0}}, {}]
+    alone = D.Workspace(clips, cfg, OPTS)
+    one_by_one = [alone.fit_each([0, 1], starts, eff) for eff in effects]
+    ws = D.Workspace(clips, cfg, OPTS)
+    ws.start_pool(2)
+    try:
+        many = ws.fit_many([([0, 1], starts, eff) for eff in effects])
+    finally:
+        ws.close()
+    assert len(ws._fits) == 4                                 # 2 clips x 2 distinct effect sets
+    for f, g in zip(many, one_by_one):
+        assert f.chi2 == g.chi2 and f.effects == g.effects
+        assert all(np.array_equal(x, y) for x, y in zip(f.nuisance, g.nuisance))
+    assert many[0].chi2 != many[1].chi2
+
+
 def test_single_clip_free_flight_base_fit_reaches_the_noise():
     """A light ball in free flight, spin unobserved (held at 0): the base model's linear
     damping stands in for the drag and the converged base fit reaches the noise floor. Before

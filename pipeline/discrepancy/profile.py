@@ -4,7 +4,6 @@ confidence intervals of the named effects' coefficients."""
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
@@ -13,6 +12,7 @@ import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
 from pipeline import effects as fx
+from pipeline.discrepancy.clip_model import clip_residuals
 from pipeline.discrepancy.fit import Fit, _theta_keys, initial_nuisance
 from pipeline.discrepancy.screen import _scan_effect
 from pipeline.discrepancy.workspace import HeldOut, Workspace
@@ -151,44 +151,53 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
     prof = Profile([], [], [], [], [])
     others = {k: dict(v) for k, v in current.effects.items()}
 
+    def fits_at(values: Sequence[float]) -> list[Fit]:
+        """Every clip fitted from the data at each strength (one pool map for all)."""
+        return ws.fit_many([(idx, [initial_nuisance(ws.clips[c]) for c in idx], {**others, name: to_params(v)})
+                            for v in values])
+
     def evaluate(v: float) -> None:
-        eff = {**others, name: to_params(v)}
-        prof.add(v, eff[name], ws.fit_each(idx, [initial_nuisance(ws.clips[c]) for c in idx], eff))
+        prof.add(v, to_params(v), fits_at([v])[0])
 
     # The first point is the current model itself (the effect vanishes there); then outwards
     # until the summed chi-square has risen at two points in a row (the profile is taken as
-    # unimodal), so an effect the data do not want costs two or three points.
+    # unimodal), so an effect the data do not want costs two or three points. The points are
+    # fitted two at a time (one pool map); a second point past the stop is not used.
     at_current = _vanishes(ws, idx[0], current, name, to_params(s_pts[0]))
     if at_current:
         prof.add(s_pts[0], to_params(s_pts[0]), baseline)
     else:
         evaluate(s_pts[0])
-    rises = 0
-    for v in s_pts[1:]:
-        evaluate(v)
-        rises = rises + 1 if prof.total()[-1] > prof.total()[:-1].min() else 0
-        if rises >= 2:
-            break
+    rises, rest = 0, list(s_pts[1:])
+    while rest and rises < 2:
+        batch, rest = rest[:2], rest[2:]
+        for v, f in zip(batch, fits_at(batch)):
+            prof.add(v, to_params(v), f)
+            rises = rises + 1 if prof.total()[-1] > prof.total()[:-1].min() else 0
+            if rises >= 2:
+                break
     star = _parabola_min(prof.s, prof.total())
     if all(abs(star - v) > 1e-9 for v in prof.s):
         evaluate(star)
     b = int(np.argmin(prof.total()))
     joint = _joint_fit(ws, idx, current, name, others, prof.nuis[b], prof.params[b],
-                       prof.params[0] if at_current else None, b == 0)
+                       prof.params[0] if fx.REGISTRY[name].nested else None, at_current)
 
     keys = [p for p, sp in fx.REGISTRY[name].parameters.items() if sp.fit]
     theta = np.array([joint.effects[name][k] for k in keys])
     if len(keys) > 1 and b > 0 and np.linalg.norm(theta) > 0:
         # The first axis was a grid direction (45 degree steps); profile again along the
-        # jointly fitted direction, so that held-out clips are predicted along the right one.
+        # jointly fitted direction, so that held-out clips are predicted along the right one
+        # (three points around the joint fit: the held-out strength is a parabola's vertex).
         first = prof
         prof = Profile([], [], [], [], [])
         prof.add(0.0, first.params[0], _fit_rows(first, 0))
         norm = float(np.linalg.norm(theta))
         to_params = lambda v: {**fx.REGISTRY[name].defaults(),  # noqa: E731
                                **{k: float(v * t / norm) for k, t in zip(keys, theta)}}
-        for v in (0.5 * norm, 0.8 * norm, norm, 1.25 * norm, 1.6 * norm):
-            evaluate(v)
+        along = (0.6 * norm, norm, 1.5 * norm)
+        for v, f in zip(along, fits_at(along)):
+            prof.add(v, to_params(v), f)
 
     n = len(idx)
     ho = HeldOut([0.0] * n, [0.0] * n, list(joint.n_res), list(joint.n_pos), [{}] * n)
@@ -213,33 +222,36 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
         else:
             refit.append((c, near, eff))
         ho.theta[c] = eff
-    # the left-out clips refitted at their strengths (independent fits: in parallel when a pool runs)
-    by_eff: dict[str, list[tuple[int, int, dict]]] = {}
-    for c, near, eff in refit:
-        by_eff.setdefault(json.dumps(eff, sort_keys=True), []).append((c, near, eff))
-    for group in by_eff.values():
-        parts = ws.refit_each([idx[c] for c, _, _ in group], [prof.nuis[near][c] for c, near, _ in group],
-                              group[0][2], max_nfev=ws.cfg.max_nfev_warm)
-        for (c, near, _), part in zip(group, parts):
-            if part.chi2[0] < prof.chi2[near][c]:
-                ho.chi2[c], ho.sq_pos[c] = part.chi2[0], part.sq_pos[0]
-            else:
-                ho.chi2[c], ho.sq_pos[c] = prof.chi2[near][c], prof.sq[near][c]
+    # the left-out clips refitted at their strengths (independent fits: one pool map when a pool runs)
+    parts = ws.refit_each([idx[c] for c, _, _ in refit], [prof.nuis[near][c] for c, near, _ in refit],
+                          [eff for _, _, eff in refit], max_nfev=ws.cfg.max_nfev_warm)
+    for (c, near, _), part in zip(refit, parts):
+        if part.chi2[0] < prof.chi2[near][c]:
+            ho.chi2[c], ho.sq_pos[c] = part.chi2[0], part.sq_pos[0]
+        else:
+            ho.chi2[c], ho.sq_pos[c] = prof.chi2[near][c], prof.sq[near][c]
     return joint, ho, prof
 
 
 def _joint_fit(ws: "Workspace", idx: Sequence[int], current: Fit, name: str,
                others: Mapping[str, Mapping[str, float]], nuis: Sequence[np.ndarray], params: Mapping[str, float],
-               null: Mapping[str, float] | None, best_is_null: bool) -> Fit:
+               null: Mapping[str, float] | None, vanishes: bool) -> Fit:
     """Converged joint fit of the current model + effect ``name`` (coefficients shared, every
     clip's parameters free), the best of several starts:
 
     - ``profile``: the profile's best point (``nuis``, ``params``; per-clip fits from the data);
-    - ``base optimum``: for a nested effect (``null`` = its parameters where it vanishes, the
-      model then being the current one), the current model's optimum with the effect at
-      ``null``; the start point itself is kept as a candidate too (a trust-region method only
-      accepts decreasing steps, but the fit must start 1e-3 scale off a bound), so the extended
-      fit is never worse than the current model (nested models).
+    - ``base optimum``: for a nested effect (``null`` = its parameters at its null point), the
+      current model's optimum with the effect at ``null``. Where the effect then ``vanishes``
+      (the same rollouts as the current model, :func:`_vanishes`) the start point itself is
+      kept as a candidate too (a trust-region method only accepts decreasing steps, but the fit
+      must start 1e-3 scale off a bound, and near a bound trf's steps shrink), so the extended
+      fit is never worse than the current model (nested models). Where it does not quite
+      vanish (Magnus lift 0 still moves a spinning ball by ~2e-8 m: the fluid model's other
+      terms) that point is scored in the extended model (its chi-square differs from the
+      current model's by ~1e-5 of it), and the fit from the base optimum is run whichever
+      point the profile found best: the profile's point at the null value is a screening fit
+      from the data, which can end a few hundredths of a chi-square unit above the base
+      optimum.
 
     Each start runs to the tolerance ``cfg.ftol`` (:func:`fit_clips` ``converge``). The fits'
     ``start`` attribute says which start won."""
@@ -249,15 +261,21 @@ def _joint_fit(ws: "Workspace", idx: Sequence[int], current: Fit, name: str,
     fits.append(f)
     if null is not None:
         eff = {**others, name: dict(null)}
-        if not best_is_null:   # else the profile start already is the base optimum
-            f = ws.fit(idx, current.nuisance, eff, converge=True)
-            f.start = "base optimum"
-            fits.append(f)
+        f = ws.fit(idx, current.nuisance, eff, converge=True)
+        f.start = "base optimum"
+        fits.append(f)
         n_theta = len(_theta_keys([name]))
-        fits.append(Fit({k: dict(v) for k, v in eff.items()}, list(current.nuisance), list(current.chi2),
-                        list(current.sq_pos), list(current.n_res), list(current.n_pos), current.k + n_theta,
-                        _theta_keys(list(eff)), nfev=0, status=current.status, iterations=0,
-                        converged=current.converged, start="base optimum (effect at its null value, not moved)"))
+        if vanishes:
+            chi2, sq = list(current.chi2), list(current.sq_pos)
+        else:   # the same point scored in the extended model (one rollout per clip)
+            scored = [clip_residuals(ws.clips[c], ws.model(c, eff).simulate(current.nuisance[k], eff), ws.weights[c])
+                      for k, c in enumerate(idx)]
+            chi2, sq = [float(r @ r) for r, _ in scored], [float(d @ d) for _, d in scored]
+        fits.append(Fit({k: dict(v) for k, v in eff.items()}, list(current.nuisance), chi2, sq,
+                        list(current.n_res), list(current.n_pos), current.k + n_theta,
+                        _theta_keys(list(eff)), nfev=0 if vanishes else len(idx), status=current.status,
+                        iterations=0, converged=current.converged,
+                        start="base optimum (effect at its null value, not moved)"))
     best = min(fits, key=lambda g: g.rss)
     best.nfev = sum(g.nfev for g in fits)
     best.iterations = sum(g.iterations for g in fits)
@@ -265,13 +283,16 @@ def _joint_fit(ws: "Workspace", idx: Sequence[int], current: Fit, name: str,
 
 
 PROFILE_ACCEPT_GN = 0.25
-"""The Gauss-Newton end of an interval is accepted when the profile's rise there is within
-this fraction of the threshold (the profile is quadratic enough)."""
+"""The predicted end of an interval (the parabola through the profile's centre points, else
+the Gauss-Newton end) is accepted when the profile's rise there is within this fraction of
+the threshold (the profile is quadratic enough)."""
 PROFILE_GROW = 3.0
 """Outward step factor when the profile has not yet risen to the threshold."""
-PROFILE_BISECT = 6
+PROFILE_BISECT = 3
 """Most interpolation steps (Illinois regula falsi on the square root of the rise) to locate
-a crossing (stops earlier when the rise is within :data:`PROFILE_TOL` of the threshold)."""
+a crossing (stops earlier when the rise is within :data:`PROFILE_TOL` of the threshold). Three:
+the refits' own scatter sets the precision (on 8 clips of drag data, points 0.001 kg/m^3
+apart differ by up to ~20 in chi-square, several times the threshold), not more steps."""
 PROFILE_TOL = 0.1
 """A crossing is located when the profile's rise is within this fraction of the threshold
 (10 % of the threshold in chi-square moves a quadratic profile's end by about 5 % of the
@@ -290,14 +311,19 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None
     optimum, and its rise is ``χ²(point) − χ²(minimum)`` (with one coefficient the clips
     separate and are refitted one by one: small, well-conditioned fits). The minimum is the
     profile's own: the joint fit's value ``v`` and ``v ± h`` (``h`` the Gauss-Newton
-    half-width) are profiled, and the vertex of the parabola through them too; the lowest is
-    the centre and its χ² the reference. (A joint fit of many clips stalls short of its
+    half-width) are profiled, and the vertex of the parabola through them too (at most ``h``
+    beyond them); the lowest is the centre and its χ² the reference. (A joint fit of many clips stalls short of its
     optimum by a few χ² units, comparable with the threshold; measured with the joint fit as
     the reference, a 3-clip drag interval came out [7.505, 7.814] around 7.785 while the
     profile at 7.708 was already 4.4 below it.) Each side of each coefficient, from the centre:
 
-    1. the Gauss-Newton end is checked with one profile point: a rise within
-       :data:`PROFILE_ACCEPT_GN` of the threshold accepts it (``gauss-newton``);
+    1. the predicted end is checked with one profile point: where the parabola through the
+       centre and its two neighbouring profile points (:func:`_curvature`) rises by the
+       threshold (``quadratic``), else the Gauss-Newton end (``gauss-newton``); a rise within
+       :data:`PROFILE_ACCEPT_GN` of the threshold accepts it. (The Gauss-Newton half-width
+       comes from the joint fit's Jacobian; with the clips refitted one by one the profile
+       can be several times narrower, and every end then took 4-6 regula-falsi points: 16
+       profile fits for one drag density, 6 with the parabola.)
     2. else the crossing is bracketed (outwards by :data:`PROFILE_GROW` up to the search
        bound) and located by Illinois regula falsi on the square root of the rise (exact for a
        quadratic profile; at most :data:`PROFILE_BISECT` steps) (``profile``);
@@ -323,42 +349,60 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None
         v0 = float(fit.effects[e][p])
         gn = (fit.ci_gn.get(e) or {}).get(p) or [None, None]
         cache: dict[float, float] = {}
+        origin = fit
 
-        def total(x: float) -> float:
+        def totals(xs: Sequence[float]) -> list[float]:
+            """The profile at each of ``xs`` (those not yet profiled: with one coefficient
+            every clip at every point in one pool map)."""
             nonlocal better
-            x = float(x)
-            if x not in cache:
-                # every point starts from the fit itself (warm-starting from the nearest point
-                # walked the clips into other basins: on the DVC stage a point at the interval's
-                # end came out lowest, lift 1.075 for a true 0.978)
-                eff = {k: dict(d) for k, d in fit.effects.items()}
-                eff[e][p] = x
-                if len(fit.theta_keys) == 1:   # nothing else shared: the clips separate
-                    parts = ws.refit_each(idx, fit.nuisance, eff, converge=True)
-                    point = Fit(eff, [f.nuisance[0] for f in parts], [f.chi2[0] for f in parts],
-                                [f.sq_pos[0] for f in parts], [f.n_res[0] for f in parts],
-                                [f.n_pos[0] for f in parts], fit.k, list(fit.theta_keys))
-                else:
-                    point = ws.fit(idx, fit.nuisance, eff, converge=True, fixed=[(e, p)])
+            new = list(dict.fromkeys(float(x) for x in xs if float(x) not in cache))
+            # every point starts from one origin: the fit, or its refit at its own value where
+            # that is lower (warm-starting from the nearest profiled point walked the clips
+            # into other basins: on the DVC stage a point at the interval's end came out
+            # lowest, lift 1.075 for a true 0.978)
+            effs = [{k: {**dict(d), **({p: x} if k == e else {})} for k, d in origin.effects.items()} for x in new]
+            if len(fit.theta_keys) == 1:   # nothing else shared: the clips separate
+                parts = ws.refit_each(list(idx) * len(new), list(origin.nuisance) * len(new),
+                                      [eff for eff in effs for _ in idx], converge=True)
+                n = len(idx)
+                points = []
+                for j, eff in enumerate(effs):
+                    part = parts[j * n:(j + 1) * n]
+                    points.append(Fit(eff, [f.nuisance[0] for f in part], [f.chi2[0] for f in part],
+                                      [f.sq_pos[0] for f in part], [f.n_res[0] for f in part],
+                                      [f.n_pos[0] for f in part], fit.k, list(fit.theta_keys)))
+            else:
+                points = []
+                for eff in effs:
+                    point = ws.fit(idx, origin.nuisance, eff, converge=True, fixed=[(e, p)])
                     point.k, point.theta_keys = fit.k, list(fit.theta_keys)
+                    points.append(point)
+            for x, point in zip(new, points):
                 cache[x] = point.rss
                 if point.rss < (better or fit).rss - cfg.ftol * fit.rss:
                     point.start = f"profile minimum ({e}.{p})"
                     better = point
-            return cache[x]
+            return [cache[float(x)] for x in xs]
+
+        def total(x: float) -> float:
+            return totals([x])[0]
 
         # the profile's own minimum (centre) and its chi-square (reference)
         h = [abs(g - v0) for g in gn if g is not None and np.isfinite(g) and abs(g - v0) > 0]
         h = float(np.mean(h)) if h else 0.1 * spec.scale
+        total(v0)   # the origin of the other points: the fit refitted at its own value
+        if better is not None and better.effects[e][p] == v0:
+            origin = better
         pts = [x for x in (v0 - h, v0, v0 + h) if spec.low <= x <= spec.high]
-        for x in pts:
-            total(x)
-        if len(pts) == 3:
-            xm = _parabola_min(pts, np.array([cache[x] for x in pts]))
+        totals(pts)
+        curv = _curvature(cache)
+        if curv is not None:   # the parabola's vertex, at most one step h beyond the points
+            xm = float(np.clip(curv[1], min(pts) - h, max(pts) + h))
             if spec.low <= xm <= spec.high:
                 total(xm)
         v = min(cache, key=cache.get)
         ref = cache[v]
+        curv = _curvature(cache)
 
         def rise(x: float) -> float:
             return max(total(x) - ref, 0.0)
@@ -370,12 +414,17 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None
                 ends.append(None)
                 how.append("open (at the search bound)")
                 continue
-            step = abs(g - v0) if g is not None and np.isfinite(g) and abs(g - v0) > 0 else spec.scale
+            if curv is not None:   # where the parabola through the centre points crosses
+                step, label = math.sqrt(thr / curv[0]), "quadratic (profile-checked)"
+            elif g is not None and np.isfinite(g) and abs(g - v0) > 0:
+                step, label = abs(g - v0), "gauss-newton (profile-checked)"
+            else:
+                step, label = spec.scale, ""
             x = v + sign * min(step, room)
             r = rise(x)
-            if abs(x - bound) > 1e-12 and abs(r - thr) <= PROFILE_ACCEPT_GN * thr and g is not None:
+            if abs(x - bound) > 1e-12 and abs(r - thr) <= PROFILE_ACCEPT_GN * thr and label:
                 ends.append(float(x))
-                how.append("gauss-newton (profile-checked)")
+                how.append(label)
                 continue
             inner, r_in = v, 0.0
             while r < thr and abs(x - bound) > 1e-12:
@@ -417,6 +466,21 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None
             log(f"interval {e}.{p} = {v:.4g}: {_fmt_interval(ends)} (joint fit {v0:.4g}, Gauss-Newton "
                 f"{_fmt_interval(gn)}; {len(cache)} profile fits; {method[e][p]})")
     return ci, method, better
+
+
+def _curvature(cache: Mapping[float, float]) -> tuple[float, float] | None:
+    """``(A, vertex)`` of the parabola ``A (x - vertex)^2 + c`` through the lowest profile
+    point and its two neighbours in ``x`` (``cache``: ``{x: chi2}``); ``None`` with fewer
+    than 3 points or where the parabola does not open upwards."""
+    xs = np.array(sorted(cache))
+    if len(xs) < 3:
+        return None
+    ys = np.array([cache[x] for x in xs])
+    b = int(np.clip(np.argmin(ys), 1, len(xs) - 2))
+    A, B, _ = np.polyfit(xs[b - 1:b + 2] - xs[b], ys[b - 1:b + 2], 2)
+    if not A > 0:
+        return None
+    return float(A), float(xs[b] - B / (2 * A))
 
 
 def _fmt_interval(ci: Sequence[float | None] | None, nd: int = 4) -> str:

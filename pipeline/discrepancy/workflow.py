@@ -220,18 +220,20 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
         screened: dict[str, dict[str, Any]] = {}
         if remaining and cfg.screen_gain > 0:   # cheap screen before the full fits
             screened = screen_candidates(ws, idx, current, remaining)
+            # Second chance, not linearised, for those the linearised screen rejects: the clips
+            # refitted from the data (like a profile point) at one strength. The current
+            # optimum may sit in a basin that compensates for the missing effect (a spin that
+            # mimics Magnus lift), where the linearisation predicts a loss. (All in one pool map.)
+            second = [e for e in remaining
+                      if screened[e]["predicted_gain"] is not None and screened[e]["predicted_gain"] < cfg.screen_gain]
+            points = {e: _second_chance_point(e, screened[e]["best"]) for e in second}
+            trials = ws.fit_many([(idx, [initial_nuisance(c) for c in ws.clips], {**current.effects, e: points[e]})
+                                  for e in second])
+            for e, trial in zip(second, trials):
+                screened[e]["refit_point"], screened[e]["refit_gain"] = points[e], float(screen.rss - trial.rss)
             for e in remaining:
                 g = screened[e]["predicted_gain"]
-                passed = g is None or g >= cfg.screen_gain
-                if not passed:
-                    # Second chance, not linearised: the clips refitted from the data (like a
-                    # profile point) at one strength. The current optimum may sit in a basin
-                    # that compensates for the missing effect (a spin that mimics Magnus lift),
-                    # where the linearisation predicts a loss.
-                    point = _second_chance_point(e, screened[e]["best"])
-                    trial = ws.fit_each(idx, [initial_nuisance(c) for c in ws.clips], {**current.effects, e: point})
-                    screened[e]["refit_point"], screened[e]["refit_gain"] = point, float(screen.rss - trial.rss)
-                    passed = screened[e]["refit_gain"] >= cfg.screen_gain
+                passed = g is None or g >= cfg.screen_gain or screened[e]["refit_gain"] >= cfg.screen_gain
                 screened[e]["passed"] = bool(passed)
                 if not passed:
                     say(f"step {step}: {e:18s} screened out: predicted chi2 gain {g:.1f}, refitted from the data "

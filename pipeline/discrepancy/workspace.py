@@ -87,6 +87,7 @@ class Workspace:
         self.noise = [estimate_noise(c) for c in self.clips]
         self.weights = [Weights(n.position, n.angle) for n in self.noise]
         self._models: dict[tuple[int, tuple[str, ...]], ClipModel] = {}
+        self._horizon_models: dict[tuple[int, float, tuple[str, ...]], tuple[Clip, ClipModel] | None] = {}
         self._fits: dict[bytes, Fit] = {}   # per-clip fits of fit_each, by their arguments
         self._pool = None
 
@@ -97,6 +98,20 @@ class Workspace:
         if key not in self._models:
             self._models[key] = ClipModel(self.clips[c], key[1], self.options, self.gravity, self.cfg.threads)
         return self._models[key]
+
+    def horizon(self, c: int, frac: float, effects: Iterable[str]) -> tuple[Clip, ClipModel] | None:
+        """Clip ``c`` cut to the first ``frac`` of its duration and its :class:`ClipModel`
+        (compiled on first use, cached per clip, fraction and effect set); ``frac >= 1``: the
+        whole clip and :meth:`model`; ``None`` where the cut keeps too few samples."""
+        if frac >= 1.0:
+            return self.clips[c], self.model(c, effects)
+        names = tuple(e for e in fx.REGISTRY if e in set(effects))
+        key = (c, float(frac), names)
+        if key not in self._horizon_models:
+            sub = _truncate(self.clips[c], frac * float(self.clips[c].times[-1]))
+            self._horizon_models[key] = None if sub is None else \
+                (sub, ClipModel(sub, names, self.options, self.gravity, self.cfg.threads))
+        return self._horizon_models[key]
 
     def fit(self, idx: Sequence[int], starts: Sequence[np.ndarray], effects: Mapping[str, Mapping[str, float]],
             fit_effects: bool = True, with_ci: bool = False, max_nfev: int | None = None,
@@ -118,22 +133,35 @@ class Workspace:
         arithmetic in whichever process). A clip's fit is deterministic in its arguments, so
         it is kept and reused when the same fit is asked for again (e.g. the current model
         from the data after naming, then as the next step's baseline)."""
-        jobs = [(c, start, {e: dict(p) for e, p in effects.items()}, max_nfev, converge)
-                for c, start in zip(idx, starts)]
-        keys = [_job_key(job) for job in jobs]
-        todo = {key: job for key, job in zip(keys, jobs) if key not in self._fits}
+        return self.fit_many([(idx, starts, effects)], max_nfev, converge)[0]
+
+    def fit_many(self, requests: Sequence[tuple[Sequence[int], Sequence[np.ndarray], Mapping[str, Mapping[str, float]]]],
+                 max_nfev: int | None = None, converge: bool = False) -> list[Fit]:
+        """:meth:`fit_each` of several ``(idx, starts, effects)`` requests, their per-clip fits
+        in one pool map (8 clips of uneven cost on 2 workers leave one idle at the end of
+        each map; more jobs per map keep both busy). Same result to the last bit as one
+        :meth:`fit_each` per request."""
+        jobs = [[(c, start, {e: dict(p) for e, p in effects.items()}, max_nfev, converge)
+                 for c, start in zip(idx, starts)] for idx, starts, effects in requests]
+        keys = [[_job_key(job) for job in group] for group in jobs]
+        todo: dict[bytes, tuple] = {}
+        for group, group_keys in zip(jobs, keys):
+            todo.update((key, job) for key, job in zip(group_keys, group) if key not in self._fits)
         if self._pool is not None and len(todo) > 1:
             done = list(self._pool.map(_pool_fit_clip, todo.values()))
         else:
             done = [self.fit_clip(*job) for job in todo.values()]
         self._fits.update(zip(todo, done))
-        parts = [copy.deepcopy(self._fits[key]) for key in keys]
-        return Fit({e: dict(p) for e, p in effects.items()}, [p.nuisance[0] for p in parts],
-                   [p.chi2[0] for p in parts], [p.sq_pos[0] for p in parts], [p.n_res[0] for p in parts],
-                   [p.n_pos[0] for p in parts], k=sum(p.k for p in parts), nfev=sum(p.nfev for p in parts),
-                   status=min((p.status for p in parts), default=-2),
-                   iterations=sum(p.iterations for p in parts),
-                   converged=bool(parts) and all(p.converged or p.status == -2 for p in parts))
+        out = []
+        for (_, _, effects), group_keys in zip(requests, keys):
+            parts = [copy.deepcopy(self._fits[key]) for key in group_keys]
+            out.append(Fit({e: dict(p) for e, p in effects.items()}, [p.nuisance[0] for p in parts],
+                           [p.chi2[0] for p in parts], [p.sq_pos[0] for p in parts], [p.n_res[0] for p in parts],
+                           [p.n_pos[0] for p in parts], k=sum(p.k for p in parts), nfev=sum(p.nfev for p in parts),
+                           status=min((p.status for p in parts), default=-2),
+                           iterations=sum(p.iterations for p in parts),
+                           converged=bool(parts) and all(p.converged or p.status == -2 for p in parts)))
+        return out
 
     def fit_clip(self, c: int, start: np.ndarray, effects: Mapping[str, Mapping[str, float]],
                  max_nfev: int | None = None, converge: bool = False) -> Fit:
@@ -149,14 +177,12 @@ class Workspace:
 
         Returns:
             a one-clip :class:`Fit` (the last horizon's)."""
-        clip = self.clips[c]
         part = None
         for frac in self.cfg.horizons:
-            sub = _truncate(clip, frac * float(clip.times[-1])) if frac < 1.0 else clip
-            if sub is None:
+            cut = self.horizon(c, frac, effects)
+            if cut is None:
                 continue
-            model = ClipModel(sub, tuple(effects), self.options, self.gravity, self.cfg.threads) if frac < 1.0 \
-                else self.model(c, effects)
+            sub, model = cut
             start = _scan_friction(sub, model, self.weights[c], start, effects, self.cfg)
             last = frac >= self.cfg.horizons[-1]
             part = fit_clips([sub], [model], [self.weights[c]], [start], effects, self.cfg,
