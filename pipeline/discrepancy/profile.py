@@ -322,8 +322,7 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None
        threshold (``quadratic``), else the Gauss-Newton end (``gauss-newton``); a rise within
        :data:`PROFILE_ACCEPT_GN` of the threshold accepts it. (The Gauss-Newton half-width
        comes from the joint fit's Jacobian; with the clips refitted one by one the profile
-       can be several times narrower, and every end then took 4-6 regula-falsi points: 16
-       profile fits for one drag density, 6 with the parabola.)
+       can be several times narrower, and then every end took several regula-falsi points.)
     2. else the crossing is bracketed (outwards by :data:`PROFILE_GROW` up to the search
        bound) and located by Illinois regula falsi on the square root of the rise (exact for a
        quadratic profile; at most :data:`PROFILE_BISECT` steps) (``profile``);
@@ -391,7 +390,7 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None
         h = [abs(g - v0) for g in gn if g is not None and np.isfinite(g) and abs(g - v0) > 0]
         h = float(np.mean(h)) if h else 0.1 * spec.scale
         total(v0)   # the origin of the other points: the fit refitted at its own value
-        if better is not None and better.effects[e][p] == v0:
+        if better is not None and better.effects[e][p] == v0:   # this point, not an earlier coefficient's
             origin = better
         pts = [x for x in (v0 - h, v0, v0 + h) if spec.low <= x <= spec.high]
         totals(pts)
