@@ -152,6 +152,8 @@ class Fit:
         start: which start the fit came from (candidates: ``profile`` or ``base optimum``).
         ci_gn: Gauss-Newton intervals (unclipped, may pass the search bounds).
         ci_method: ``{effect: {parameter: how its interval was found}}``.
+        stages: per-clip continuation fits only: ``{horizon index: nuisance}`` after each
+            early horizon (resume points, :meth:`Workspace.fit_clip`).
     """
 
     effects: dict[str, dict[str, float]]
@@ -170,6 +172,7 @@ class Fit:
     start: str = ""
     ci_gn: dict[str, dict[str, list[float | None]]] = field(default_factory=dict)
     ci_method: dict[str, dict[str, str]] = field(default_factory=dict)
+    stages: dict[int, np.ndarray] = field(default_factory=dict)
 
     def optimizer(self) -> dict[str, Any]:
         """``{status, iterations, rollouts, converged, start}`` of the fit (report)."""

@@ -89,6 +89,7 @@ class Workspace:
         self._models: dict[tuple[int, tuple[str, ...]], ClipModel] = {}
         self._horizon_models: dict[tuple[int, float, tuple[str, ...]], tuple[Clip, ClipModel] | None] = {}
         self._fits: dict[bytes, Fit] = {}   # per-clip fits of fit_each, by their arguments
+        self._stages: dict[bytes, np.ndarray] = {}   # their early horizons' results (resume points)
         self._pool = None
 
     def model(self, c: int, effects: Iterable[str]) -> ClipModel:
@@ -147,10 +148,17 @@ class Workspace:
         todo: dict[bytes, tuple] = {}
         for group, group_keys in zip(jobs, keys):
             todo.update((key, job) for key, job in zip(group_keys, group) if key not in self._fits)
+        # a fit whose early horizons were run before (same clip, start, effects and cap; e.g. the
+        # base model converged, then at the screening budget) resumes after them
+        todo_jobs = [job + (self._resume_point(*job[:4]),) for job in todo.values()]
         if self._pool is not None and len(todo) > 1:
-            done = list(self._pool.map(_pool_fit_clip, todo.values()))
+            done = list(self._pool.map(_pool_fit_clip, todo_jobs))
         else:
-            done = [self.fit_clip(*job) for job in todo.values()]
+            done = [self.fit_clip(*job) for job in todo_jobs]
+        for job, fit in zip(todo_jobs, done):
+            for k, nuis in fit.stages.items():
+                self._stages[_stage_key(job[0], job[1], job[2], job[3], k)] = nuis
+            fit.stages = {}
         self._fits.update(zip(todo, done))
         out = []
         for (_, _, effects), group_keys in zip(requests, keys):
@@ -163,8 +171,19 @@ class Workspace:
                            converged=bool(parts) and all(p.converged or p.status == -2 for p in parts)))
         return out
 
+    def _resume_point(self, c: int, start: np.ndarray, effects: Mapping[str, Mapping[str, float]],
+                      max_nfev: int | None) -> tuple[int, np.ndarray] | None:
+        """``(k, nuisance)``: the latest early horizon ``k`` (index into ``cfg.horizons``, not the
+        last) already fitted for these arguments and its fitted parameters, else ``None``."""
+        for k in range(len(self.cfg.horizons) - 2, -1, -1):
+            nuis = self._stages.get(_stage_key(c, start, effects, max_nfev, k))
+            if nuis is not None:
+                return k, nuis
+        return None
+
     def fit_clip(self, c: int, start: np.ndarray, effects: Mapping[str, Mapping[str, float]],
-                 max_nfev: int | None = None, converge: bool = False) -> Fit:
+                 max_nfev: int | None = None, converge: bool = False,
+                 resume: tuple[int, np.ndarray] | None = None) -> Fit:
         """Fit clip ``c`` alone (effects held) by continuation over the time horizon
         (``cfg.horizons``: first the opening fraction of the clip, then longer, warm-starting
         each from the last), so that late contacts do not pull the initial state into a wrong
@@ -174,11 +193,20 @@ class Workspace:
         Args:
             c: clip index. start: ``(n, 14)`` starting values (:data:`NUISANCE`).
             effects: ``{effect: parameters}`` held. max_nfev: screening cap.
+            resume: ``(k, nuisance)``: horizons ``0..k`` were fitted before with these
+                arguments (the early horizons do not depend on ``converge``) and ended at
+                ``nuisance``; continue from there (the same arithmetic as running them again,
+                so the same result to the last bit).
 
         Returns:
-            a one-clip :class:`Fit` (the last horizon's)."""
-        part = None
-        for frac in self.cfg.horizons:
+            a one-clip :class:`Fit` (the last horizon's), with ``stages``: ``{k: nuisance}``
+            after each early horizon it ran (:meth:`fit_many` keeps them as resume points)."""
+        part, stages, first = None, {}, 0
+        if resume is not None:
+            first, start = resume[0] + 1, resume[1].copy()
+        for k, frac in enumerate(self.cfg.horizons):
+            if k < first:
+                continue
             cut = self.horizon(c, frac, effects)
             if cut is None:
                 continue
@@ -189,7 +217,10 @@ class Workspace:
                              fit_effects=False, max_nfev=None if (converge and last) else max_nfev,
                              converge=converge and last)
             start = part.nuisance[0]
+            if not last:
+                stages[k] = start.copy()
         assert part is not None  # the last horizon is the whole clip (cfg.horizons ends at 1)
+        part.stages = stages
         return part
 
     def refit_each(self, idx: Sequence[int], starts: Sequence[np.ndarray],
@@ -228,6 +259,15 @@ class Workspace:
         if self._pool is not None:
             self._pool.shutdown(cancel_futures=True)
             self._pool = None
+
+
+def _stage_key(c: int, start: np.ndarray, effects: Mapping[str, Mapping[str, float]], max_nfev: int | None,
+               k: int) -> bytes:
+    """Digest of a per-clip fit's early horizon ``k`` (:meth:`Workspace.fit_clip`): its clip,
+    start, effects and screening cap (not ``converge``, which only acts on the last horizon)."""
+    h = hashlib.sha256(np.ascontiguousarray(start, dtype=float).tobytes())
+    h.update(json.dumps([c, effects, max_nfev, k], sort_keys=True).encode())
+    return h.digest()
 
 
 def _job_key(job: tuple) -> bytes:
