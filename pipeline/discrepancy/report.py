@@ -58,6 +58,9 @@ def report_dict(result: Result, files: Mapping[str, Any] | None = None) -> dict[
             # one clip: nothing held out (the shown gap is the forward gap, ``gap``)
             "heldout_rmse_before": result.base_heldout.clip_rmse(c) if len(result.clips) >= 2 else None,
             "heldout_rmse_after": result.final_heldout.clip_rmse(c) if len(result.clips) >= 2 else None,
+            # the named effects' values this clip was predicted with, fitted to the other clips
+            "heldout_effects": (result.final_heldout.theta[c] if len(result.clips) >= 2 and result.named
+                                and len(result.final_heldout.theta) > c else None),
         })
     noise_floor = float(np.sqrt(np.mean([n.position ** 2 for n in result.noise])))
     return {
