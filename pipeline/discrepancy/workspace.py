@@ -10,7 +10,7 @@ import math
 import multiprocessing
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, field
-from typing import Iterable, Mapping, Sequence
+from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -261,21 +261,24 @@ class Workspace:
             self._pool = None
 
 
+def _digest(start: np.ndarray, *fields: Any) -> bytes:
+    """SHA-256 of a per-clip fit's start values and its other (JSON-able) arguments."""
+    h = hashlib.sha256(np.ascontiguousarray(start, dtype=float).tobytes())
+    h.update(json.dumps(list(fields), sort_keys=True).encode())
+    return h.digest()
+
+
 def _stage_key(c: int, start: np.ndarray, effects: Mapping[str, Mapping[str, float]], max_nfev: int | None,
                k: int) -> bytes:
     """Digest of a per-clip fit's early horizon ``k`` (:meth:`Workspace.fit_clip`): its clip,
     start, effects and screening cap (not ``converge``, which only acts on the last horizon)."""
-    h = hashlib.sha256(np.ascontiguousarray(start, dtype=float).tobytes())
-    h.update(json.dumps([c, effects, max_nfev, k], sort_keys=True).encode())
-    return h.digest()
+    return _digest(start, c, effects, max_nfev, k)
 
 
 def _job_key(job: tuple) -> bytes:
     """Digest of a per-clip fit's arguments ``(clip, start, effects, max_nfev, converge)``."""
     c, start, effects, max_nfev, converge = job
-    h = hashlib.sha256(np.ascontiguousarray(start, dtype=float).tobytes())
-    h.update(json.dumps([c, effects, max_nfev, converge], sort_keys=True).encode())
-    return h.digest()
+    return _digest(start, c, effects, max_nfev, converge)
 
 
 _POOL_WS: "Workspace | None" = None
