@@ -105,10 +105,18 @@ class ClipModel:
         m.geom_friction[self.geoms, 0] = nuis[:, _F]
         m.dof_damping[: 6 * self.n] = np.repeat(nuis[:, _D], 6)
 
-    def initial(self, nuis: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def orientations(self, nuis: np.ndarray) -> np.ndarray:
+        """``(..., n, 4)`` initial quaternions (w, x, y, z) of per-object parameters
+        ``nuis (..., n, 14)``: the reference orientation rotated by the perturbation ``x[_R]``
+        (one rotation call for any batch of variants)."""
+        return quat_mul(self.qref, rotvec_to_quat(nuis[..., _R]))
+
+    def initial(self, nuis: np.ndarray, quats: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """MuJoCo ``qpos (7n,)``, ``qvel (6n,)`` of per-object parameters ``nuis (n, 14)``
-        (angular velocity converted to the body frame by ``pipeline.mjcf.initial_state``)."""
-        objs = [SimpleNamespace(position=x[_P], orientation=quat_mul(self.qref[i], rotvec_to_quat(x[_R])),
+        (angular velocity converted to the body frame by ``pipeline.mjcf.initial_state``);
+        ``quats (n, 4)``: their :meth:`orientations` where already computed."""
+        quats = self.orientations(nuis) if quats is None else quats
+        objs = [SimpleNamespace(position=x[_P], orientation=quats[i],
                                 linear_velocity=x[_V], angular_velocity=x[_W]) for i, x in enumerate(nuis)]
         return initial_state(SimpleNamespace(objects=objs))
 
@@ -126,11 +134,12 @@ class ClipModel:
             self.pool.append(copy.copy(self.model))
         models, init = [], np.zeros((B, self._nstate))
         d = self.datas[0]
+        quats = self.orientations(np.asarray(nuis_list, dtype=np.float64).reshape(B, self.n, -1)) if B else None
         for b, (nuis, eff) in enumerate(zip(nuis_list, effects_list)):
             m = self.pool[b]
             self._configure(m, nuis, eff)
             models.append(m)
-            qpos, qvel = self.initial(nuis)
+            qpos, qvel = self.initial(nuis, quats[b])
             mujoco.mj_resetData(m, d)
             d.qpos[: 7 * self.n], d.qvel[: 6 * self.n] = qpos, qvel
             mujoco.mj_getState(m, d, init[b], self._spec)
@@ -256,13 +265,33 @@ def clip_residuals(clip: Clip, qpos: np.ndarray, weights: Weights) -> tuple[np.n
         orientation rotation-vector error / sigma_angle where measured); ``d`` flat raw
         position residuals (m) of the observed coordinates.
     """
+    r, d = clip_residuals_many(clip, np.asarray(qpos)[None], weights)
+    return r[0], d[0]
+
+
+def clip_residuals_many(clip: Clip, qpos: np.ndarray, weights: Weights) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`clip_residuals` of ``B`` rollouts at once (one rotation call for all of them: the
+    finite-difference Jacobian's variants; the same numbers as one at a time).
+
+    Args:
+        clip: measured clip.
+        qpos: ``(B, T, n, 7)`` simulated at ``clip.times``.
+        weights: noise standard deviations (m, rad).
+
+    Returns:
+        ``(r (B, m), d (B, k))`` float64: per rollout the noise-normalised residuals and the raw
+        position residuals (m), laid out as in :func:`clip_residuals`.
+    """
+    qpos = np.asarray(qpos, dtype=np.float64)
+    B = qpos.shape[0]
     parts, raw = [], []
     for i, tr in enumerate(clip.tracks):
         idx = np.searchsorted(clip.times, tr.t)
-        diff = (qpos[idx, i, :3] - tr.pos)[:, tr.axes]
-        raw.append(diff.ravel())
-        parts.append(diff.ravel() / weights.position)
+        diff = (qpos[:, idx, i, :3] - tr.pos[None])[:, :, tr.axes]
+        raw.append(diff.reshape(B, -1))
+        parts.append(diff.reshape(B, -1) / weights.position)
         if tr.quat is not None and weights.angle:
-            err = quat_to_rotvec(quat_mul(quat_conj(qpos[idx, i, 3:]), tr.quat))
-            parts.append(err.ravel() / weights.angle)
-    return np.concatenate(parts), np.concatenate(raw)
+            meas = np.broadcast_to(tr.quat[None], (B,) + tr.quat.shape)
+            err = quat_to_rotvec(quat_mul(quat_conj(qpos[:, idx, i, 3:]), meas))
+            parts.append(err.reshape(B, -1) / weights.angle)
+    return np.concatenate(parts, axis=1), np.concatenate(raw, axis=1)

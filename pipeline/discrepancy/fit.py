@@ -16,7 +16,7 @@ from threadpoolctl import threadpool_limits
 from pipeline import effects as fx
 from pipeline import geometry
 from pipeline.discrepancy.clip_model import (_D, _F, _P, _R, _V, _W, NUISANCE, ClipModel, Weights, clip_residuals,
-                                             simulate_clips)
+                                             clip_residuals_many, simulate_clips)
 from pipeline.discrepancy.config import DiscrepancyConfig
 from pipeline.discrepancy.trajectories import Clip, Track
 from pipeline.rotation import quat_conj, quat_mul, quat_to_mat, quat_to_rotvec
@@ -336,8 +336,10 @@ def fit_clips(clips: Sequence[Clip], models: Sequence[ClipModel], weights: Seque
                             steps + th_steps))
         # one rollout call for all clips' variants (both cores busy; same numbers as per clip)
         for c, qs in enumerate(simulate_clips(requests, threads)):
-            for q, col, step in zip(qs, *columns[c]):
-                J[rows[c]:rows[c + 1], col] = (clip_residuals(clips[c], q, weights[c])[0] - base[c]) / step
+            if len(qs):
+                cols, steps = columns[c]
+                res = clip_residuals_many(clips[c], qs, weights[c])[0]
+                J[rows[c]:rows[c + 1], cols] = ((res - base[c][None]) / np.asarray(steps)[:, None]).T
         return J
 
     status, iterations = -2, 0

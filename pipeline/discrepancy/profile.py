@@ -255,15 +255,14 @@ def _joint_fit(ws: "Workspace", idx: Sequence[int], current: Fit, name: str,
 
     Each start runs to the tolerance ``cfg.ftol`` (:func:`fit_clips` ``converge``). The fits'
     ``start`` attribute says which start won."""
-    fits = []
-    f = ws.fit(idx, nuis, {**others, name: dict(params)}, converge=True)
-    f.start = "profile"
-    fits.append(f)
+    jobs = [dict(idx=idx, starts=nuis, effects={**others, name: dict(params)}, converge=True)]
     if null is not None:
         eff = {**others, name: dict(null)}
-        f = ws.fit(idx, current.nuisance, eff, converge=True)
-        f.start = "base optimum"
-        fits.append(f)
+        jobs.append(dict(idx=idx, starts=current.nuisance, effects=eff, converge=True))
+    fits = ws.fit_joint_many(jobs)   # the starts in parallel where a pool runs
+    for f, start in zip(fits, ("profile", "base optimum")):
+        f.start = start
+    if null is not None:
         n_theta = len(_theta_keys([name]))
         if vanishes:
             chi2, sq = list(current.chi2), list(current.sq_pos)
@@ -370,12 +369,11 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None
                     points.append(Fit(eff, [f.nuisance[0] for f in part], [f.chi2[0] for f in part],
                                       [f.sq_pos[0] for f in part], [f.n_res[0] for f in part],
                                       [f.n_pos[0] for f in part], fit.k, list(fit.theta_keys)))
-            else:
-                points = []
-                for eff in effs:
-                    point = ws.fit(idx, origin.nuisance, eff, converge=True, fixed=[(e, p)])
+            else:   # joint fits with the other coefficients free (in parallel where a pool runs)
+                points = ws.fit_joint_many([dict(idx=idx, starts=origin.nuisance, effects=eff, converge=True,
+                                                 fixed=[(e, p)]) for eff in effs])
+                for point in points:
                     point.k, point.theta_keys = fit.k, list(fit.theta_keys)
-                    points.append(point)
             for x, point in zip(new, points):
                 cache[x] = point.rss
                 if point.rss < (better or fit).rss - cfg.ftol * fit.rss:
@@ -403,16 +401,13 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None
         ref = cache[v]
         curv = _curvature(cache)
 
-        def rise(x: float) -> float:
-            return max(total(x) - ref, 0.0)
-
-        ends, how = [], []
-        for sign, bound, g in ((-1.0, spec.low, gn[0]), (1.0, spec.high, gn[1])):
+        def side(sign: float, bound: float, g: float | None):
+            """One side's search (a generator: yields each point whose rise it needs, is sent
+            the rise, returns ``(end, how)``), so that both sides' points are profiled
+            together (one pool map) without changing which points are profiled."""
             room = sign * (bound - v)
             if room <= 1e-9 * spec.scale:        # at the search bound: nothing beyond it to test
-                ends.append(None)
-                how.append("open (at the search bound)")
-                continue
+                return None, "open (at the search bound)"
             if curv is not None:   # where the parabola through the centre points crosses
                 step, label = math.sqrt(thr / curv[0]), "quadratic (profile-checked)"
             elif g is not None and np.isfinite(g) and abs(g - v0) > 0:
@@ -420,20 +415,16 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None
             else:
                 step, label = spec.scale, ""
             x = v + sign * min(step, room)
-            r = rise(x)
+            r = yield x
             if abs(x - bound) > 1e-12 and abs(r - thr) <= PROFILE_ACCEPT_GN * thr and label:
-                ends.append(float(x))
-                how.append(label)
-                continue
+                return float(x), label
             inner, r_in = v, 0.0
             while r < thr and abs(x - bound) > 1e-12:
                 inner, r_in = x, r
                 x = v + sign * min(PROFILE_GROW * abs(x - v), room)
-                r = rise(x)
+                r = yield x
             if r < thr:                           # never rose by the threshold before the bound
-                ends.append(None)
-                how.append(f"open (profile rise {r:.3g} < {thr:.3g} at the search bound {bound:g})")
-                continue
+                return None, f"open (profile rise {r:.3g} < {thr:.3g} at the search bound {bound:g})"
             outer, r_out = x, r
             # Illinois regula falsi on g = sqrt(rise) - sqrt(threshold) (linear for a quadratic
             # profile); the end kept twice in a row has its g halved, so a steep far end (a
@@ -441,7 +432,7 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None
             g_in, g_out, kept = math.sqrt(r_in) - math.sqrt(thr), math.sqrt(r_out) - math.sqrt(thr), 0
             for _ in range(PROFILE_BISECT):
                 xm = inner + (outer - inner) * (-g_in) / (g_out - g_in) if g_out > g_in else 0.5 * (inner + outer)
-                rm = rise(xm)
+                rm = yield xm
                 gm = math.sqrt(rm) - math.sqrt(thr)
                 if abs(rm - thr) <= PROFILE_TOL * thr:
                     inner = outer = xm
@@ -457,8 +448,27 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None
                     if kept <= -2:
                         g_in *= 0.5
             t = (-g_in) / (g_out - g_in) if g_out > g_in else 0.5
-            ends.append(float(inner + min(max(t, 0.0), 1.0) * (outer - inner)))
-            how.append("profile")
+            return float(inner + min(max(t, 0.0), 1.0) * (outer - inner)), "profile"
+
+        # both sides in lockstep: their next points profiled together
+        searches = [side(-1.0, spec.low, gn[0]), side(1.0, spec.high, gn[1])]
+        found: list[tuple[float | None, str]] = [(None, ""), (None, "")]
+        asks: dict[int, float] = {}
+        for i, gen in enumerate(searches):
+            try:
+                asks[i] = next(gen)
+            except StopIteration as stop:
+                found[i] = stop.value
+        while asks:
+            rises = [max(t - ref, 0.0) for t in totals(list(asks.values()))]
+            nxt: dict[int, float] = {}
+            for (i, _), r in zip(asks.items(), rises):
+                try:
+                    nxt[i] = searches[i].send(r)
+                except StopIteration as stop:
+                    found[i] = stop.value
+            asks = nxt
+        ends, how = [f[0] for f in found], [f[1] for f in found]
         ci.setdefault(e, {})[p] = ends
         method.setdefault(e, {})[p] = " / ".join(how)
         if log:

@@ -9,7 +9,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from pipeline import effects as fx
-from pipeline.discrepancy.clip_model import Weights, clip_residuals
+from pipeline.discrepancy.clip_model import Weights, clip_residuals_many
 from pipeline.discrepancy.fit import Fit, _nuisance_bounds, _nuisance_scales, free_mask
 from pipeline.discrepancy.trajectories import Clip
 from pipeline.discrepancy.workspace import Workspace
@@ -34,7 +34,7 @@ def _scan_effect(ws: "Workspace", idx: Sequence[int], nuisance: Sequence[np.ndar
     total = np.zeros(len(cands))
     for c in idx:
         qs = ws.model(c, trials[0]).simulate_many([nuisance[c]] * len(trials), trials)
-        total += [float(r @ r) for r in (clip_residuals(ws.clips[c], q, ws.weights[c])[0] for q in qs)]
+        total += [float(r @ r) for r in clip_residuals_many(ws.clips[c], qs, ws.weights[c])[0]]
     return dict(cands[int(np.argmin(total))])
 
 
@@ -95,9 +95,9 @@ def screen_candidates(ws: "Workspace", idx: Sequence[int], current: Fit, names: 
             variants.append(x.reshape(nuis.shape))
             steps.append(step)
         qs = model.simulate_many([nuis] + variants, [current.effects] * (1 + len(variants)))
-        r0 = clip_residuals(clip, qs[0], w)[0]
-        J = np.stack([(clip_residuals(clip, q, w)[0] - r0) / st for q, st in zip(qs[1:], steps)], 1) \
-            if variants else np.zeros((len(r0), 0))
+        res = clip_residuals_many(clip, qs, w)[0]
+        r0 = res[0]
+        J = np.stack([(r - r0) / st for r, st in zip(res[1:], steps)], 1) if variants else np.zeros((len(r0), 0))
         pos = _position_rows(clip, w)
         Qs = [basis(J), basis(J[pos])]
         proj.append(Qs)
@@ -117,8 +117,8 @@ def screen_candidates(ws: "Workspace", idx: Sequence[int], current: Fit, names: 
         total = np.zeros((len(points), 2))
         for c, Qs, pos in zip(idx, proj, rows_pos):
             qs = ws.model(c, effs[0]).simulate_many([current.nuisance[c]] * len(points), effs)
-            for j, q in enumerate(qs):
-                total[j] += leftover(clip_residuals(ws.clips[c], q, ws.weights[c])[0], Qs, pos)
+            for j, r in enumerate(clip_residuals_many(ws.clips[c], qs, ws.weights[c])[0]):
+                total[j] += leftover(r, Qs, pos)
         gains = null[None, :] - total
         b = int(np.argmax(gains.max(1)))
         out[name] = {"predicted_gain": float(gains.max()), "full_gain": float(gains[:, 0].max()),

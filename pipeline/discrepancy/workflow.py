@@ -66,18 +66,21 @@ def _converged_heldout(ws: "Workspace", idx: Sequence[int], base: Fit, base_ho: 
     if ho is None:
         return before, copy.deepcopy(before)
     after = copy.deepcopy(ho)
-    thetas = []
+    thetas, jobs = [], []
     for c in range(len(idx)):
         rest = [idx[k] for k in range(len(idx)) if k != c]
         nuis = [final.nuisance[k] for k in range(len(idx)) if k != c]
         start = {e: {**dict(final.effects[e]), **dict(ho.theta[c].get(e, {}))} for e in final.effects}
-        loo = ws.fit(rest, nuis, start, converge=True)
         # a second start, the final fit itself (all clips): the bounce basins of the other
         # clips can hold the fit at the first start (restitution: stuck at 0.504 when the other
         # clips' optimum was 0.415). Taken only where the other clips prefer it significantly
         # (by the 95 % chi-square(1) quantile times their chi2/dof), so that where they cannot
         # tell, the left-out clip's own information (in the final values) does not decide.
-        alt = ws.fit(rest, nuis, final.effects, converge=True)
+        jobs += [dict(idx=rest, starts=nuis, effects=start, converge=True),
+                 dict(idx=rest, starts=nuis, effects=final.effects, converge=True)]
+    fits = ws.fit_joint_many(jobs)   # independent: in parallel where a pool runs
+    for c in range(len(idx)):
+        loo, alt = fits[2 * c], fits[2 * c + 1]
         s2 = max(1.0, loo.rss / max(loo.n - loo.k, 1))
         if alt.rss < loo.rss - CHI2_1_95 * s2:
             loo = alt

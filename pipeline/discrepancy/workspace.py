@@ -15,7 +15,7 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 
 from pipeline import effects as fx
-from pipeline.discrepancy.clip_model import _F, ClipModel, Weights, clip_residuals
+from pipeline.discrepancy.clip_model import _F, ClipModel, Weights, clip_residuals_many
 from pipeline.discrepancy.config import DiscrepancyConfig
 from pipeline.discrepancy.fit import Fit, fit_clips, free_mask, single_threaded_blas
 from pipeline.discrepancy.noise import estimate_noise
@@ -71,7 +71,7 @@ def _scan_friction(clip: Clip, model: ClipModel, weights: Weights, nuis: np.ndar
             x[i, _F] = mu
             variants.append(x)
         qs = model.simulate_many(variants, [effects] * len(grid))
-        chi = [float(r @ r) for r in (clip_residuals(clip, q, weights)[0] for q in qs)]
+        chi = [float(r @ r) for r in clip_residuals_many(clip, qs, weights)[0]]
         nuis[i, _F] = grid[int(np.argmin(chi))]
     return nuis
 
@@ -239,6 +239,20 @@ class Workspace:
         return [self.fit([c], [start], eff, fit_effects=False, max_nfev=m, converge=cv)
                 for c, start, eff, m, cv in jobs]
 
+    def fit_joint_many(self, requests: Sequence[Mapping[str, Any]]) -> list[Fit]:
+        """Several independent :meth:`fit` calls (joint fits of clips with shared
+        coefficients), each ``request`` the keyword arguments of :meth:`fit` (``idx``,
+        ``starts``, ``effects`` and any of ``fit_effects``, ``with_ci``, ``max_nfev``,
+        ``converge``, ``fixed``). With a worker pool they run in parallel, one per worker with
+        one rollout thread each (a joint fit in this process rolls out on ``cfg.threads`` but
+        runs its least-squares algebra, residuals and model edits on one core); the same
+        result to the last bit (:func:`simulate_clips` is deterministic in its models and
+        states whatever the thread count)."""
+        jobs = [dict(req) for req in requests]
+        if self._pool is not None and len(jobs) > 1:
+            return list(self._pool.map(_pool_fit_joint, jobs))
+        return [self.fit(**job) for job in jobs]
+
     def start_pool(self, workers: int) -> None:
         """Fit clips in ``workers`` processes (:meth:`fit_each`); each worker holds its own
         copy of this workspace with one rollout thread, made once. No-op for ``workers`` < 2,
@@ -299,3 +313,8 @@ def _pool_refit_clip(job: tuple) -> Fit:
     c, start, effects, max_nfev, converge = job
     with single_threaded_blas():
         return _POOL_WS.fit([c], [start], effects, fit_effects=False, max_nfev=max_nfev, converge=converge)
+
+
+def _pool_fit_joint(job: Mapping[str, Any]) -> Fit:
+    with single_threaded_blas():
+        return _POOL_WS.fit(**job)
