@@ -22,7 +22,7 @@ from pipeline import discrepancy as D
 from pipeline import effects as fx
 from pipeline.discrepancy.benchmark import _bench_summary, _trial_job
 from pipeline.cli import main as dynamics_main
-from pipeline.discrepancy.clip_model import _clip_scene, simulate_clips
+from pipeline.discrepancy.clip_model import _clip_scene, clip_residuals_many, simulate_clips
 from pipeline.discrepancy.profile import _fmt_interval, _profile_candidate
 from pipeline.discrepancy.readers import _typical_acceleration
 from pipeline.discrepancy.trajectories import _truncate
@@ -668,3 +668,48 @@ def test_benchmark_scores_the_exact_set_and_the_noise_floor():
     assert s["naming_accuracy"] == 0.5
     assert s["gap_within_1p5_noise"] == 0.5
     assert s["median_shrink"] == pytest.approx(0.85)
+
+
+def test_joint_fits_in_a_pool_equal_the_in_process_fits():
+    """``fit_joint_many``: independent joint fits (shared wind coefficients, a coefficient held
+    as a profile point does) in two worker processes with one rollout thread each give, bit for
+    bit, what the calling process computes one by one on 2 rollout threads."""
+    cols, _ = D.generate_hidden(15, D.HiddenConfig(n_clips=3, duration=0.5, fps=40), OPTS, effect="wind")
+    clips = D.clips_from_columns(cols, "hidden")
+    starts = [D.initial_nuisance(c) for c in clips]
+    wind = fx.REGISTRY["wind"].defaults()
+    jobs = [dict(idx=[0, 1, 2], starts=starts, effects={"wind": {**wind, "wind_x": 1.0}}, max_nfev=8),
+            dict(idx=[1, 2], starts=starts[1:], effects={"wind": {**wind, "wind_y": -1.0}}, max_nfev=8,
+                 fixed=[("wind", "wind_y")])]
+    in_process = D.Workspace(clips, D.DiscrepancyConfig(threads=2), OPTS)
+    with D.single_threaded_blas():
+        alone = [in_process.fit(**job) for job in jobs]
+    ws = D.Workspace(clips, D.DiscrepancyConfig(threads=2), OPTS)
+    ws.start_pool(2)
+    try:
+        pooled = ws.fit_joint_many(jobs)
+    finally:
+        ws.close()
+    for f, g in zip(pooled, alone):
+        assert f.chi2 == g.chi2 and f.effects == g.effects and f.nfev == g.nfev
+        assert all(np.array_equal(x, y) for x, y in zip(f.nuisance, g.nuisance))
+    assert pooled[1].effects["wind"]["wind_y"] == -1.0          # the held coefficient stayed
+    assert pooled[0].effects["wind"]["wind_x"] != 1.0            # the free one moved
+
+
+def test_residuals_of_many_rollouts_equal_each_alone():
+    """``clip_residuals_many`` (a Jacobian's variants in one rotation call) == ``clip_residuals``
+    of each rollout, bit for bit, orientation rows included."""
+    cols, _ = D.generate_hidden(16, D.HiddenConfig(n_clips=1, duration=0.5, fps=40), OPTS, effect="none")
+    clip = D.clips_from_columns(cols, "hidden")[0]
+    assert clip.tracks[0].quat is not None
+    model = D.ClipModel(clip, (), OPTS)
+    base = D.initial_nuisance(clip)
+    variants = [base + 0.01 * k * np.eye(14)[k % 12][None] for k in range(5)]
+    qs = model.simulate_many(variants, [{}] * len(variants))
+    w = D.Weights(1e-3, np.deg2rad(1.0))
+    r, d = clip_residuals_many(clip, qs, w)
+    for b, q in enumerate(qs):
+        r1, d1 = D.clip_residuals(clip, q, w)
+        assert np.array_equal(r[b], r1) and np.array_equal(d[b], d1)
+    assert r.shape[1] > d.shape[1]                              # orientation rows present
