@@ -15,29 +15,6 @@ from pipeline.discrepancy.trajectories import Clip
 from pipeline.discrepancy.workspace import Workspace
 
 
-def _scan_effect(ws: "Workspace", idx: Sequence[int], nuisance: Sequence[np.ndarray],
-                 effects: Mapping[str, Mapping[str, float]], name: str, exclude_null: bool = False
-                 ) -> dict[str, float]:
-    """Start values of effect ``name``: the best point of its parameters' grids
-    (``ParamSpec.grid``, full product; without the all-null point if ``exclude_null``) with
-    the clips' parameters and the other effects held."""
-    cls = fx.REGISTRY[name]
-    params = cls.defaults()
-    keys = [p for p, s in cls.parameters.items() if s.fit and s.grid]
-    if not keys:
-        return params
-    others = {k: dict(v) for k, v in effects.items() if k != name}
-    grids = [cls.parameters[p].grid for p in keys]
-    cands = [{**params, **dict(zip(keys, values))} for values in itertools.product(*grids)
-             if not (exclude_null and all(v == g[0] for v, g in zip(values, grids)))]
-    trials = [{**others, name: cand} for cand in cands]
-    total = np.zeros(len(cands))
-    for c in idx:
-        qs = ws.model(c, trials[0]).simulate_many([nuisance[c]] * len(trials), trials)
-        total += [float(r @ r) for r in clip_residuals_many(ws.clips[c], qs, ws.weights[c])[0]]
-    return dict(cands[int(np.argmin(total))])
-
-
 def screen_candidates(ws: "Workspace", idx: Sequence[int], current: Fit, names: Sequence[str]
                       ) -> dict[str, dict[str, Any]]:
     """Cheap screen of candidate effects before their full fits: the chi-square each one could

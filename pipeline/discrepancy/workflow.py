@@ -269,7 +269,7 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
             break
         scored = []
         for e in remaining:
-            f, ho, prof = _profile_candidate(ws, idx, current, e, screen)
+            f, ho, prof = _profile_candidate(ws, idx, current, e, screen, (screened.get(e) or {}).get("best"))
             # Out-of-sample comparison at equal footing: the current model's per-clip fits (its
             # own coefficients fitted on all clips, like the candidate's profile rows) against
             # the candidate with its strength taken from the other clips.
