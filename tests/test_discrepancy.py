@@ -22,7 +22,7 @@ from pipeline import discrepancy as D
 from pipeline import effects as fx
 from pipeline.discrepancy.benchmark import _bench_summary, _trial_job
 from pipeline.cli import main as dynamics_main
-from pipeline.discrepancy.clip_model import _clip_scene, clip_residuals_many, simulate_clips
+from pipeline.discrepancy.clip_model import _clip_scene, simulate_clips
 from pipeline.discrepancy.profile import _fmt_interval, _profile_candidate
 from pipeline.discrepancy.readers import _typical_acceleration
 from pipeline.discrepancy.trajectories import _truncate
@@ -708,7 +708,7 @@ def test_residuals_of_many_rollouts_equal_each_alone():
     variants = [base + 0.01 * k * np.eye(14)[k % 12][None] for k in range(5)]
     qs = model.simulate_many(variants, [{}] * len(variants))
     w = D.Weights(1e-3, np.deg2rad(1.0))
-    r, d = clip_residuals_many(clip, qs, w)
+    r, d = D.clip_residuals_many(clip, qs, w)
     for b, q in enumerate(qs):
         r1, d1 = D.clip_residuals(clip, q, w)
         assert np.array_equal(r[b], r1) and np.array_equal(d[b], d1)

@@ -58,7 +58,7 @@ API below.
 
 from pipeline.discrepancy.benchmark import benchmark_markdown, run_benchmark, run_trial
 from pipeline.discrepancy.cli import add_arguments, add_benchmark_arguments, benchmark_cli, load_config, main_cli
-from pipeline.discrepancy.clip_model import NUISANCE, ClipModel, Weights, clip_residuals
+from pipeline.discrepancy.clip_model import NUISANCE, ClipModel, Weights, clip_residuals, clip_residuals_many
 from pipeline.discrepancy.config import DISCREPANCY_DECIMALS, DefaultObject, DiscrepancyConfig
 from pipeline.discrepancy.find import PHASES, motion_phases, residual_segments
 from pipeline.discrepancy.fit import Fit, fit_clips, free_mask, initial_nuisance, single_threaded_blas
@@ -81,6 +81,7 @@ __all__ = [
     "TABLE_COLUMNS", "Clip", "ClipModel", "DefaultObject", "DiscrepancyConfig", "DiscrepancyInputError", "Fit",
     "HeldOut", "HiddenConfig", "Noise", "ObjectSpec", "Profile", "Result", "Track", "Weights", "Workspace",
     "add_arguments", "add_benchmark_arguments", "benchmark_cli", "benchmark_markdown", "clip_residuals",
+    "clip_residuals_many",
     "clips_from_columns", "clips_from_infer_dir", "draw_effect", "estimate_noise", "extended_scenes", "fit_clips",
     "forward_gap", "free_mask", "generate_hidden", "initial_nuisance", "load_config", "main_cli", "motion_phases",
     "parse_objects", "plot_residuals", "plot_trajectories", "profile_intervals", "read_trajectories",
