@@ -232,12 +232,9 @@ class Workspace:
         ``effects`` is one ``{effect: parameters}`` for every clip, or a list of them, one per
         clip of ``idx``."""
         per_clip = [effects] * len(idx) if isinstance(effects, Mapping) else list(effects)
-        jobs = [(c, start, {e: dict(p) for e, p in eff.items()}, max_nfev, converge)
-                for c, start, eff in zip(idx, starts, per_clip)]
-        if self._pool is not None and len(jobs) > 1:
-            return list(self._pool.map(_pool_refit_clip, jobs))
-        return [self.fit([c], [start], eff, fit_effects=False, max_nfev=m, converge=cv)
-                for c, start, eff, m, cv in jobs]
+        return self.fit_joint_many([dict(idx=[c], starts=[start], effects={e: dict(p) for e, p in eff.items()},
+                                         fit_effects=False, max_nfev=max_nfev, converge=converge)
+                                    for c, start, eff in zip(idx, starts, per_clip)])
 
     def fit_joint_many(self, requests: Sequence[Mapping[str, Any]]) -> list[Fit]:
         """Several independent :meth:`fit` calls (joint fits of clips with shared
@@ -307,12 +304,6 @@ def _pool_init(clips: Sequence[Clip], cfg: DiscrepancyConfig, options: SimOption
 def _pool_fit_clip(job: tuple) -> Fit:
     with single_threaded_blas():
         return _POOL_WS.fit_clip(*job)
-
-
-def _pool_refit_clip(job: tuple) -> Fit:
-    c, start, effects, max_nfev, converge = job
-    with single_threaded_blas():
-        return _POOL_WS.fit([c], [start], effects, fit_effects=False, max_nfev=max_nfev, converge=converge)
 
 
 def _pool_fit_joint(job: Mapping[str, Any]) -> Fit:
