@@ -45,7 +45,7 @@ def main() -> None:
     ap.add_argument("--effect", default="wind")
     ap.add_argument("--workers", type=int, default=2)
     args = ap.parse_args()
-    for name in ("fit_many", "fit", "refit_each"):
+    for name in ("fit_many", "fit", "refit_each", "fit_joint_many"):
         _timed(name)
     cols, _ = D.generate_hidden(args.seed, D.HiddenConfig(n_clips=8, duration=1.5, fps=60), effect=args.effect)
     clips = D.clips_from_columns(cols, f"<hidden seed {args.seed}>")

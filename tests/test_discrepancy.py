@@ -23,7 +23,7 @@ from pipeline import effects as fx
 from pipeline.discrepancy.benchmark import _bench_summary, _trial_job
 from pipeline.cli import main as dynamics_main
 from pipeline.discrepancy.clip_model import _clip_scene, simulate_clips
-from pipeline.discrepancy.profile import _fmt_interval, _profile_candidate
+from pipeline.discrepancy.profile import _fmt_interval, _parabola_min, _profile_candidate
 from pipeline.discrepancy.readers import _typical_acceleration
 from pipeline.discrepancy.trajectories import _truncate
 from pipeline.mjcf import SimOptions, compile_model
@@ -713,3 +713,28 @@ def test_residuals_of_many_rollouts_equal_each_alone():
         r1, d1 = D.clip_residuals(clip, q, w)
         assert np.array_equal(r[b], r1) and np.array_equal(d[b], d1)
     assert r.shape[1] > d.shape[1]                              # orientation rows present
+
+
+def test_heldout_coefficient_from_per_clip_profiles_equals_the_other_clips_joint_fit():
+    """One shared coefficient (drag density; 3 clips x 0.8 s, truth from the generator): the
+    other clips' joint fit minimises the sum of their own profiles, so the leave-one-clip-out
+    density taken from the per-clip profiles of :func:`profile_intervals` (parabola vertex,
+    what :func:`_converged_heldout` uses) agrees with a converged joint fit of the other two
+    clips to within a quarter of the all-clip interval's half-width."""
+    ws, idx, base = _base_workspace(2000, "quadratic_drag")
+    with D.single_threaded_blas():
+        joint = ws.fit(idx, base.nuisance, {"quadratic_drag": {"density": 1.0}}, with_ci=True, converge=True)
+        per_clip: dict[tuple[float, ...], list[float]] = {}
+        ci, _, better = D.profile_intervals(ws, idx, joint, clip_profile=per_clip)
+        final = better or joint
+        lo, hi = ci["quadratic_drag"]["density"]
+        assert lo is not None and hi is not None and len(per_clip) >= 3
+        xs = [x for (x,) in sorted(per_clip)]
+        chi = np.array([per_clip[(x,)] for x in xs])
+        for c in idx:
+            from_profiles = _parabola_min(xs, np.delete(chi, c, axis=1).sum(1))
+            rest = [k for k in idx if k != c]
+            loo = ws.fit(rest, [final.nuisance[k] for k in rest], final.effects, converge=True)
+            joint_value = loo.effects["quadratic_drag"]["density"]
+            assert abs(from_profiles - joint_value) <= 0.25 * (hi - lo) / 2, (c, from_profiles, joint_value, lo, hi)
+

@@ -64,6 +64,15 @@ class DiscrepancyConfig(_Strict):
             (:func:`screen_candidates`) predicts a chi-square gain of at least this much, or,
             failing that, the clips refitted from the data at one strength of it
             (:func:`_second_chance_point`) gain that much (0: every candidate is fitted).
+        race: fit the candidates that pass the screen in the order of their predicted gain
+            and stop as soon as an eligible one fits every clip to the noise floor
+            (``noise_floor_chi2``) while the screen predicts every untried one to gain less
+            than ``race_margin`` times its realised chi-square gain; the untried ones (and the
+            second chances of those the screen rejected) are reported as ``deferred``. Off:
+            every candidate passing the screen gets its full fits (the selection differs only
+            where a deferred candidate, under-predicted by the screen, would have had a lower
+            BIC).
+        race_margin: see ``race``.
         rescreen_all: after the first step, try every remaining candidate again (default:
             only those whose profile improved the base model by ``heldout_threshold``).
         horizons: fractions of each clip fitted in turn by the per-clip fits (continuation,
@@ -102,6 +111,8 @@ class DiscrepancyConfig(_Strict):
     threads: int = Field(2, ge=1)
     workers: int | None = Field(None, ge=1)
     rescreen_all: bool = False
+    race: bool = True
+    race_margin: float = Field(0.5, gt=0)
     screen_gain: float = Field(10.0, ge=0)
     horizons: tuple[float, ...] = (0.2, 0.4, 0.7, 1.0)
     forward_split: float = Field(0.6, gt=0, lt=1)

@@ -180,11 +180,17 @@ def report_markdown(rep: Mapping[str, Any]) -> str:
                             _fmt(cd['heldout_delta_chi2'], 1, 1),
                             'yes' if cd['named'] else 'no: ' + cd['reason'] if not cd['eligible'] else 'eligible']
                            for cd in sorted(st["candidates"], key=lambda d: d["delta_bic"])])]
-        out = {e: v for e, v in (st.get("screen") or {}).items() if not v.get("passed", True)}
+        out = {e: v for e, v in (st.get("screen") or {}).items()
+               if v.get("passed", True) is False}
         if out:
             lines.append("")
             lines.append("Screened out before the full fits (linearised prediction of the χ² gain below "
                          "`screen_gain`): " + ", ".join(f"{e} ({v['predicted_gain']:.1f})" for e, v in out.items()) + ".")
+        if st.get("deferred"):
+            lines.append("")
+            lines.append(f"Not fitted (`race`: {st.get('race_stopped_by')} fits every clip to the noise floor and the "
+                         "screen predicts each of these less than `race_margin` of its χ² gain): "
+                         + ", ".join(f"{e} ({st['screen'][e]['predicted_gain']:.1f})" for e in st["deferred"]) + ".")
         lines.append("")
         clip_names = list(st["candidates"][0].get("per_clip_gain", {})) if st["candidates"] else []
         if clip_names:

@@ -8,7 +8,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -18,7 +18,8 @@ from pipeline.discrepancy.find import motion_phases, residual_segments
 from pipeline.discrepancy.fit import Fit, _theta_keys, initial_nuisance, single_threaded_blas
 from pipeline.discrepancy.forward import forward_gap
 from pipeline.discrepancy.noise import Noise
-from pipeline.discrepancy.profile import CHI2_1_95, _profile_candidate, _refit_from_data, profile_intervals
+from pipeline.discrepancy.profile import (CHI2_1_95, _parabola_min, _profile_candidate, _refit_from_data,
+                                          profile_intervals)
 from pipeline.discrepancy.screen import _second_chance_point, screen_candidates
 from pipeline.discrepancy.trajectories import MIN_SAMPLES, Clip
 from pipeline.discrepancy.workspace import HeldOut, Workspace
@@ -45,7 +46,8 @@ def _gate(cand: dict[str, Any], cfg: DiscrepancyConfig) -> tuple[bool, str]:
 
 
 def _converged_heldout(ws: "Workspace", idx: Sequence[int], base: Fit, base_ho: HeldOut, final: Fit,
-                       ho: HeldOut | None) -> tuple[HeldOut, HeldOut]:
+                       ho: HeldOut | None, clip_profile: dict[tuple[float, ...], list[float]] | None = None
+                       ) -> tuple[HeldOut, HeldOut]:
     """The shown leave-one-clip-out gap, from converged fits on both sides.
 
     Before: per clip the better (chi-square) of the converged base fit and the screening fit
@@ -58,7 +60,13 @@ def _converged_heldout(ws: "Workspace", idx: Sequence[int], base: Fit, base_ho: 
     tolerance ``cfg.ftol`` with those coefficients held, from its final-fit parameters. The
     selection's held-out coefficients are the vertex of a parabola through the profile's grid
     points (restitution 0.3, 0.5, 0.7): on restitution data (truth 0.571, all clips 0.546)
-    that put a held-out clip at 0.504, 5.3 mm for 1 mm noise."""
+    that put a held-out clip at 0.504, 5.3 mm for 1 mm noise.
+
+    With the per-clip profiles ``clip_profile`` of :func:`profile_intervals` the other
+    clips' coefficients come from them instead (:func:`_heldout_from_profiles`: the clips
+    share nothing but the coefficients, so the other clips' joint fit minimises the sum of
+    their own profiles), not from two joint fits per clip (on the 8-clip drag set of
+    ``benchmarks/discrepancy_speed.py`` those took 94 s of the workflow's 555)."""
     before = copy.deepcopy(base_ho)
     for c in range(len(idx)):
         if base.chi2[c] < before.chi2[c]:
@@ -66,30 +74,68 @@ def _converged_heldout(ws: "Workspace", idx: Sequence[int], base: Fit, base_ho: 
     if ho is None:
         return before, copy.deepcopy(before)
     after = copy.deepcopy(ho)
-    thetas, jobs = [], []
-    for c in range(len(idx)):
-        rest = [idx[k] for k in range(len(idx)) if k != c]
-        nuis = [final.nuisance[k] for k in range(len(idx)) if k != c]
-        start = {e: {**dict(final.effects[e]), **dict(ho.theta[c].get(e, {}))} for e in final.effects}
-        # a second start, the final fit itself (all clips): the bounce basins of the other
-        # clips can hold the fit at the first start (restitution: stuck at 0.504 when the other
-        # clips' optimum was 0.415). Taken only where the other clips prefer it significantly
-        # (by the 95 % chi-square(1) quantile times their chi2/dof), so that where they cannot
-        # tell, the left-out clip's own information (in the final values) does not decide.
-        jobs += [dict(idx=rest, starts=nuis, effects=start, converge=True),
-                 dict(idx=rest, starts=nuis, effects=final.effects, converge=True)]
-    fits = ws.fit_joint_many(jobs)   # independent: in parallel where a pool runs
-    for c in range(len(idx)):
-        loo, alt = fits[2 * c], fits[2 * c + 1]
-        s2 = max(1.0, loo.rss / max(loo.n - loo.k, 1))
-        if alt.rss < loo.rss - CHI2_1_95 * s2:
-            loo = alt
-        thetas.append({e: dict(v) for e, v in loo.effects.items()})
+    thetas: list[dict[str, dict[str, float]] | None] = [None] * len(idx)
+    if clip_profile and final.theta_keys:
+        thetas = _heldout_from_profiles(final, clip_profile, len(idx))
+    todo = [c for c in range(len(idx)) if thetas[c] is None]
+    if todo:
+        jobs = []
+        for c in todo:
+            rest = [idx[k] for k in range(len(idx)) if k != c]
+            nuis = [final.nuisance[k] for k in range(len(idx)) if k != c]
+            start = {e: {**dict(final.effects[e]), **dict(ho.theta[c].get(e, {}))} for e in final.effects}
+            # With one coefficient (no per-clip profiles) a second start, the final fit itself
+            # (all clips): the bounce basins of the other clips can hold the fit at the first
+            # start (restitution: stuck at 0.504 when the other clips' optimum was 0.415). Taken
+            # only where the other clips prefer it significantly (by the 95 % chi-square(1)
+            # quantile times their chi2/dof), so that where they cannot tell, the left-out
+            # clip's own information (in the final values) does not decide. (Several
+            # coefficients, e.g. wind: the first start only, half the fits.)
+            jobs.append([dict(idx=rest, starts=nuis, effects=start, converge=True)])
+            if len(final.theta_keys) == 1:
+                jobs[-1].append(dict(idx=rest, starts=nuis, effects=final.effects, converge=True))
+        fits = iter(ws.fit_joint_many([job for group in jobs for job in group]))   # in parallel where a pool runs
+        for c, group in zip(todo, jobs):
+            loo = next(fits)
+            if len(group) > 1:
+                alt = next(fits)
+                s2 = max(1.0, loo.rss / max(loo.n - loo.k, 1))
+                if alt.rss < loo.rss - CHI2_1_95 * s2:
+                    loo = alt
+            thetas[c] = {e: dict(v) for e, v in loo.effects.items()}
     parts = ws.refit_each(idx, [final.nuisance[c] for c in range(len(idx))], thetas, converge=True)
     for c, part in enumerate(parts):
         after.theta[c] = thetas[c]
         after.chi2[c], after.sq_pos[c] = part.chi2[0], part.sq_pos[0]
     return before, after
+
+
+def _heldout_from_profiles(final: Fit, clip_profile: Mapping[tuple[float, ...], Sequence[float]], n: int
+                           ) -> list[dict[str, dict[str, float]] | None]:
+    """Per clip (``n``), the named effects with their coefficient fitted to the other clips
+    alone, from the per-clip profiles ``clip_profile`` (``{(x,): [chi2 of each clip refitted
+    alone at x]}``, :func:`profile_intervals`), or ``None`` where they do not tell.
+
+    One shared coefficient (else all ``None``): the clips share nothing else, so the other
+    clips' joint fit minimises the sum of their own profiles; taken as the vertex of the
+    parabola through that sum's lowest profiled value and its neighbours
+    (:func:`_parabola_min`, at least 3 values). ``None`` where the lowest value is the first
+    or the last profiled one (the minimum may lie beyond the profiled values: on hidden
+    restitution trial 1002 the other two clips' sum was lowest at the highest value, 0.573,
+    where the left-out clip's refit jumped basin, 5.4 mm; their joint fit gave 0.546, 1.0 mm)."""
+    if len(final.theta_keys) != 1 or len(clip_profile) < 3:
+        return [None] * n
+    (e, p), xs = final.theta_keys[0], sorted(x for (x,) in clip_profile)
+    chi = np.array([clip_profile[(x,)] for x in xs])   # (points, clips)
+    out: list[dict[str, dict[str, float]] | None] = []
+    for c in range(n):
+        others = np.delete(chi, c, axis=1).sum(1)
+        if int(np.argmin(others)) in (0, len(xs) - 1):
+            out.append(None)
+            continue
+        v = _parabola_min(xs, others)
+        out.append({k: {**dict(d), **({p: float(v)} if k == e else {})} for k, d in final.effects.items()})
+    return out
 
 
 @dataclass
@@ -237,38 +283,23 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
         if steps and not cfg.rescreen_all:  # screening: only effects that helped at step 1
             remaining = [e for e in remaining
                          if any(cd["effect"] == e and cd["profile_gain"] >= cfg.heldout_threshold
-                                for cd in steps[0]["candidates"])]
+                                for cd in steps[0]["candidates"]) or e in steps[0].get("deferred", [])]
         if step > 1 and remaining:   # the current model fitted like the profile points (from the data)
             screen = ws.fit_each(idx, [initial_nuisance(c) for c in ws.clips], current.effects)
         screened: dict[str, dict[str, Any]] = {}
+        second: list[str] = []
         if remaining and cfg.screen_gain > 0:   # cheap screen before the full fits
             screened = screen_candidates(ws, idx, current, remaining)
-            # Second chance, not linearised, for those the linearised screen rejects: the clips
-            # refitted from the data (like a profile point) at one strength. The current
-            # optimum may sit in a basin that compensates for the missing effect (a spin that
-            # mimics Magnus lift), where the linearisation predicts a loss. (All in one pool map.)
-            second = [e for e in remaining
-                      if screened[e]["predicted_gain"] is not None and screened[e]["predicted_gain"] < cfg.screen_gain]
-            points = {e: _second_chance_point(e, screened[e]["best"]) for e in second}
-            trials = ws.fit_many([(idx, [initial_nuisance(c) for c in ws.clips], {**current.effects, e: points[e]})
-                                  for e in second])
-            for e, trial in zip(second, trials):
-                screened[e]["refit_point"], screened[e]["refit_gain"] = points[e], float(screen.rss - trial.rss)
-            for e in remaining:
-                g = screened[e]["predicted_gain"]
-                passed = g is None or g >= cfg.screen_gain or screened[e]["refit_gain"] >= cfg.screen_gain
-                screened[e]["passed"] = bool(passed)
-                if not passed:
-                    say(f"step {step}: {e:18s} screened out: predicted chi2 gain {g:.1f}, refitted from the data "
-                        f"{screened[e]['refit_gain']:.1f} < {cfg.screen_gain:g}")
-            remaining = [e for e in remaining if screened[e]["passed"]]
-        if not remaining:
-            if screened:
-                steps.append({"step": step, "model": list(named_order), "candidates": [], "named": None,
-                              "screen": screened})
-            break
-        scored = []
-        for e in remaining:
+            # Those the linearised screen rejects get a second chance, below (not linearised).
+            second = [e for e in remaining if screened[e]["predicted_gain"] < cfg.screen_gain]
+            # the others in the order of their predicted gain (the race below stops early)
+            remaining = sorted((e for e in remaining if e not in second), key=lambda e: -screened[e]["predicted_gain"])
+        scored: list[tuple[dict[str, Any], Fit, HeldOut | None]] = []
+        stopped: str | None = None
+        deferred: list[str] = []
+
+        def score(e: str) -> None:
+            """The full fits of candidate ``e`` (profile, joint fit, held-out) and its gate."""
             f, ho, prof = _profile_candidate(ws, idx, current, e, screen, (screened.get(e) or {}).get("best"))
             # Out-of-sample comparison at equal footing: the current model's per-clip fits (its
             # own coefficients fitted on all clips, like the candidate's profile rows) against
@@ -290,9 +321,74 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
                             heldout_delta_chi2=before.total_chi2 - ho.total_chi2)
             else:
                 ho = None
-            scored.append((cand, f, ho))
-        for cand, f, ho in scored:
             cand["eligible"], cand["reason"] = _gate(cand, cfg)
+            cand["at_noise_floor"] = False
+            if cand["eligible"] and cfg.race and screened:
+                # as the model would stand if named: each clip refitted from the data where
+                # that is better (a cached fit, reused if it is named)
+                named_fit = _refit_from_data(ws, idx, f)
+                cand["at_noise_floor"] = bool(all(c2 / nr <= cfg.noise_floor_chi2
+                                                  for c2, nr in zip(named_fit.chi2, named_fit.n_res)))
+            scored.append((cand, f, ho))
+
+        def race_over(untried: Sequence[str]) -> str | None:
+            """Why the candidates ``untried`` need no full fits (``None``: they do): an eligible
+            candidate fits every clip to the noise floor (chi2/n <= ``noise_floor_chi2``, each
+            clip refitted from the data where better, as when it is named) and
+            each untried one is predicted by the screen to gain less than ``race_margin`` of
+            its realised chi-square gain (nothing beyond noise is left to explain, and none is
+            a close rival)."""
+            if not (cfg.race and screened and untried):
+                return None
+            for cand, _, _ in scored:
+                if cand["eligible"] and cand["at_noise_floor"] and all(
+                        screened[u]["predicted_gain"] < cfg.race_margin * cand["fit_gain_chi2"] for u in untried):
+                    return cand["effect"]
+            return None
+
+        for i, e in enumerate(remaining):
+            score(e)
+            stopped = race_over(remaining[i + 1:] + second)
+            if stopped:
+                deferred = remaining[i + 1:] + second
+                break
+        if stopped is None and second:
+            # Second chance, not linearised, for those the linearised screen rejects: the clips
+            # refitted from the data (like a profile point) at one strength. The current
+            # optimum may sit in a basin that compensates for the missing effect (a spin that
+            # mimics Magnus lift), where the linearisation predicts a loss. (All in one pool map.)
+            points = {e: _second_chance_point(e, screened[e]["best"]) for e in second}
+            trials = ws.fit_many([(idx, [initial_nuisance(c) for c in ws.clips], {**current.effects, e: points[e]})
+                                  for e in second])
+            for e, trial in zip(second, trials):
+                screened[e]["refit_point"], screened[e]["refit_gain"] = points[e], float(screen.rss - trial.rss)
+            for e in second:
+                if screened[e]["refit_gain"] < cfg.screen_gain:
+                    screened[e]["passed"] = False
+                    say(f"step {step}: {e:18s} screened out: predicted chi2 gain {screened[e]['predicted_gain']:.1f}, "
+                        f"refitted from the data {screened[e]['refit_gain']:.1f} < {cfg.screen_gain:g}")
+            rescued = sorted((e for e in second if screened[e]["refit_gain"] >= cfg.screen_gain),
+                             key=lambda e: -screened[e]["refit_gain"])
+            for i, e in enumerate(rescued):
+                screened[e]["passed"] = True
+                score(e)
+                stopped = race_over(rescued[i + 1:])
+                if stopped:
+                    deferred = rescued[i + 1:]
+                    break
+        for e in remaining:
+            screened.get(e, {})["passed"] = True
+        for e in deferred:
+            screened[e].update(passed=None, deferred=True)
+        if stopped and deferred:
+            say(f"step {step}: {', '.join(deferred)} not fitted: {stopped} fits every clip to the noise floor and "
+                f"the screen predicts each less than {cfg.race_margin:g} of its chi2 gain")
+        if not scored:
+            if screened:
+                steps.append({"step": step, "model": list(named_order), "candidates": [], "named": None,
+                              "screen": screened, "deferred": []})
+            break
+        for cand, f, ho in scored:
             say(f"step {step}: {cand['effect']:18s} dBIC {cand['delta_bic']:10.1f}  fit gain "
                 f"{cand['fit_gain'] * 1e3:7.2f} mm" + (f"  held-out {ho.rmse * 1e3:.2f} mm" if ho else "")
                 + f"  {cand['reason']}")
@@ -301,7 +397,7 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
         for s in scored:
             s[0]["named"] = s is winner
         steps.append({"step": step, "model": list(named_order), "candidates": [s[0] for s in scored],
-                      "named": winner[0]["effect"] if winner else None, "screen": screened})
+                      "named": winner[0]["effect"] if winner else None, "screen": screened, "deferred": deferred, "race_stopped_by": stopped})
         if winner is None:
             break
         named_order.append(winner[0]["effect"])
@@ -311,6 +407,7 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
             break
 
     final = current
+    clip_profile: dict[tuple[float, ...], list[float]] = {}
     if named_order:
         final = ws.fit(idx, current.nuisance, current.effects, with_ci=True, converge=True)
         if final.rss > current.rss:   # the converged refit never loses the model it starts from
@@ -323,7 +420,7 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
         else:
             final.start = "selection fit"
         say(f"final fit: chi2 {final.rss:.1f}, optimiser status {final.status}, {final.iterations} evaluations")
-        ci, ci_method, better = profile_intervals(ws, idx, final, log=say)
+        ci, ci_method, better = profile_intervals(ws, idx, final, log=say, clip_profile=clip_profile)
         if better is not None:   # the profile found a lower chi-square than the joint fit: its minimum
             say(f"final fit: the profile minimum lowers chi2 {final.rss:.1f} -> {better.rss:.1f} (taken)")
             better.ci_gn, better.nfev, better.status = final.ci_gn, final.nfev, final.status
@@ -350,7 +447,8 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
         segs += residual_segments(ws.clips[c], q0, ws.noise[c], ph, cfg)
         segs_after += residual_segments(ws.clips[c], q1, ws.noise[c], ph, cfg)
     if n >= 2:
-        base_ho, cur_ho = _converged_heldout(ws, idx, base, base_ho, final, cur_ho if named_order else None)
+        base_ho, cur_ho = _converged_heldout(ws, idx, base, base_ho, final, cur_ho if named_order else None,
+                                             clip_profile)
     forward = forward_gap(ws, 0, named_order, say) if n == 1 else None
     return Result(ws.clips, ws.noise, base, base_ho, final, cur_ho, steps, named, segs, segs_after, phases,
                   base_qpos, final_qpos, cfg, time.perf_counter() - t_start, forward)
