@@ -218,7 +218,11 @@ def run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None = None,
        gained at least ``heldout_threshold`` at step 1. With ``screen_gain`` > 0 each is first
        screened (:func:`screen_candidates`, linearised chi-square gain; failing that, the clips
        refitted from the data at one strength, :func:`_second_chance_point`) and dropped below
-       ``screen_gain``. Each remaining candidate gets its profile over its strength (every
+       ``screen_gain``. With ``race`` the candidates are fitted in the order of their
+       predicted gain and the rest (with the second chances) are deferred once an eligible
+       one fits every clip to the noise floor and none left is predicted to gain
+       ``race_margin`` of its realised gain (``deferred`` in the step; they stay candidates
+       at the next step). Each remaining candidate gets its profile over its strength (every
        clip refitted from the data at each point), a converged joint fit (coefficients shared,
        every clip's parameters free) and leave-one-clip-out held-out scores
        (:func:`_profile_candidate`). It is eligible when BIC drops by at least
@@ -397,7 +401,8 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
         for s in scored:
             s[0]["named"] = s is winner
         steps.append({"step": step, "model": list(named_order), "candidates": [s[0] for s in scored],
-                      "named": winner[0]["effect"] if winner else None, "screen": screened, "deferred": deferred, "race_stopped_by": stopped})
+                      "named": winner[0]["effect"] if winner else None, "screen": screened,
+                      "deferred": deferred, "race_stopped_by": stopped})
         if winner is None:
             break
         named_order.append(winner[0]["effect"])
