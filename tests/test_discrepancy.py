@@ -738,3 +738,24 @@ def test_heldout_coefficient_from_per_clip_profiles_equals_the_other_clips_joint
             joint_value = loo.effects["quadratic_drag"]["density"]
             assert abs(from_profiles - joint_value) <= 0.25 * (hi - lo) / 2, (c, from_profiles, joint_value, lo, hi)
 
+
+
+def test_race_defers_candidates_that_cannot_rival_and_names_the_same():
+    """The candidate race (``race``): on hidden drag (3 clips x 0.8 s), once drag is eligible
+    and fits every clip to the noise floor, the untried candidates are deferred (each
+    predicted by the screen to gain less than ``race_margin`` of drag's realised chi-square
+    gain) and not fitted; without the race every screened candidate is fitted, and the same
+    effect is named with the same coefficient and final chi-square (the race only skips work)."""
+    cols, _ = D.generate_hidden(2000, D.HiddenConfig(n_clips=3, duration=0.8), OPTS, effect="quadratic_drag")
+    clips = D.clips_from_columns(cols, "hidden")
+    raced = D.run_workflow(clips, D.DiscrepancyConfig(max_effects=1, workers=2, threads=1), OPTS)
+    full = D.run_workflow(clips, D.DiscrepancyConfig(max_effects=1, workers=2, threads=1, race=False), OPTS)
+    step = raced.steps[0]
+    assert step["named"] == "quadratic_drag" and step["race_stopped_by"] == "quadratic_drag", step["deferred"]
+    drag = next(cd for cd in step["candidates"] if cd["effect"] == "quadratic_drag")
+    assert step["deferred"] and all(step["screen"][e]["predicted_gain"] < 0.5 * drag["fit_gain_chi2"]
+                                    for e in step["deferred"])
+    assert {cd["effect"] for cd in step["candidates"]}.isdisjoint(step["deferred"])
+    assert len(full.steps[0]["candidates"]) > len(step["candidates"]) and not full.steps[0]["deferred"]
+    assert [n["effect"] for n in full.named] == [n["effect"] for n in raced.named] == ["quadratic_drag"]
+    assert raced.final.effects == full.final.effects and raced.final.rss == full.final.rss
