@@ -724,13 +724,13 @@ def test_heldout_coefficient_from_per_clip_profiles_equals_the_other_clips_joint
     ws, idx, base = _base_workspace(2000, "quadratic_drag")
     with D.single_threaded_blas():
         joint = ws.fit(idx, base.nuisance, {"quadratic_drag": {"density": 1.0}}, with_ci=True, converge=True)
-        per_clip: dict[tuple[float, ...], list[float]] = {}
+        per_clip: dict[float, list[float]] = {}
         ci, _, better = D.profile_intervals(ws, idx, joint, clip_profile=per_clip)
         final = better or joint
         lo, hi = ci["quadratic_drag"]["density"]
         assert lo is not None and hi is not None and len(per_clip) >= 3
-        xs = [x for (x,) in sorted(per_clip)]
-        chi = np.array([per_clip[(x,)] for x in xs])
+        xs = sorted(per_clip)
+        chi = np.array([per_clip[x] for x in xs])
         for c in idx:
             from_profiles = _parabola_min(xs, np.delete(chi, c, axis=1).sum(1))
             rest = [k for k in idx if k != c]

@@ -310,7 +310,7 @@ half-width)."""
 
 
 def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None,
-                      clip_profile: dict[tuple[float, ...], list[float]] | None = None
+                      clip_profile: dict[float, list[float]] | None = None
                       ) -> tuple[dict[str, dict[str, list[float | None]]], dict[str, dict[str, str]], Fit | None]:
     """Profile-likelihood intervals of the fitted coefficients of ``fit`` (a converged joint fit
     with Gauss-Newton intervals ``fit.ci_gn``).
@@ -341,7 +341,7 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None,
        bound the coefficient on that side: it is ``None`` (open), never the bound (``open``).
 
     ``clip_profile``: where given and ``fit`` has one coefficient, filled with every profiled
-    value ``{(x,): [chi2 of each clip of idx]}`` (each clip's own converged refit at ``x``: the
+    value ``{x: [chi2 of each clip of idx]}`` (each clip's own converged refit at ``x``: the
     per-clip profiles, from which :func:`_converged_heldout` takes the leave-one-clip-out
     coefficient). (Several coefficients: a least-squares quadratic through every clip's own
     refits at a stencil of values was tried for the intervals and the held-out coefficients;
@@ -390,7 +390,7 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None,
                                       [f.sq_pos[0] for f in part], [f.n_res[0] for f in part],
                                       [f.n_pos[0] for f in part], fit.k, list(fit.theta_keys)))
                     if clip_profile is not None:
-                        clip_profile[(float(eff[e][p]),)] = [f.chi2[0] for f in part]
+                        clip_profile[float(eff[e][p])] = [f.chi2[0] for f in part]
             else:   # joint fits with the other coefficients free (in parallel where a pool runs)
                 points = ws.fit_joint_many([dict(idx=idx, starts=origin.nuisance, effects=eff, converge=True,
                                                  fixed=[(e, p)]) for eff in effs])

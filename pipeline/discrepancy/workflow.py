@@ -46,7 +46,7 @@ def _gate(cand: dict[str, Any], cfg: DiscrepancyConfig) -> tuple[bool, str]:
 
 
 def _converged_heldout(ws: "Workspace", idx: Sequence[int], base: Fit, base_ho: HeldOut, final: Fit,
-                       ho: HeldOut | None, clip_profile: dict[tuple[float, ...], list[float]] | None = None
+                       ho: HeldOut | None, clip_profile: dict[float, list[float]] | None = None
                        ) -> tuple[HeldOut, HeldOut]:
     """The shown leave-one-clip-out gap, from converged fits on both sides.
 
@@ -75,7 +75,7 @@ def _converged_heldout(ws: "Workspace", idx: Sequence[int], base: Fit, base_ho: 
         return before, copy.deepcopy(before)
     after = copy.deepcopy(ho)
     thetas: list[dict[str, dict[str, float]] | None] = [None] * len(idx)
-    if clip_profile and final.theta_keys:
+    if clip_profile:
         thetas = _heldout_from_profiles(final, clip_profile, len(idx))
     todo = [c for c in range(len(idx)) if thetas[c] is None]
     if todo:
@@ -110,10 +110,10 @@ def _converged_heldout(ws: "Workspace", idx: Sequence[int], base: Fit, base_ho: 
     return before, after
 
 
-def _heldout_from_profiles(final: Fit, clip_profile: Mapping[tuple[float, ...], Sequence[float]], n: int
+def _heldout_from_profiles(final: Fit, clip_profile: Mapping[float, Sequence[float]], n: int
                            ) -> list[dict[str, dict[str, float]] | None]:
     """Per clip (``n``), the named effects with their coefficient fitted to the other clips
-    alone, from the per-clip profiles ``clip_profile`` (``{(x,): [chi2 of each clip refitted
+    alone, from the per-clip profiles ``clip_profile`` (``{x: [chi2 of each clip refitted
     alone at x]}``, :func:`profile_intervals`), or ``None`` where they do not tell.
 
     One shared coefficient (else all ``None``): the clips share nothing else, so the other
@@ -125,8 +125,8 @@ def _heldout_from_profiles(final: Fit, clip_profile: Mapping[tuple[float, ...], 
     where the left-out clip's refit jumped basin, 5.4 mm; their joint fit gave 0.546, 1.0 mm)."""
     if len(final.theta_keys) != 1 or len(clip_profile) < 3:
         return [None] * n
-    (e, p), xs = final.theta_keys[0], sorted(x for (x,) in clip_profile)
-    chi = np.array([clip_profile[(x,)] for x in xs])   # (points, clips)
+    (e, p), xs = final.theta_keys[0], sorted(clip_profile)
+    chi = np.array([clip_profile[x] for x in xs])   # (points, clips)
     out: list[dict[str, dict[str, float]] | None] = []
     for c in range(n):
         others = np.delete(chi, c, axis=1).sum(1)
@@ -299,8 +299,6 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
             # the others in the order of their predicted gain (the race below stops early)
             remaining = sorted((e for e in remaining if e not in second), key=lambda e: -screened[e]["predicted_gain"])
         scored: list[tuple[dict[str, Any], Fit, HeldOut | None]] = []
-        stopped: str | None = None
-        deferred: list[str] = []
 
         def score(e: str) -> None:
             """The full fits of candidate ``e`` (profile, joint fit, held-out) and its gate."""
@@ -350,12 +348,18 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
                     return cand["effect"]
             return None
 
-        for i, e in enumerate(remaining):
-            score(e)
-            stopped = race_over(remaining[i + 1:] + second)
-            if stopped:
-                deferred = remaining[i + 1:] + second
-                break
+        def race(order: Sequence[str], after: Sequence[str] = ()) -> tuple[str | None, list[str]]:
+            """Score ``order`` one by one until :func:`race_over` (``after``: untried
+            candidates that would follow); returns who stopped it and the deferred ones."""
+            for i, e in enumerate(order):
+                score(e)
+                untried = [*order[i + 1:], *after]
+                who = race_over(untried)
+                if who:
+                    return who, untried
+            return None, []
+
+        stopped, deferred = race(remaining, second)
         if stopped is None and second:
             # Second chance, not linearised, for those the linearised screen rejects: the clips
             # refitted from the data (like a profile point) at one strength. The current
@@ -373,15 +377,12 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
                         f"refitted from the data {screened[e]['refit_gain']:.1f} < {cfg.screen_gain:g}")
             rescued = sorted((e for e in second if screened[e]["refit_gain"] >= cfg.screen_gain),
                              key=lambda e: -screened[e]["refit_gain"])
-            for i, e in enumerate(rescued):
+            for e in rescued:
                 screened[e]["passed"] = True
-                score(e)
-                stopped = race_over(rescued[i + 1:])
-                if stopped:
-                    deferred = rescued[i + 1:]
-                    break
+            stopped, deferred = race(rescued)
         for e in remaining:
-            screened.get(e, {})["passed"] = True
+            if e in screened:
+                screened[e]["passed"] = True
         for e in deferred:
             screened[e].update(passed=None, deferred=True)
         if stopped and deferred:
@@ -412,7 +413,7 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
             break
 
     final = current
-    clip_profile: dict[tuple[float, ...], list[float]] = {}
+    clip_profile: dict[float, list[float]] = {}
     if named_order:
         final = ws.fit(idx, current.nuisance, current.effects, with_ci=True, converge=True)
         if final.rss > current.rss:   # the converged refit never loses the model it starts from
