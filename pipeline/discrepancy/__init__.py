@@ -61,7 +61,8 @@ from pipeline.discrepancy.cli import add_arguments, add_benchmark_arguments, ben
 from pipeline.discrepancy.clip_model import NUISANCE, ClipModel, Weights, clip_residuals, clip_residuals_many
 from pipeline.discrepancy.config import DISCREPANCY_DECIMALS, DefaultObject, DiscrepancyConfig
 from pipeline.discrepancy.find import PHASES, motion_phases, residual_segments
-from pipeline.discrepancy.fit import Fit, fit_clips, free_mask, initial_nuisance, single_threaded_blas
+from pipeline.discrepancy.fit import (Fit, clip_information, fit_clips, free_mask, initial_nuisance, newton_leave_one_out,
+                                      single_threaded_blas)
 from pipeline.discrepancy.forward import forward_gap
 from pipeline.discrepancy.hidden import HIDDEN_KINDS, HiddenConfig, draw_effect, generate_hidden
 from pipeline.discrepancy.noise import Noise, estimate_noise
@@ -81,10 +82,10 @@ __all__ = [
     "TABLE_COLUMNS", "Clip", "ClipModel", "DefaultObject", "DiscrepancyConfig", "DiscrepancyInputError", "Fit",
     "HeldOut", "HiddenConfig", "Noise", "ObjectSpec", "Profile", "Result", "Track", "Weights", "Workspace",
     "add_arguments", "add_benchmark_arguments", "benchmark_cli", "benchmark_markdown", "clip_residuals",
-    "clip_residuals_many",
+    "clip_information", "clip_residuals_many",
     "clips_from_columns", "clips_from_infer_dir", "draw_effect", "estimate_noise", "extended_scenes", "fit_clips",
     "forward_gap", "free_mask", "generate_hidden", "initial_nuisance", "load_config", "main_cli", "motion_phases",
-    "parse_objects", "plot_residuals", "plot_trajectories", "profile_intervals", "read_trajectories",
+    "newton_leave_one_out", "parse_objects", "plot_residuals", "plot_trajectories", "profile_intervals", "read_trajectories",
     "read_trajectory_file", "record", "report_dict", "report_markdown", "residual_segments", "run_benchmark",
     "run_trial", "run_workflow", "screen_candidates", "single_threaded_blas", "write_report",
 ]

@@ -154,6 +154,10 @@ class Fit:
         ci_method: ``{effect: {parameter: how its interval was found}}``.
         stages: per-clip continuation fits only: ``{horizon index: nuisance}`` after each
             early horizon (resume points, :meth:`Workspace.fit_clip`).
+        clip_info: joint fits ``with_ci`` only: each clip's Gauss-Newton information on the
+            coefficients at the fit's point (:func:`clip_information`: ``theta`` ``(m,)``,
+            ``H`` ``(clips, m, m)``, ``g`` ``(clips, m)``), from which
+            :func:`newton_leave_one_out` predicts each clip's held-out coefficients.
     """
 
     effects: dict[str, dict[str, float]]
@@ -173,6 +177,7 @@ class Fit:
     ci_gn: dict[str, dict[str, list[float | None]]] = field(default_factory=dict)
     ci_method: dict[str, dict[str, str]] = field(default_factory=dict)
     stages: dict[int, np.ndarray] = field(default_factory=dict)
+    clip_info: dict[str, np.ndarray] = field(default_factory=dict)
 
     def optimizer(self) -> dict[str, Any]:
         """``{status, iterations, rollouts, converged, start}`` of the fit (report)."""
@@ -366,10 +371,58 @@ def fit_clips(clips: Sequence[Clip], models: Sequence[ClipModel], weights: Seque
     fit = Fit(values, nuis, chi2, sq, n_res, n_pos, k=len(u), theta_keys=keys, nfev=counter["nfev"],
               status=status, iterations=iterations, converged=bool(converge and status > 0))
     if with_ci and n_theta:
-        fit.ci_gn = _intervals(jac(u), fun(u), keys, th_scale, theta, offs[-1], cfg.ci_level)
+        J, r = jac(u), fun(u)
+        fit.ci_gn = _intervals(J, r, keys, th_scale, theta, offs[-1], cfg.ci_level)
+        fit.clip_info = clip_information(J, r, rows, offs, th_scale, theta)
         fit.ci = {e: {p: list(v) for p, v in d.items()} for e, d in fit.ci_gn.items()}
         fit.ci_method = {e: {p: "gauss-newton" for p in d} for e, d in fit.ci_gn.items()}
     return fit
+
+
+def clip_information(J: np.ndarray, r: np.ndarray, rows: np.ndarray, offs: np.ndarray, th_scale: np.ndarray,
+                     theta: np.ndarray) -> dict[str, np.ndarray]:
+    """Each clip's Gauss-Newton information on the shared coefficients, its own parameters
+    profiled out to first order.
+
+    For clip ``c`` with residuals ``r_c`` and Jacobian blocks ``A`` (its own parameters) and
+    ``B`` (the coefficients, physical units): ``B_perp = (I - P_A) B`` (``P_A`` the projection
+    onto ``A``'s columns), ``H_c = B_perp^T B_perp`` (Schur complement of ``A^T A`` in the
+    clip's ``J^T J``) and ``g_c = B_perp^T r_c`` (gradient of ``chi2_c / 2`` over the
+    coefficients with the clip's parameters refitted, to first order).
+
+    Args:
+        J: ``(N, P)`` Jacobian of the stacked residuals in the fit's normalised coordinates
+            (clips' columns at ``offs``, the coefficients last, normalised by ``th_scale``).
+        r: ``(N,)`` noise-normalised residuals; rows: ``(clips + 1,)`` clip row offsets.
+        offs: ``(clips + 1,)`` column offsets; th_scale: ``(m,)``; theta: ``(m,)`` the
+            coefficients at this point.
+
+    Returns:
+        ``{"theta": (m,), "H": (clips, m, m), "g": (clips, m)}`` float64.
+    """
+    first = int(offs[-1])
+    H, g = [], []
+    for c in range(len(rows) - 1):
+        Jc, rc = J[rows[c]:rows[c + 1]], r[rows[c]:rows[c + 1]]
+        A, B = Jc[:, offs[c]:offs[c + 1]], Jc[:, first:] / th_scale
+        if A.shape[1]:
+            B = B - A @ np.linalg.lstsq(A, B, rcond=None)[0]
+        H.append(B.T @ B)
+        g.append(B.T @ rc)
+    return {"theta": np.asarray(theta, float).copy(), "H": np.array(H), "g": np.array(g)}
+
+
+def newton_leave_one_out(info: Mapping[str, np.ndarray], c: int) -> np.ndarray:
+    """``(m,)`` the coefficients fitted to every clip but ``c``, predicted by one Gauss-Newton
+    step from the joint fit's point with the other clips' information alone
+    (:func:`clip_information`): ``theta - (sum_{k != c} H_k)^+ sum_{k != c} g_k``
+    (approximate leave-one-out, Rad & Maleki 2020, JRSS-B 82(4), "A scalable estimate of the
+    out-of-sample prediction error via approximate leave-one-out"; exact where each clip's
+    profile is quadratic in the coefficients). Nothing of clip ``c`` enters but the point the
+    step starts from."""
+    keep = np.arange(len(info["g"])) != c
+    H, g = info["H"][keep].sum(0), info["g"][keep].sum(0)
+    return info["theta"] - np.linalg.pinv(H) @ g
 
 
 def _intervals(J: np.ndarray, r: np.ndarray, keys: Sequence[tuple[str, str]], th_scale: np.ndarray,

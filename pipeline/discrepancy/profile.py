@@ -296,6 +296,10 @@ PROFILE_ACCEPT_GN = 0.25
 """The predicted end of an interval (the parabola through the profile's centre points, else
 the Gauss-Newton end) is accepted when the profile's rise there is within this fraction of
 the threshold (the profile is quadratic enough)."""
+PROFILE_PROBE = 2.0
+"""Several coefficients (joint-fit profile points): the first point on each side lies this
+many Gauss-Newton half-widths from the centre, where a quadratic profile has risen by this
+squared times the threshold (4x), beyond the joint refits' scatter."""
 PROFILE_GROW = 3.0
 """Outward step factor when the profile has not yet risen to the threshold."""
 PROFILE_BISECT = 3
@@ -326,7 +330,9 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None,
     beyond them); the lowest is the centre and its χ² the reference. (A joint fit of many clips stalls short of its
     optimum by a few χ² units, comparable with the threshold; measured with the joint fit as
     the reference, a 3-clip drag interval came out [7.505, 7.814] around 7.785 while the
-    profile at 7.708 was already 4.4 below it.) Each side of each coefficient, from the centre:
+    profile at 7.708 was already 4.4 below it.) With several coefficients (every point a joint
+    fit) the centre is ``v`` alone, profiled with each side's first point (step 1) of every
+    coefficient in one pool map. Each side of each coefficient, from the centre:
 
     1. the predicted end is checked with one profile point: where the parabola through the
        centre and its two neighbouring profile points (:func:`_curvature`) rises by the
@@ -334,6 +340,14 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None,
        :data:`PROFILE_ACCEPT_GN` of the threshold accepts it. (The Gauss-Newton half-width
        comes from the joint fit's Jacobian; with the clips refitted one by one the profile
        can be several times narrower, and then every end took several regula-falsi points.)
+       With several coefficients the point lies :data:`PROFILE_PROBE` Gauss-Newton
+       half-widths out instead, and where the profile has risen past the threshold there the
+       end is where the parabola with its vertex at the centre through it crosses
+       (``quadratic (profile at 2 Gauss-Newton half-widths)``): the joint refits scatter by
+       a few chi-square units, as much as the threshold, so points at the threshold cannot
+       locate it (on the 8-clip wind set of ``benchmarks/discrepancy_speed.py`` the search
+       of step 2 took 20 joint fits, 119 s of the workflow's 278, and made wind_x's interval
+       a sixth of the Gauss-Newton width).
     2. else the crossing is bracketed (outwards by :data:`PROFILE_GROW` up to the search
        bound) and located by Illinois regula falsi on the square root of the rise (exact for a
        quadratic profile; at most :data:`PROFILE_BISECT` steps) (``profile``);
@@ -362,66 +376,100 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None,
     ci: dict[str, dict[str, list[float | None]]] = {}
     method: dict[str, dict[str, str]] = {}
     better: Fit | None = None
+    joint = len(fit.theta_keys) > 1   # other coefficients free: every point a joint fit
+    caches: dict[tuple[str, str], dict[float, float]] = {key: {} for key in fit.theta_keys}
+
+    def half_width(e: str, p: str) -> float:
+        """The Gauss-Newton half-width of ``e.p`` (mean of its finite sides), else 0.1 scale."""
+        v0 = float(fit.effects[e][p])
+        gn = (fit.ci_gn.get(e) or {}).get(p) or [None, None]
+        h = [abs(g - v0) for g in gn if g is not None and np.isfinite(g) and abs(g - v0) > 0]
+        return float(np.mean(h)) if h else 0.1 * fx.REGISTRY[e].parameters[p].scale
+
+    def run(points: Sequence[tuple[str, str, float]], origin: Fit) -> None:
+        """Profile the points ``(effect, parameter, value)`` not yet profiled, each from
+        ``origin`` (with one coefficient every clip at every point in one pool map; with
+        several, one joint fit per point, all in one pool map)."""
+        nonlocal better
+        new = list(dict.fromkeys((e, p, float(x)) for e, p, x in points if float(x) not in caches[(e, p)]))
+        if not new:
+            return
+        # every point starts from one origin: the fit, or its refit at its own value where
+        # that is lower (warm-starting from the nearest profiled point walked the clips
+        # into other basins: on the DVC stage a point at the interval's end came out
+        # lowest, lift 1.075 for a true 0.978)
+        effs = [{k: {**dict(d), **({p: x} if k == e else {})} for k, d in origin.effects.items()}
+                for e, p, x in new]
+        if not joint:   # nothing else shared: the clips separate
+            parts = ws.refit_each(list(idx) * len(new), list(origin.nuisance) * len(new),
+                                  [eff for eff in effs for _ in idx], converge=True)
+            n = len(idx)
+            fits = []
+            for j, ((e, p, _), eff) in enumerate(zip(new, effs)):
+                part = parts[j * n:(j + 1) * n]
+                fits.append(Fit(eff, [f.nuisance[0] for f in part], [f.chi2[0] for f in part],
+                                [f.sq_pos[0] for f in part], [f.n_res[0] for f in part],
+                                [f.n_pos[0] for f in part], fit.k, list(fit.theta_keys)))
+                if clip_profile is not None:
+                    clip_profile[float(eff[e][p])] = [f.chi2[0] for f in part]
+        else:
+            fits = ws.fit_joint_many([dict(idx=idx, starts=origin.nuisance, effects=eff, converge=True,
+                                           fixed=[(e, p)]) for (e, p, _), eff in zip(new, effs)])
+            for point in fits:
+                point.k, point.theta_keys = fit.k, list(fit.theta_keys)
+        for (e, p, x), point in zip(new, fits):
+            caches[(e, p)][x] = point.rss
+            if point.rss < (better or fit).rss - cfg.ftol * fit.rss:
+                point.start = f"profile minimum ({e}.{p})"
+                better = point
+        if better is not None and joint:
+            # a lower point found on one coefficient's profile bounds every other
+            # coefficient's profile at its values (the profile minimises over the rest)
+            for key, cache in caches.items():
+                x = float(better.effects[key[0]][key[1]])
+                cache[x] = min(cache.get(x, math.inf), better.rss)
+
+    if joint:
+        # Several coefficients: each coefficient's centre and a first point on each side at
+        # PROFILE_PROBE Gauss-Newton half-widths, all coefficients' in one pool map.
+        first = []
+        for e, p in fit.theta_keys:
+            spec, v0, h = fx.REGISTRY[e].parameters[p], float(fit.effects[e][p]), half_width(e, p)
+            first += [(e, p, x) for x in (v0, v0 - PROFILE_PROBE * h, v0 + PROFILE_PROBE * h)
+                      if spec.low <= x <= spec.high]
+        run(first, fit)
+
     for e, p in fit.theta_keys:
         spec = fx.REGISTRY[e].parameters[p]
         v0 = float(fit.effects[e][p])
         gn = (fit.ci_gn.get(e) or {}).get(p) or [None, None]
-        cache: dict[float, float] = {}
+        cache = caches[(e, p)]
         origin = fit
 
         def totals(xs: Sequence[float]) -> list[float]:
-            """The profile at each of ``xs`` (those not yet profiled: with one coefficient
-            every clip at every point in one pool map)."""
-            nonlocal better
-            new = list(dict.fromkeys(float(x) for x in xs if float(x) not in cache))
-            # every point starts from one origin: the fit, or its refit at its own value where
-            # that is lower (warm-starting from the nearest profiled point walked the clips
-            # into other basins: on the DVC stage a point at the interval's end came out
-            # lowest, lift 1.075 for a true 0.978)
-            effs = [{k: {**dict(d), **({p: x} if k == e else {})} for k, d in origin.effects.items()} for x in new]
-            if len(fit.theta_keys) == 1:   # nothing else shared: the clips separate
-                parts = ws.refit_each(list(idx) * len(new), list(origin.nuisance) * len(new),
-                                      [eff for eff in effs for _ in idx], converge=True)
-                n = len(idx)
-                points = []
-                for j, eff in enumerate(effs):
-                    part = parts[j * n:(j + 1) * n]
-                    points.append(Fit(eff, [f.nuisance[0] for f in part], [f.chi2[0] for f in part],
-                                      [f.sq_pos[0] for f in part], [f.n_res[0] for f in part],
-                                      [f.n_pos[0] for f in part], fit.k, list(fit.theta_keys)))
-                    if clip_profile is not None:
-                        clip_profile[float(eff[e][p])] = [f.chi2[0] for f in part]
-            else:   # joint fits with the other coefficients free (in parallel where a pool runs)
-                points = ws.fit_joint_many([dict(idx=idx, starts=origin.nuisance, effects=eff, converge=True,
-                                                 fixed=[(e, p)]) for eff in effs])
-                for point in points:
-                    point.k, point.theta_keys = fit.k, list(fit.theta_keys)
-            for x, point in zip(new, points):
-                cache[x] = point.rss
-                if point.rss < (better or fit).rss - cfg.ftol * fit.rss:
-                    point.start = f"profile minimum ({e}.{p})"
-                    better = point
+            """The profile at each of ``xs`` (those not yet profiled, :func:`run`)."""
+            run([(e, p, x) for x in xs], origin)
             return [cache[float(x)] for x in xs]
 
         def total(x: float) -> float:
             return totals([x])[0]
 
         # the profile's own minimum (centre) and its chi-square (reference)
-        h = [abs(g - v0) for g in gn if g is not None and np.isfinite(g) and abs(g - v0) > 0]
-        h = float(np.mean(h)) if h else 0.1 * spec.scale
+        h = half_width(e, p)
         total(v0)   # the origin of the other points: the fit refitted at its own value
-        if better is not None and better.effects[e][p] == v0:   # this point, not an earlier coefficient's
-            origin = better
-        pts = [x for x in (v0 - h, v0, v0 + h) if spec.low <= x <= spec.high]
-        totals(pts)
-        curv = _curvature(cache)
-        if curv is not None:   # the parabola's vertex, at most one step h beyond the points
-            xm = float(np.clip(curv[1], min(pts) - h, max(pts) + h))
-            if spec.low <= xm <= spec.high:
-                total(xm)
+        if better is not None and (joint or better.effects[e][p] == v0):
+            origin = better   # (one coefficient: this point, not an earlier coefficient's)
+        if not joint:   # one coefficient (cheap per-clip points): the parabola through v0 +- h
+            pts = [x for x in (v0 - h, v0, v0 + h) if spec.low <= x <= spec.high]
+            totals(pts)
+            curv = _curvature(cache)
+            if curv is not None:   # the parabola's vertex, at most one step h beyond the points
+                xm = float(np.clip(curv[1], min(pts) - h, max(pts) + h))
+                if spec.low <= xm <= spec.high:
+                    total(xm)
         v = min(cache, key=cache.get)
         ref = cache[v]
-        curv = _curvature(cache)
+        curv = _curvature(cache) if not joint else None
 
         def side(sign: float, bound: float, g: float | None):
             """One side's search (a generator: yields each point whose rise it needs, is sent
@@ -436,8 +484,24 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None,
                 step, label = abs(g - v0), "gauss-newton (profile-checked)"
             else:
                 step, label = spec.scale, ""
-            x = v + sign * min(step, room)
-            r = yield x
+            if joint:
+                # Several coefficients: the point at PROFILE_PROBE Gauss-Newton half-widths
+                # (profiled with the centres); where the profile has risen past the threshold
+                # there, the end is where the parabola with its vertex at the centre through that
+                # point crosses it (the joint refits scatter by a few chi-square units, like the
+                # threshold; at ~4x the threshold the scatter moves the end by ~10 %). Where a
+                # lower point moved the centre off v0, a profiled point on this side at least
+                # one half-width from it serves (the farthest), else a new one.
+                near = [x for x in cache if sign * (x - v) >= h]
+                x = max(near, key=lambda x: sign * (x - v)) if near else v + sign * min(PROFILE_PROBE * h, room)
+                r = yield x
+                if abs(x - v) > 0 and r >= thr and abs(x - bound) > 1e-12:
+                    return float(v + sign * abs(x - v) * math.sqrt(thr / r)), \
+                        f"quadratic (profile at {PROFILE_PROBE:g} Gauss-Newton half-widths)"
+                label = ""
+            else:
+                x = v + sign * min(step, room)
+                r = yield x
             if abs(x - bound) > 1e-12 and abs(r - thr) <= PROFILE_ACCEPT_GN * thr and label:
                 return float(x), label
             inner, r_in = v, 0.0

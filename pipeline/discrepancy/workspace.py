@@ -91,6 +91,8 @@ class Workspace:
         self._fits: dict[bytes, Fit] = {}   # per-clip fits of fit_each, by their arguments
         self._stages: dict[bytes, np.ndarray] = {}   # their early horizons' results (resume points)
         self._pool = None
+        self.workers = 1
+        """Processes fitting clips (:meth:`start_pool`; 1 without a pool)."""
 
     def model(self, c: int, effects: Iterable[str]) -> ClipModel:
         """The :class:`ClipModel` of clip ``c`` with ``effects`` (compiled on first use, cached
@@ -261,7 +263,8 @@ class Workspace:
             return
 
         cfg = self.cfg.model_copy(update={"threads": 1, "workers": 1})
-        self._pool = ProcessPoolExecutor(min(workers, len(self.clips)), mp_context=multiprocessing.get_context("spawn"),
+        self.workers = min(workers, len(self.clips))
+        self._pool = ProcessPoolExecutor(self.workers, mp_context=multiprocessing.get_context("spawn"),
                                          initializer=_pool_init,
                                          initargs=(self.clips, cfg, self.options, self.gravity))
 
@@ -270,6 +273,7 @@ class Workspace:
         if self._pool is not None:
             self._pool.shutdown(cancel_futures=True)
             self._pool = None
+            self.workers = 1
 
 
 def _digest(start: np.ndarray, *fields: Any) -> bytes:
