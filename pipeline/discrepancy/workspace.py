@@ -91,6 +91,7 @@ class Workspace:
         self._fits: dict[bytes, Fit] = {}   # per-clip fits of fit_each, by their arguments
         self._stages: dict[bytes, np.ndarray] = {}   # their early horizons' results (resume points)
         self._pool = None
+        self._cost: dict[int, int] = {}   # rollouts of each clip's latest per-clip fit (pool scheduling)
         self.workers = 1
         """Processes fitting clips (:meth:`start_pool`; 1 without a pool)."""
 
@@ -154,10 +155,11 @@ class Workspace:
         # base model converged, then at the screening budget) resumes after them
         todo_jobs = [job + (self._resume_point(*job[:4]),) for job in todo.values()]
         if self._pool is not None and len(todo) > 1:
-            done = list(self._pool.map(_pool_fit_clip, todo_jobs))
+            done = self._map(_pool_fit_clip, todo_jobs, [self._cost.get(job[0], 0) for job in todo_jobs])
         else:
             done = [self.fit_clip(*job) for job in todo_jobs]
         for job, fit in zip(todo_jobs, done):
+            self._cost[job[0]] = fit.nfev
             for k, nuis in fit.stages.items():
                 self._stages[_stage_key(job[0], job[1], job[2], job[3], k)] = nuis
             fit.stages = {}
@@ -249,8 +251,20 @@ class Workspace:
         states whatever the thread count)."""
         jobs = [dict(req) for req in requests]
         if self._pool is not None and len(jobs) > 1:
-            return list(self._pool.map(_pool_fit_joint, jobs))
+            return self._map(_pool_fit_joint, jobs, [sum(self._cost.get(c, 0) for c in job["idx"]) for job in jobs])
         return [self.fit(**job) for job in jobs]
+
+    def _map(self, fn, jobs: Sequence[Any], costs: Sequence[float]) -> list[Any]:
+        """``[fn(job) for job in jobs]`` on the pool, the jobs handed out longest expected
+        ``costs`` first (longest-processing-time-first scheduling, Graham 1969: the last job
+        of a map, while the other workers idle, is a short one); results in the jobs' order
+        (each job is deterministic, so the order changes no number)."""
+        order = sorted(range(len(jobs)), key=lambda j: -costs[j])
+        done = list(self._pool.map(fn, [jobs[j] for j in order]))
+        out: list[Any] = [None] * len(jobs)
+        for j, result in zip(order, done):
+            out[j] = result
+        return out
 
     def start_pool(self, workers: int) -> None:
         """Fit clips in ``workers`` processes (:meth:`fit_each`); each worker holds its own
