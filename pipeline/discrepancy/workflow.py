@@ -66,7 +66,10 @@ def _converged_heldout(ws: "Workspace", idx: Sequence[int], base: Fit, base_ho: 
     clips' coefficients come from them instead (:func:`_heldout_from_profiles`: the clips
     share nothing but the coefficients, so the other clips' joint fit minimises the sum of
     their own profiles), not from two joint fits per clip (on the 8-clip drag set of
-    ``benchmarks/discrepancy_speed.py`` those took 94 s of the workflow's 555)."""
+    ``benchmarks/discrepancy_speed.py`` those took 94 s of the workflow's 555). With several
+    coefficients and the final fit's per-clip information (``final.clip_info``) they come
+    from one Newton step instead (:func:`_heldout_from_information`). The joint fits remain
+    for the clips neither gives."""
     before = copy.deepcopy(base_ho)
     for c in range(len(idx)):
         if base.chi2[c] < before.chi2[c]:
@@ -86,7 +89,7 @@ def _converged_heldout(ws: "Workspace", idx: Sequence[int], base: Fit, base_ho: 
             rest = [idx[k] for k in range(len(idx)) if k != c]
             nuis = [final.nuisance[k] for k in range(len(idx)) if k != c]
             start = {e: {**dict(final.effects[e]), **dict(ho.theta[c].get(e, {}))} for e in final.effects}
-            # With one coefficient (no per-clip profiles) a second start, the final fit itself
+            # With one coefficient (no usable per-clip profile) a second start, the final fit itself
             # (all clips): the bounce basins of the other clips can hold the fit at the first
             # start (restitution: stuck at 0.504 when the other clips' optimum was 0.415). Taken
             # only where the other clips prefer it significantly (by the 95 % chi-square(1)
@@ -426,7 +429,7 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
             # Second chance, not linearised, for those the linearised screen rejects: the clips
             # refitted from the data (like a profile point) at one strength. The current
             # optimum may sit in a basin that compensates for the missing effect (a spin that
-            # mimics Magnus lift), where the linearisation predicts a loss. (All in one pool map.)
+            # mimics Magnus lift), where the linearisation predicts a loss. (:func:`_second_chance`.)
             points = {e: _second_chance_point(e, screened[e]["best"]) for e in second}
             for e, (gain, fitted) in _second_chance(ws, idx, screen, current, points, cfg.screen_gain).items():
                 screened[e].update(refit_point=points[e], refit_gain=gain, refit_clips=fitted)
