@@ -6,14 +6,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
 from pipeline import effects as fx
 from pipeline.discrepancy.clip_model import clip_residuals
-from pipeline.discrepancy.fit import Fit, _theta_keys, initial_nuisance
+from pipeline.discrepancy.fit import Fit, _theta_keys, initial_nuisance, newton_leave_one_out
 from pipeline.discrepancy.screen import screen_candidates
 from pipeline.discrepancy.workspace import HeldOut, Workspace
 
@@ -49,12 +49,6 @@ class Profile:
 
 CHI2_1_95 = 3.841
 """95 % quantile of chi-square with one degree of freedom (profile-likelihood interval)."""
-
-
-def _fit_rows(prof: "Profile", p: int) -> Fit:
-    """Profile row ``p`` as a :class:`Fit` (per-clip values only)."""
-    n = len(prof.chi2[p])
-    return Fit({}, list(prof.nuis[p]), list(prof.chi2[p]), list(prof.sq[p]), [0] * n, [0] * n, 0)
 
 
 def _parabola_min(s: Sequence[float], y: np.ndarray) -> float:
@@ -129,6 +123,91 @@ def _profile_axis(ws: "Workspace", idx: Sequence[int], current: Fit, name: str,
     return mags, lambda v: {**defaults, **{k: float(v * dk) for k, dk in zip(keys, d)}}
 
 
+def _seed_index(s_pts: Sequence[float], name: str, best: Mapping[str, float] | None) -> int | None:
+    """Index into the profile coordinates ``s_pts`` (:func:`_profile_axis`) nearest the
+    screen's best grid point ``best`` of effect ``name`` (one parameter: its value; several:
+    its magnitude along the axis' direction), at least 1 (``s_pts[0]`` is the null point), or
+    ``None`` without a screen."""
+    if best is None or len(s_pts) < 2:
+        return None
+    keys = [p for p, sp in fx.REGISTRY[name].parameters.items() if sp.fit]
+    if any(k not in best for k in keys):
+        return None
+    x = float(best[keys[0]]) if len(keys) == 1 else float(np.linalg.norm([best[k] for k in keys]))
+    return 1 + int(np.argmin([abs(v - x) for v in s_pts[1:]]))
+
+
+def _profile_points(ws: "Workspace", idx: Sequence[int], current: Fit, name: str, baseline: Fit,
+                    direction: Mapping[str, float] | None = None) -> tuple[Profile, Callable[[float], dict], bool]:
+    """The profile of effect ``name`` over its strength (:func:`_profile_candidate`, step 1):
+    every clip fitted from the data at each point of :func:`_profile_axis`.
+
+    The first point is the null point (``baseline``, the current model fitted like the
+    profile points, where the effect vanishes there). Without a screen (``direction``
+    ``None``) the points follow outwards until the summed chi-square has risen at two points
+    in a row. With the screen's best grid point ``direction`` (:func:`screen_candidates`),
+    that point and its neighbours on the axis come first (one pool map), then the neighbours
+    of the lowest point until it is bracketed by profiled points on both sides or lies at an
+    end of the axis: the same lowest grid point as the walk wherever the profile is unimodal,
+    with fewer points where the minimum is not at the far end (an effect the data do not
+    want: 2 points, not 4; on the 8-clip wind set of ``benchmarks/discrepancy_speed.py`` 3,
+    not 4), and no more where the screen is off (its linearisation underestimates strong
+    drag: 3 kg/m^3 for a true 6.95, then 20 beside 8). Last, the vertex of the parabola
+    through the lowest point and its neighbours (:func:`_parabola_min`) where it is new.
+
+    Returns:
+        ``(profile, s -> effect parameters, whether the effect vanishes at the first point)``.
+    """
+    s_pts, to_params = _profile_axis(ws, idx, current, name, direction)
+    prof = Profile([], [], [], [], [])
+    others = {k: dict(v) for k, v in current.effects.items()}
+
+    def fits_at(values: Sequence[float]) -> list[Fit]:
+        """Every clip fitted from the data at each strength (one pool map for all)."""
+        return ws.fit_many([(idx, [initial_nuisance(ws.clips[c]) for c in idx], {**others, name: to_params(v)})
+                            for v in values])
+
+    def evaluate(v: float) -> None:
+        prof.add(v, to_params(v), fits_at([v])[0])
+
+    # The first point is the current model itself (the effect vanishes there).
+    at_current = _vanishes(ws, idx[0], current, name, to_params(s_pts[0]))
+    if at_current:
+        prof.add(s_pts[0], to_params(s_pts[0]), baseline)
+    else:
+        evaluate(s_pts[0])
+    seed = _seed_index(s_pts, name, direction)
+    if seed is None:
+        # No screen: outwards until the summed chi-square has risen at two points in a row
+        # (the profile is taken as unimodal), so an effect the data do not want costs two or
+        # three points. The points are fitted two at a time (one pool map); a second point
+        # past the stop is not used.
+        rises, rest = 0, list(s_pts[1:])
+        while rest and rises < 2:
+            batch, rest = rest[:2], rest[2:]
+            for v, f in zip(batch, fits_at(batch)):
+                prof.add(v, to_params(v), f)
+                rises = rises + 1 if prof.total()[-1] > prof.total()[:-1].min() else 0
+                if rises >= 2:
+                    break
+    else:
+        # Seeded by the screen: the screen's best point and its neighbours on the axis (one
+        # pool map), then outwards from the lowest point until it is bracketed by profiled
+        # neighbours on both sides (or lies at an end of the axis).
+        done, todo = {0}, [j for j in (seed - 1, seed, seed + 1) if 1 <= j < len(s_pts)]
+        while todo:
+            values = [s_pts[j] for j in todo]
+            for v, f in zip(values, fits_at(values)):
+                prof.add(v, to_params(v), f)
+            done.update(todo)
+            low = s_pts.index(prof.s[int(np.argmin(prof.total()))])
+            todo = [j for j in (low - 1, low + 1) if 0 <= j < len(s_pts) and j not in done]
+    star = _parabola_min(prof.s, prof.total())
+    if all(abs(star - v) > 1e-9 for v in prof.s):
+        evaluate(star)
+    return prof, to_params, at_current
+
+
 def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: str,
                        baseline: Fit | None = None, direction: Mapping[str, float] | None = None
                        ) -> tuple[Fit, HeldOut, Profile]:
@@ -136,8 +215,8 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
 
     1. Profile: at each point of :func:`_profile_axis` (the first is where the effect
        vanishes, i.e. the current model), every clip's parameters are fitted by continuation
-       from the data (:meth:`Workspace.fit_each`); the summed minimum is refined by a
-       parabola step. Fitting from the data at every strength avoids the basin in which the
+       from the data (:meth:`Workspace.fit_each`; the points: :func:`_profile_points`); the
+       summed minimum is refined by a parabola step. Fitting from the data at every strength avoids the basin in which the
        current model compensated for the missing effect (warm-starting from it left a ball
        with air drag at chi2/n 3-6 instead of 0.8).
     2. Joint fit: from the best point, the coefficients and all clips' parameters together.
@@ -158,61 +237,25 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
         ``(joint fit, held-out scores, profile)``.
     """
     baseline = baseline or current
-    s_pts, to_params = _profile_axis(ws, idx, current, name, direction)
-    prof = Profile([], [], [], [], [])
     others = {k: dict(v) for k, v in current.effects.items()}
-
-    def fits_at(values: Sequence[float]) -> list[Fit]:
-        """Every clip fitted from the data at each strength (one pool map for all)."""
-        return ws.fit_many([(idx, [initial_nuisance(ws.clips[c]) for c in idx], {**others, name: to_params(v)})
-                            for v in values])
-
-    def evaluate(v: float) -> None:
-        prof.add(v, to_params(v), fits_at([v])[0])
-
-    # The first point is the current model itself (the effect vanishes there); then outwards
-    # until the summed chi-square has risen at two points in a row (the profile is taken as
-    # unimodal), so an effect the data do not want costs two or three points. The points are
-    # fitted two at a time (one pool map); a second point past the stop is not used.
-    at_current = _vanishes(ws, idx[0], current, name, to_params(s_pts[0]))
-    if at_current:
-        prof.add(s_pts[0], to_params(s_pts[0]), baseline)
-    else:
-        evaluate(s_pts[0])
-    rises, rest = 0, list(s_pts[1:])
-    while rest and rises < 2:
-        batch, rest = rest[:2], rest[2:]
-        for v, f in zip(batch, fits_at(batch)):
-            prof.add(v, to_params(v), f)
-            rises = rises + 1 if prof.total()[-1] > prof.total()[:-1].min() else 0
-            if rises >= 2:
-                break
-    star = _parabola_min(prof.s, prof.total())
-    if all(abs(star - v) > 1e-9 for v in prof.s):
-        evaluate(star)
+    prof, to_params, at_current = _profile_points(ws, idx, current, name, baseline, direction)
     b = int(np.argmin(prof.total()))
     joint = _joint_fit(ws, idx, current, name, others, prof.nuis[b], prof.params[b],
                        prof.params[0] if fx.REGISTRY[name].nested else None, at_current)
 
     keys = [p for p, sp in fx.REGISTRY[name].parameters.items() if sp.fit]
     theta = np.array([joint.effects[name][k] for k in keys])
-    if len(keys) > 1 and b > 0 and np.linalg.norm(theta) > 0:
-        # The first axis was a grid direction (45 degree steps); profile again along the
-        # jointly fitted direction, so that held-out clips are predicted along the right one
-        # (three points around the joint fit: the held-out strength is a parabola's vertex).
-        first = prof
-        prof = Profile([], [], [], [], [])
-        prof.add(0.0, first.params[0], _fit_rows(first, 0))
-        norm = float(np.linalg.norm(theta))
-        to_params = lambda v: {**fx.REGISTRY[name].defaults(),  # noqa: E731
-                               **{k: float(v * t / norm) for k, t in zip(keys, theta)}}
-        along = (0.6 * norm, norm, 1.5 * norm)
-        for v, f in zip(along, fits_at(along)):
-            prof.add(v, to_params(v), f)
-
     n = len(idx)
-    ho = HeldOut([0.0] * n, [0.0] * n, list(joint.n_res), list(joint.n_pos), [{}] * n)
     s2 = max(1.0, current.rss / max(current.n - current.k, 1))   # misfit inflates the noise
+    if len(keys) > 1 and b > 0 and np.linalg.norm(theta) > 0 and joint.clip_info and n > 1:
+        # The first axis was a grid direction (45 degree steps): the held-out coefficients
+        # come from the joint fit's per-clip information instead (one Newton step per clip,
+        # :func:`_newton_heldout`), not from a second profile along the jointly fitted
+        # direction (3 more points of every clip fitted from the data: on the 8-clip wind set
+        # of ``benchmarks/discrepancy_speed.py`` 17 s of the workflow's 96).
+        return joint, _newton_heldout(ws, idx, joint, name, s2), prof
+
+    ho = HeldOut([0.0] * n, [0.0] * n, list(joint.n_res), list(joint.n_pos), [{}] * n)
     defaults = fx.REGISTRY[name].defaults()
     prior = next((p for p, params in enumerate(prof.params)
                   if p > 0 and all(abs(params[k] - defaults[k]) < 1e-12 for k in defaults)), None)
@@ -244,6 +287,40 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
     return joint, ho, prof
 
 
+def _newton_heldout(ws: "Workspace", idx: Sequence[int], joint: Fit, name: str, s2: float) -> HeldOut:
+    """Leave-one-clip-out scores of the joint fit ``joint`` of the current model + ``name``
+    (several coefficients, with its per-clip information ``joint.clip_info``).
+
+    Per clip ``c``: the coefficients fitted to the other clips alone, predicted by one
+    Gauss-Newton step with their information (:func:`newton_leave_one_out`, clipped to the
+    search bounds), or the effect's null value where the other clips' quadratic profile
+    rises by at most the 95 % chi-square(1) quantile times ``s2`` from their minimum to the
+    null (they do not call for the effect; the profile rule of :func:`_profile_candidate`);
+    then clip ``c`` refitted there from its joint-fit parameters (screening budget
+    ``cfg.max_nfev_warm``), which only its own parameters see. The same step gives the shown
+    gap's held-out coefficients (:func:`_heldout_from_information` in the workflow)."""
+    info, n = joint.clip_info, len(idx)
+    keys = list(joint.theta_keys)
+    null = fx.REGISTRY[name].defaults()
+    thetas = []
+    for c in range(n):
+        th = newton_leave_one_out(info, c)
+        keep = np.arange(n) != c
+        H = info["H"][keep].sum(0)
+        eff = {k: dict(v) for k, v in joint.effects.items()}
+        d = np.array([null[p] if e == name else eff[e][p] for e, p in keys]) - th
+        if float(d @ H @ d) <= CHI2_1_95 * s2:
+            eff[name] = dict(null)
+        else:
+            for (e, p), v in zip(keys, th):
+                spec = fx.REGISTRY[e].parameters[p]
+                eff[e][p] = float(np.clip(v, spec.low, spec.high))
+        thetas.append(eff)
+    parts = ws.refit_each(list(idx), list(joint.nuisance), thetas, max_nfev=ws.cfg.max_nfev_warm)
+    return HeldOut([f.chi2[0] for f in parts], [f.sq_pos[0] for f in parts], list(joint.n_res),
+                   list(joint.n_pos), thetas)
+
+
 def _joint_fit(ws: "Workspace", idx: Sequence[int], current: Fit, name: str,
                others: Mapping[str, Mapping[str, float]], nuis: Sequence[np.ndarray], params: Mapping[str, float],
                null: Mapping[str, float] | None, vanishes: bool) -> Fit:
@@ -260,19 +337,27 @@ def _joint_fit(ws: "Workspace", idx: Sequence[int], current: Fit, name: str,
       vanish (Magnus lift 0 still moves a spinning ball by ~2e-8 m: the fluid model's other
       terms) that point is scored in the extended model (its chi-square differs from the
       current model's by ~1e-5 of it), and the fit from the base optimum is run whichever
-      point the profile found best: the profile's point at the null value is a screening fit
+      point the profile found best (the profile's point at the null value is a screening fit
       from the data, which can end a few hundredths of a chi-square unit above the base
-      optimum.
+      optimum), unless the fit from the profile start already ends ``cfg.heldout_threshold``
+      below the current model (nested either way).
 
     Each start runs to the tolerance ``cfg.ftol`` (:func:`fit_clips` ``converge``). The fits'
     ``start`` attribute says which start won."""
-    jobs = [dict(idx=idx, starts=nuis, effects={**others, name: dict(params)}, converge=True)]
-    if null is not None:
-        eff = {**others, name: dict(null)}
-        jobs.append(dict(idx=idx, starts=current.nuisance, effects=eff, converge=True))
-    fits = ws.fit_joint_many(jobs)   # the starts in parallel where a pool runs
-    for f, start in zip(fits, ("profile", "base optimum")):
-        f.start = start
+    # several coefficients: with the per-clip information (:func:`_newton_heldout`)
+    info = len(idx) > 1 and len(_theta_keys([name])) > 1
+    fits = ws.fit_joint_many([dict(idx=idx, starts=nuis, effects={**others, name: dict(params)}, converge=True,
+                                   with_ci=info)])   # alone: in this process, on cfg.threads rollout threads
+    fits[0].start = "profile"
+    eff = {**others, name: dict(null)} if null is not None else {}
+    if null is not None and fits[0].rss > current.rss - ws.cfg.heldout_threshold:
+        # The base-optimum start only where the profile's start has not already beaten the
+        # current model by the gates' margin (``heldout_threshold``): then the extended fit is
+        # better than its nested base however the other start would end (on the 8-clip drag
+        # and wind sets of ``benchmarks/discrepancy_speed.py`` it ended far above the profile
+        # start, ~4 s of joint fitting each).
+        fits += ws.fit_joint_many([dict(idx=idx, starts=current.nuisance, effects=eff, converge=True, with_ci=info)])
+        fits[-1].start = "base optimum"
     if null is not None:
         n_theta = len(_theta_keys([name]))
         if vanishes:
