@@ -450,8 +450,7 @@ NESTED_REL, NESTED_ABS = 1e-6, 1e-6
 def test_adding_a_nested_effect_never_worsens_the_fit():
     """Nested models: for every candidate with ``nested = True`` the workflow's candidate fit
     (:func:`_profile_candidate` -> :func:`_joint_fit`, best of the profile start and the base
-    optimum with the effect at its null value unless the profile start already ends 10 below
-    the base, converged to ``ftol`` 1e-5) has
+    optimum with the effect at its null value, converged to ``ftol`` 1e-5) has
     ``chi2(base + effect) <= chi2(base) (1 + 1e-6) + 1e-6``, on 4 datasets (2 without an effect,
     2 with one).
 
