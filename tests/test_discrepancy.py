@@ -367,7 +367,7 @@ def test_single_clip_forward_gap_foam_ball():
     """One clip, nothing to hold out: the shown gap is forward in time; drag is named and the
     forecast error above the noise shrinks by >= 70 % (issue 10 item 1).
 
-    Measured at the params timestep 1/600 s: drag named, density 1.097 [0.632, 1.294] (truth
+    Measured at the params timestep 1/600 s: drag named, density 1.097 [0.663, 1.294] (truth
     1.2), forward gap 15.21 -> 4.53 mm (noise 2.88 mm, 76.6 % of the part above it). Before
     the damping scale of a spinless free flight was fixed (:func:`_nuisance_scales`) the base
     fit stalled at 20 mm RMSE and restitution (no contact here) was named. On the first
