@@ -219,6 +219,14 @@ def _effect_values(start: Mapping[str, Mapping[str, float]], keys: Sequence[tupl
     return vals
 
 
+def _bounded_effect_values(start: Mapping[str, Mapping[str, float]], keys: Sequence[tuple[str, str]],
+                           theta: np.ndarray) -> dict[str, dict[str, float]]:
+    """``start`` with the coefficients ``keys`` set to ``theta``, each clipped to its search
+    bounds (``ParamSpec.low``/``high``): e.g. a leave-one-out Newton step."""
+    specs = [fx.REGISTRY[e].parameters[p] for e, p in keys]
+    return _effect_values(start, keys, np.clip(theta, [s.low for s in specs], [s.high for s in specs]))
+
+
 def fit_clips(clips: Sequence[Clip], models: Sequence[ClipModel], weights: Sequence[Weights],
               start_nuisance: Sequence[np.ndarray], start_effects: Mapping[str, Mapping[str, float]],
               cfg: DiscrepancyConfig, fit_effects: bool = True, with_ci: bool = False,

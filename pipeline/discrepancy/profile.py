@@ -13,7 +13,7 @@ from scipy.stats import chi2 as chi2_dist
 
 from pipeline import effects as fx
 from pipeline.discrepancy.clip_model import clip_residuals
-from pipeline.discrepancy.fit import Fit, _theta_keys, initial_nuisance, newton_leave_one_out
+from pipeline.discrepancy.fit import Fit, _bounded_effect_values, _theta_keys, initial_nuisance, newton_leave_one_out
 from pipeline.discrepancy.screen import screen_candidates
 from pipeline.discrepancy.workspace import HeldOut, Workspace
 
@@ -129,6 +129,14 @@ def _profile_axis(ws: "Workspace", idx: Sequence[int], current: Fit, name: str,
     return mags, lambda v: {**defaults, **{k: float(v * dk) for k, dk in zip(keys, d)}}
 
 
+def _fits_from_data(ws: "Workspace", idx: Sequence[int], effects: Sequence[Mapping[str, Mapping[str, float]]]
+                    ) -> list[Fit]:
+    """Per effect set of ``effects``, every clip of ``idx`` fitted from the data
+    (:func:`initial_nuisance`, continuation) with those effects held: the profile points (one
+    pool map for all)."""
+    return ws.fit_many([(idx, [initial_nuisance(ws.clips[c]) for c in idx], eff) for eff in effects])
+
+
 def _seed_index(s_pts: Sequence[float], name: str, best: Mapping[str, float] | None) -> int | None:
     """Index into the profile coordinates ``s_pts`` (:func:`_profile_axis`) nearest the
     screen's best grid point ``best`` of effect ``name`` (one parameter: its value; several:
@@ -169,9 +177,7 @@ def _profile_points(ws: "Workspace", idx: Sequence[int], current: Fit, name: str
     others = {k: dict(v) for k, v in current.effects.items()}
 
     def fits_at(values: Sequence[float]) -> list[Fit]:
-        """Every clip fitted from the data at each strength (one pool map for all)."""
-        return ws.fit_many([(idx, [initial_nuisance(ws.clips[c]) for c in idx], {**others, name: to_params(v)})
-                            for v in values])
+        return _fits_from_data(ws, idx, [{**others, name: to_params(v)} for v in values])
 
     def evaluate(v: float) -> None:
         prof.add(v, to_params(v), fits_at([v])[0])
@@ -253,16 +259,15 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
     theta = np.array([joint.effects[name][k] for k in keys])
     n = len(idx)
     s2 = max(1.0, current.rss / max(current.n - current.k, 1))   # misfit inflates the noise
-    if len(keys) > 1 and b > 0 and np.linalg.norm(theta) > 0 and joint.clip_info and n > 1 and \
-            len(joint.theta_keys) == len(keys):
+    if len(keys) > 1 and b > 0 and np.linalg.norm(theta) > 0 and joint.clip_info:
         # The first axis was a grid direction (45 degree steps): the held-out coefficients
         # come from the joint fit's per-clip information instead (one Newton step per clip,
         # :func:`_newton_heldout`), not from a second profile along the jointly fitted
         # direction (3 more points of every clip fitted from the data: on the 8-clip wind set
-        # of ``benchmarks/discrepancy_speed.py`` 17 s of the workflow's 96). Only where the
-        # candidate's coefficients are the joint fit's only ones: with an effect named before
-        # (fitted jointly too) the step would credit the candidate with the refit of the
-        # named one (hidden wind trial 1055: a step-1 wind stalled at (3.24, 2.46) m/s for a
+        # of ``benchmarks/discrepancy_speed.py`` 17 s of the workflow's 96). The joint fit has
+        # that information only with >= 2 clips and no effect named before (:func:`_joint_fit`):
+        # with an effect named before (fitted jointly too) the step would credit the candidate
+        # with the refit of the named one (hidden wind trial 1055: a step-1 wind stalled at (3.24, 2.46) m/s for a
         # true (3.71, 2.36); the step-2 joint fit with a floor tilt of 0.08 deg moved it to the
         # truth, and the tilt's held-out chi-square "dropped" by 9748 where the profile along
         # the tilt, wind held, says -63).
@@ -278,8 +283,7 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
         to_params = lambda v: {**fx.REGISTRY[name].defaults(),  # noqa: E731
                                **{k: float(v * t / norm) for k, t in zip(keys, theta)}}
         along = (0.6 * norm, norm, 1.5 * norm)
-        for v, f in zip(along, ws.fit_many([(idx, [initial_nuisance(ws.clips[c]) for c in idx],
-                                              {**others, name: to_params(v)}) for v in along])):
+        for v, f in zip(along, _fits_from_data(ws, idx, [{**others, name: to_params(v)} for v in along])):
             prof.add(v, to_params(v), f)
 
     ho = HeldOut([0.0] * n, [0.0] * n, list(joint.n_res), list(joint.n_pos), [{}] * n)
@@ -329,20 +333,15 @@ def _newton_heldout(ws: "Workspace", idx: Sequence[int], joint: Fit, name: str, 
     info, n = joint.clip_info, len(idx)
     keys = list(joint.theta_keys)
     null = fx.REGISTRY[name].defaults()
+    at_null = np.array([null[p] if e == name else joint.effects[e][p] for e, p in keys])
     thetas = []
     for c in range(n):
         th = newton_leave_one_out(info, c)
-        keep = np.arange(n) != c
-        H = info["H"][keep].sum(0)
-        eff = {k: dict(v) for k, v in joint.effects.items()}
-        d = np.array([null[p] if e == name else eff[e][p] for e, p in keys]) - th
-        if float(d @ H @ d) <= CHI2_1_95 * s2:
-            eff[name] = dict(null)
+        d = at_null - th
+        if float(d @ info["H"][np.arange(n) != c].sum(0) @ d) <= CHI2_1_95 * s2:
+            thetas.append({**{k: dict(v) for k, v in joint.effects.items()}, name: dict(null)})
         else:
-            for (e, p), v in zip(keys, th):
-                spec = fx.REGISTRY[e].parameters[p]
-                eff[e][p] = float(np.clip(v, spec.low, spec.high))
-        thetas.append(eff)
+            thetas.append(_bounded_effect_values(joint.effects, keys, th))
     parts = ws.refit_each(list(idx), list(joint.nuisance), thetas, max_nfev=ws.cfg.max_nfev_warm)
     return HeldOut([f.chi2[0] for f in parts], [f.sq_pos[0] for f in parts], list(joint.n_res),
                    list(joint.n_pos), thetas)
@@ -377,8 +376,8 @@ def _joint_fit(ws: "Workspace", idx: Sequence[int], current: Fit, name: str,
     # several coefficients and no other fitted effect: with the per-clip information (:func:`_newton_heldout`)
     info = len(idx) > 1 and len(_theta_keys([name])) > 1 and not _theta_keys(list(others))
     jobs = [dict(idx=idx, starts=nuis, effects={**others, name: dict(params)}, converge=True, with_ci=info)]
-    eff = {**others, name: dict(null)} if null is not None else {}
     if null is not None:
+        eff = {**others, name: dict(null)}
         jobs.append(dict(idx=idx, starts=current.nuisance, effects=eff, converge=True, with_ci=info))
     fits = ws.fit_joint_many(jobs)   # the starts in parallel where a pool runs
     for f, start in zip(fits, ("profile", "base optimum")):

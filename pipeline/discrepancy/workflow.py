@@ -15,7 +15,8 @@ import numpy as np
 from pipeline import effects as fx
 from pipeline.discrepancy.config import DiscrepancyConfig
 from pipeline.discrepancy.find import motion_phases, residual_segments
-from pipeline.discrepancy.fit import Fit, _theta_keys, initial_nuisance, newton_leave_one_out, single_threaded_blas
+from pipeline.discrepancy.fit import (Fit, _bounded_effect_values, _theta_keys, initial_nuisance, newton_leave_one_out,
+                                      single_threaded_blas)
 from pipeline.discrepancy.forward import forward_gap
 from pipeline.discrepancy.noise import Noise
 from pipeline.discrepancy.profile import (CHI2_1_95, _parabola_min, _profile_candidate, _refit_from_data,
@@ -200,15 +201,8 @@ def _heldout_from_information(final: Fit, n: int) -> list[dict[str, dict[str, fl
     information), the Newton step moved wind_y by up to 0.01 m/s, and every clip's held-out
     RMSE agreed to 0.003 mm (``tests/test_discrepancy.py`` checks the step against exact
     leave-one-out on a linear model)."""
-    out = []
-    for c in range(n):
-        theta = newton_leave_one_out(final.clip_info, c)
-        eff = {k: dict(v) for k, v in final.effects.items()}
-        for (e, p), v in zip(final.theta_keys, theta):
-            spec = fx.REGISTRY[e].parameters[p]
-            eff[e][p] = float(np.clip(v, spec.low, spec.high))
-        out.append(eff)
-    return out
+    return [_bounded_effect_values(final.effects, final.theta_keys, newton_leave_one_out(final.clip_info, c))
+            for c in range(n)]
 
 
 @dataclass
