@@ -78,8 +78,8 @@ def main() -> None:
                        same_named=all(r["same_named"] for r in rows))
     write_json(Path(args.out), {"summary": summary, "rows": rows,
                                 "command": "python benchmarks/discrepancy_speed.py " + " ".join(
-                                    f"--{k.replace('_', '-')} {v}" for k, v in vars(args).items()
-                                    if v not in (False, None))})
+                                    f"--{k.replace('_', '-')}" + ("" if v is True else f" {v}")
+                                    for k, v in vars(args).items() if v not in (False, None))})
     print(f"fast: {summary['fast_mean_s']:.1f} s per dataset (max {summary['fast_max_s']:.1f} s)"
           + (f" ({summary['ratio']:.1f}x serial, {summary['serial_mean_s']:.1f} s)" if "ratio" in summary else "")
           + f"; load {load0[0]:.1f} -> {summary['load_after'][0]:.1f}; wrote {args.out}")

@@ -31,13 +31,38 @@ class Profile:
     sq: list[list[float]]
     nuis: list[list[np.ndarray]]
 
-    def add(self, s: float, params: dict[str, float], fits: Fit) -> None:
-        """Append the point ``s`` with the effect's ``params`` and the per-clip fits there."""
-        self.s.append(float(s))
-        self.params.append(params)
-        self.chi2.append(list(fits.chi2))
-        self.sq.append(list(fits.sq_pos))
-        self.nuis.append(list(fits.nuisance))
+    at_joint: Fit | None = None
+    """Several coefficients: every clip fitted from the data at the joint fit's coefficients
+    (off the profile's axis; :func:`_profile_candidate`), else ``None``."""
+    null_s: float = 0.0
+    """The null point's coordinate (the effect at its null value, :func:`_profile_axis`)."""
+    has_null: bool = True
+    """Whether the first point is the null point (the effect at its null value); ``False``
+    while a lazily profiled null point (:func:`_profile_points`) has not been needed."""
+
+    def add(self, s: float, params: dict[str, float], fits: Fit, first: bool = False) -> None:
+        """Append the point ``s`` with the effect's ``params`` and the per-clip fits there
+        (``first``: insert it as the first point instead, the null point)."""
+        at = 0 if first else len(self.s)
+        self.s.insert(at, float(s))
+        self.params.insert(at, params)
+        self.chi2.insert(at, list(fits.chi2))
+        self.sq.insert(at, list(fits.sq_pos))
+        self.nuis.insert(at, list(fits.nuisance))
+
+    def best_per_clip(self) -> np.ndarray:
+        """``(C,)`` each clip's lowest chi-square over the profile's points and ``at_joint``."""
+        chi = np.array(self.chi2)
+        if self.at_joint is not None:
+            chi = np.vstack([chi, self.at_joint.chi2])
+        return chi.min(axis=0)
+
+    def best_total(self) -> float:
+        """The lowest summed chi-square over the profile's points and ``at_joint``."""
+        totals = list(self.total())
+        if self.at_joint is not None:
+            totals.append(self.at_joint.rss)
+        return float(min(totals))
 
     def total(self, without: int | None = None) -> np.ndarray:
         """``(P,)`` summed chi-square over clips (leaving clip ``without`` out)."""
@@ -151,8 +176,16 @@ def _seed_index(s_pts: Sequence[float], name: str, best: Mapping[str, float] | N
     return 1 + int(np.argmin([abs(v - x) for v in s_pts[1:]]))
 
 
+def _newton_eligible(idx: Sequence[int], name: str, others: Mapping[str, Any]) -> bool:
+    """Whether the held-out coefficients of candidate ``name`` come from one Newton step
+    (:func:`_newton_heldout`): several clips, several fitted coefficients and no other fitted
+    effect (the joint fit then keeps its per-clip information, :func:`_joint_fit`)."""
+    return len(idx) > 1 and len(_theta_keys([name])) > 1 and not _theta_keys(list(others))
+
+
 def _profile_points(ws: "Workspace", idx: Sequence[int], current: Fit, name: str, baseline: Fit,
-                    direction: Mapping[str, float] | None = None) -> tuple[Profile, Callable[[float], dict], bool]:
+                    direction: Mapping[str, float] | None = None, lazy_null: bool = False,
+                    seeds_only: bool = False) -> tuple[Profile, Callable[[float], dict], bool]:
     """The profile of effect ``name`` over its strength (:func:`_profile_candidate`, step 1):
     every clip fitted from the data at each point of :func:`_profile_axis`.
 
@@ -169,11 +202,27 @@ def _profile_points(ws: "Workspace", idx: Sequence[int], current: Fit, name: str
     drag: 3 kg/m^3 for a true 6.95, then 20 beside 8). Last, the vertex of the parabola
     through the lowest point and its neighbours (:func:`_parabola_min`) where it is new.
 
+    Where the effect does not vanish at its null point (wind at 0 m/s still brings air
+    drag) that point is fitted in the same pool map as the screen's points (the same fits as
+    one map each, one idle tail less); with ``lazy_null`` (the held-out coefficients come
+    from the joint fit's per-clip information, :func:`_newton_eligible`, so nothing but the
+    bracket search needs it) only where the search asks for it, i.e. where the lowest point
+    is its neighbour: the same lowest point, 8 fewer clip fits on the 8-clip wind set of
+    ``benchmarks/discrepancy_speed.py`` (5.6 s). ``profile.has_null`` says whether it was
+    profiled (it is then the first point); :func:`_add_null` profiles it later. With
+    ``seeds_only`` (and a screen) only the screen's point and the next one up (the last two
+    at the top of the axis): :func:`_profile_candidate` adds its point at the joint fit and
+    brackets after the joint fit. Up, because the screen refits the clips to first order,
+    which credits strong strengths with less than a refit gains (drag: 3 kg/m^3 for a true
+    6.95); below the screen's point the bracket search fits more where the joint fit ends
+    there. (The point below as well cost 8 clip fits, 5 s, on the 8-clip drag set of
+    ``benchmarks/discrepancy_speed.py``, where the joint fit from 8 ends at 6.96.)
+
     Returns:
         ``(profile, s -> effect parameters, whether the effect vanishes at the first point)``.
     """
     s_pts, to_params = _profile_axis(ws, idx, current, name, direction)
-    prof = Profile([], [], [], [], [])
+    prof = Profile([], [], [], [], [], null_s=float(s_pts[0]))
     others = {k: dict(v) for k, v in current.effects.items()}
 
     def fits_at(values: Sequence[float]) -> list[Fit]:
@@ -184,11 +233,11 @@ def _profile_points(ws: "Workspace", idx: Sequence[int], current: Fit, name: str
 
     # The first point is the current model itself (the effect vanishes there).
     at_current = _vanishes(ws, idx[0], current, name, to_params(s_pts[0]))
+    seed = _seed_index(s_pts, name, direction)
     if at_current:
         prof.add(s_pts[0], to_params(s_pts[0]), baseline)
-    else:
+    elif seed is None:
         evaluate(s_pts[0])
-    seed = _seed_index(s_pts, name, direction)
     if seed is None:
         # No screen: outwards until the summed chi-square has risen at two points in a row
         # (the profile is taken as unimodal), so an effect the data do not want costs two or
@@ -206,18 +255,60 @@ def _profile_points(ws: "Workspace", idx: Sequence[int], current: Fit, name: str
         # Seeded by the screen: the screen's best point and its neighbours on the axis (one
         # pool map), then outwards from the lowest point until it is bracketed by profiled
         # neighbours on both sides (or lies at an end of the axis).
-        done, todo = {0}, [j for j in (seed - 1, seed, seed + 1) if 1 <= j < len(s_pts)]
-        while todo:
-            values = [s_pts[j] for j in todo]
-            for v, f in zip(values, fits_at(values)):
-                prof.add(v, to_params(v), f)
-            done.update(todo)
-            low = s_pts.index(prof.s[int(np.argmin(prof.total()))])
-            todo = [j for j in (low - 1, low + 1) if 0 <= j < len(s_pts) and j not in done]
+        around = (seed - 1, seed, seed + 1)
+        if seeds_only:   # the screen's point and the next one up (see the docstring)
+            around = (seed, seed + 1) if seed + 1 < len(s_pts) else (seed - 1, seed)
+        done, todo = set(), [j for j in around if 1 <= j < len(s_pts)]
+        if at_current:
+            done.add(0)
+        elif not lazy_null:
+            todo = [0] + todo   # the null point with the screen's points (one pool map)
+        prof.has_null = 0 in done
+        values = [s_pts[j] for j in todo]
+        for j, v, f in zip(todo, values, fits_at(values)):
+            prof.add(v, to_params(v), f, first=j == 0)
+        prof.has_null = prof.has_null or 0 in todo
+        if seeds_only:
+            return prof, to_params, at_current
+        _bracket(prof, s_pts, to_params, fits_at)
     star = _parabola_min(prof.s, prof.total())
     if all(abs(star - v) > 1e-9 for v in prof.s):
         evaluate(star)
     return prof, to_params, at_current
+
+
+def _bracket(prof: Profile, s_pts: Sequence[float], to_params: Callable[[float], dict],
+             fits_at: Callable[[Sequence[float]], list[Fit]]) -> None:
+    """Profile the axis' grid points ``s_pts`` outwards from the lowest profiled point until it
+    is bracketed by profiled points on both sides or lies at an end of the axis (the next grid
+    point beyond the lowest on each open side, both in one pool map); ``fits_at(values)``: the
+    per-clip fits at those coordinates. The null point ``s_pts[0]`` becomes the first point."""
+    while True:
+        total = prof.total()
+        low = prof.s[int(np.argmin(total))]
+        todo = []
+        grid = sorted(s_pts)
+        if low >= max(prof.s):
+            todo += [v for v in grid if v > low + 1e-12][:1]
+        if low <= min(prof.s) and not (prof.has_null and low == prof.s[0]):
+            todo += [v for v in grid if v < low - 1e-12][-1:]
+        todo = [v for v in todo if all(abs(v - w) > 1e-12 for w in prof.s)]
+        if not todo:
+            return
+        for v, f in zip(todo, fits_at(todo)):
+            first = v == s_pts[0]
+            prof.add(v, to_params(v), f, first=first)
+            prof.has_null = prof.has_null or first
+
+
+def _add_null(ws: "Workspace", idx: Sequence[int], prof: Profile, to_params: Callable[[float], dict],
+              others: Mapping[str, Mapping[str, float]], name: str) -> None:
+    """Profile the null point (coordinate 0) of a lazily profiled ``prof``
+    (:func:`_profile_points`) as its first point, where it is not yet."""
+    if not prof.has_null:
+        null = to_params(prof.null_s)
+        prof.add(prof.null_s, null, _fits_from_data(ws, idx, [{**others, name: null}])[0], first=True)
+        prof.has_null = True
 
 
 def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: str,
@@ -228,7 +319,10 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
     1. Profile: at each point of :func:`_profile_axis` (the first is where the effect
        vanishes, i.e. the current model), every clip's parameters are fitted by continuation
        from the data (:meth:`Workspace.fit_each`; the points: :func:`_profile_points`); the
-       summed minimum is refined by a parabola step. Fitting from the data at every strength avoids the basin in which the
+       summed minimum is refined by a parabola step (with the screen's point ``direction``:
+       the screen's points only, then, after step 2, every clip fitted from the data at the
+       joint fit's coefficients, which is a profile point with one coefficient, and the grid
+       outwards until the lowest point is bracketed). Fitting from the data at every strength avoids the basin in which the
        current model compensated for the missing effect (warm-starting from it left a ball
        with air drag at chi2/n 3-6 instead of 0.8).
     2. Joint fit: from the best point, the coefficients and all clips' parameters together.
@@ -250,16 +344,36 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
     """
     baseline = baseline or current
     others = {k: dict(v) for k, v in current.effects.items()}
-    prof, to_params, at_current = _profile_points(ws, idx, current, name, baseline, direction)
+    keys = [p for p, sp in fx.REGISTRY[name].parameters.items() if sp.fit]
+    seeded = direction is not None and all(k in direction for k in keys)   # the screen's point (:func:`_seed_index`)
+    prof, to_params, at_current = _profile_points(ws, idx, current, name, baseline, direction,
+                                                  lazy_null=_newton_eligible(idx, name, others),
+                                                  seeds_only=seeded)
     b = int(np.argmin(prof.total()))
     joint = _joint_fit(ws, idx, current, name, others, prof.nuis[b], prof.params[b],
-                       prof.params[0] if fx.REGISTRY[name].nested else None, at_current)
-
-    keys = [p for p, sp in fx.REGISTRY[name].parameters.items() if sp.fit]
+                       to_params(prof.null_s) if fx.REGISTRY[name].nested else None, at_current)
     theta = np.array([joint.effects[name][k] for k in keys])
+    if seeded:
+        # Every clip fitted from the data at the joint fit's coefficients (the fits that
+        # :func:`_refit_from_data` takes, cached: naming the effect reuses them) instead of
+        # the parabola's vertex of the profile: a profile point at the optimum, where the
+        # vertex was a prediction of it. One coefficient: a point on the axis, then the grid
+        # outwards until the lowest point is bracketed (:func:`_bracket`); on the 8-clip drag
+        # set of ``benchmarks/discrepancy_speed.py`` the joint fit's 6.96 kg/m^3 lies between
+        # the screen's points 3 and 8, so 20 and the vertex need no fits (10.6 s of 76).
+        # Several: off the axis, kept as ``prof.at_joint`` (the profile gain counts it).
+        at_joint = _fits_from_data(ws, idx, [joint.effects])[0]
+        if len(keys) == 1:
+            prof.add(float(theta[0]), to_params(float(theta[0])), at_joint)
+            s_pts, _ = _profile_axis(ws, idx, current, name, direction)
+            _bracket(prof, s_pts, to_params,
+                     lambda values: _fits_from_data(ws, idx, [{**others, name: to_params(v)} for v in values]))
+        else:
+            prof.at_joint = at_joint
     n = len(idx)
     s2 = max(1.0, current.rss / max(current.n - current.k, 1))   # misfit inflates the noise
-    if len(keys) > 1 and b > 0 and np.linalg.norm(theta) > 0 and joint.clip_info:
+    at_null = prof.has_null and b == 0
+    if len(keys) > 1 and not at_null and np.linalg.norm(theta) > 0 and joint.clip_info:
         # The first axis was a grid direction (45 degree steps): the held-out coefficients
         # come from the joint fit's per-clip information instead (one Newton step per clip,
         # :func:`_newton_heldout`), not from a second profile along the jointly fitted
@@ -272,6 +386,8 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
         # truth, and the tilt's held-out chi-square "dropped" by 9748 where the profile along
         # the tilt, wind held, says -63).
         return joint, _newton_heldout(ws, idx, joint, name, s2), prof
+    _add_null(ws, idx, prof, to_params, others, name)   # the rules below need the null point
+    b = int(np.argmin(prof.total()))
     if len(keys) > 1 and b > 0 and np.linalg.norm(theta) > 0:
         # Else profile again along the jointly fitted direction, so that held-out clips are
         # predicted along the right one (three points around the joint fit: the held-out
@@ -374,7 +490,7 @@ def _joint_fit(ws: "Workspace", idx: Sequence[int], current: Fit, name: str,
     Each start runs to the tolerance ``cfg.ftol`` (:func:`fit_clips` ``converge``). The fits'
     ``start`` attribute says which start won."""
     # several coefficients and no other fitted effect: with the per-clip information (:func:`_newton_heldout`)
-    info = len(idx) > 1 and len(_theta_keys([name])) > 1 and not _theta_keys(list(others))
+    info = _newton_eligible(idx, name, others)
     jobs = [dict(idx=idx, starts=nuis, effects={**others, name: dict(params)}, converge=True, with_ci=info)]
     if null is not None:
         eff = {**others, name: dict(null)}
@@ -440,8 +556,11 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None,
     optimum by a few χ² units, comparable with the threshold; measured with the joint fit as
     the reference, a 3-clip drag interval came out [7.505, 7.814] around 7.785 while the
     profile at 7.708 was already 4.4 below it.) With several coefficients (every point a joint
-    fit) the centre is ``v`` alone, profiled with each side's first point (step 1) of every
-    coefficient in one pool map. Each side of each coefficient, from the centre:
+    fit) the centre is ``v`` and the reference the joint fit's own χ² (a refit there with the
+    coefficient held gained 0.04 χ² on the 8-clip wind set of
+    ``benchmarks/discrepancy_speed.py``; a stalled joint fit only widens the ends), unless a
+    profile point comes out lower; each side's first point (step 1) of every coefficient in
+    one pool map. Each side of each coefficient, from the centre:
 
     1. the predicted end is checked with one profile point: where the parabola through the
        centre and its two neighbouring profile points (:func:`_curvature`) rises by the
@@ -539,12 +658,18 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None,
                 cache[x] = min(cache.get(x, math.inf), better.rss)
 
     if joint:
-        # Several coefficients: each coefficient's centre and a first point on each side at
-        # PROFILE_PROBE Gauss-Newton half-widths, all coefficients' in one pool map.
+        # Several coefficients: a first point on each side of each coefficient at
+        # PROFILE_PROBE Gauss-Newton half-widths, all in one pool map. The centre is the
+        # converged joint fit itself (the profile at v0 is at most its chi-square): refitting
+        # it with one coefficient held gained 0.04 chi-square on the 8-clip wind set of
+        # ``benchmarks/discrepancy_speed.py`` (for 2 of its 6 joint fits, 6 s of the workflow's
+        # 74); a joint fit that stalled short would only widen the ends (its chi-square is the
+        # reference), and a lower probe point becomes the reference (``better``).
         first = []
         for e, p in fit.theta_keys:
             spec, v0, h = fx.REGISTRY[e].parameters[p], float(fit.effects[e][p]), half_width(e, p)
-            first += [(e, p, x) for x in (v0, v0 - PROFILE_PROBE * h, v0 + PROFILE_PROBE * h)
+            caches[(e, p)][v0] = fit.rss
+            first += [(e, p, x) for x in (v0 - PROFILE_PROBE * h, v0 + PROFILE_PROBE * h)
                       if spec.low <= x <= spec.high]
         run(first, fit)
 
@@ -565,7 +690,7 @@ def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None,
 
         # the profile's own minimum (centre) and its chi-square (reference)
         h = half_width(e, p)
-        total(v0)   # the origin of the other points: the fit refitted at its own value
+        total(v0)   # one coefficient: the origin of the other points, the fit refitted at its own value
         if better is not None and (joint or better.effects[e][p] == v0):
             origin = better   # (one coefficient: this point, not an earlier coefficient's)
         if not joint:   # one coefficient (cheap per-clip points): the parabola through v0 +- h

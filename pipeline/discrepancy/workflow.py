@@ -375,17 +375,17 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
             # own coefficients fitted on all clips, like the candidate's profile rows) against
             # the candidate with its strength taken from the other clips.
             before = HeldOut(list(screen.chi2), list(screen.sq_pos), list(screen.n_res), list(screen.n_pos))
-            chi = np.array(prof.chi2)
+            best = prof.best_per_clip()
             cand = {"effect": e, "parameters": {p: f.effects[e][p] for _, p in _theta_keys([e])},
                     "rmse": f.rmse, "fit_gain": current.rmse - f.rmse,
                     "chi2": f.rss, "chi2_before": current.rss, "fit_gain_chi2": current.rss - f.rss,
                     "optimizer": f.optimizer(), "nested": bool(fx.REGISTRY[e].nested),
                     "fit_gain_pct": 100.0 * (current.rmse - f.rmse) / current.rmse if current.rmse else 0.0,
-                    "delta_bic": f.bic - current.bic, "profile_gain": float(screen.rss - chi.sum(1).min()),
+                    "delta_bic": f.bic - current.bic, "profile_gain": float(screen.rss - prof.best_total()),
                     "heldout_rmse_before": before.rmse, "heldout_rmse": None, "heldout_delta_chi2": None,
                     "heldout_gain": None,
                     "profile": {"s": prof.s, "chi2": [float(x) for x in prof.total()]},
-                    "per_clip_gain": {ws.clips[c].name: float(screen.chi2[c] - chi[:, c].min()) for c in idx}}
+                    "per_clip_gain": {ws.clips[c].name: float(screen.chi2[c] - best[c]) for c in idx}}
             if n >= 2:
                 cand.update(heldout_rmse=ho.rmse, heldout_gain=before.rmse - ho.rmse,
                             heldout_delta_chi2=before.total_chi2 - ho.total_chi2)
