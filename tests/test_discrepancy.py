@@ -871,6 +871,19 @@ def test_profile_seeded_by_the_screen_finds_the_walks_minimum():
             assert lowest(seeded) == lowest(walk), (seed_value, seeded.s, walk.s)
 
 
+def test_parabola_vertex_with_a_coordinate_profiled_twice():
+    """A coordinate profiled twice (a first run of this stop's hidden-effect benchmark stopped
+    on it at its 22nd trial: a joint fit ended on a profiled point, which was added again, and
+    the vertex came out NaN) must not divide by zero: the vertex is the
+    lowest point, and the exact vertex of a parabola sampled at distinct points is found."""
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert _parabola_min([0.0, 1.0, 1.0, 3.0], np.array([5.0, 1.0, 1.0, 4.0])) == 1.0
+        x = np.array([0.0, 1.0, 2.5, 4.0])
+        assert _parabola_min(list(x), 2.0 * (x - 1.7) ** 2 + 3.0) == pytest.approx(1.7)
+
+
 def test_profile_takes_its_point_at_the_joint_fit():
     """With the screen's point (:func:`_profile_candidate`): the screen's grid points, the
     joint fit from the best of them, then every clip fitted from the data at the joint fit's

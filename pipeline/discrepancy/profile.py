@@ -93,6 +93,8 @@ def _parabola_min(s: Sequence[float], y: np.ndarray) -> float:
     x0, x1, x2 = ss[b - 1:b + 2]
     y0, y1, y2 = yy[b - 1:b + 2]
     den = (x0 - x1) * (x0 - x2) * (x1 - x2)
+    if den == 0:   # a coordinate profiled twice
+        return float(x1)
     A = (x2 * (y1 - y0) + x1 * (y0 - y2) + x0 * (y2 - y1)) / den
     B = (x2 * x2 * (y0 - y1) + x1 * x1 * (y2 - y0) + x0 * x0 * (y1 - y2)) / den
     if A <= 0:
@@ -364,7 +366,8 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
         # Several: off the axis, kept as ``prof.at_joint`` (the profile gain counts it).
         at_joint = _fits_from_data(ws, idx, [joint.effects])[0]
         if len(keys) == 1:
-            prof.add(float(theta[0]), to_params(float(theta[0])), at_joint)
+            if all(abs(float(theta[0]) - v) > 1e-12 for v in prof.s):   # (e.g. the unmoved base optimum: its null point)
+                prof.add(float(theta[0]), to_params(float(theta[0])), at_joint)
             s_pts, _ = _profile_axis(ws, idx, current, name, direction)
             _bracket(prof, s_pts, to_params,
                      lambda values: _fits_from_data(ws, idx, [{**others, name: to_params(v)} for v in values]))
