@@ -219,8 +219,8 @@ def _profile_points(ws: "Workspace", idx: Sequence[int], current: Fit, name: str
     point at the joint fit is off the axis) the screen's point and both neighbours, then the
     bracket search, and no vertex (hidden wind trial 1031: from the screen's 5 m/s and 8
     alone, the joint fit stalled at chi2 153722 and floor tilt was named first; from the
-    bracketed 2.5 it reaches the truth, chi2 1030). Up, because the screen refits the clips to first order,
-    which credits strong strengths with less than a refit gains (drag: 3 kg/m^3 for a true
+    bracketed 2.5 it reaches the truth, chi2 1030). Up, because the screen refits the clips
+    to first order, which credits strong strengths with less than a refit gains (drag: 3 kg/m^3 for a true
     6.95); below the screen's point the bracket search fits more where the joint fit ends
     there. (The point below as well cost 8 clip fits, 5 s, on the 8-clip drag set of
     ``benchmarks/discrepancy_speed.py``, where the joint fit from 8 ends at 6.96.)
@@ -300,11 +300,10 @@ def _bracket(prof: Profile, s_pts: Sequence[float], to_params: Callable[[float],
     is bracketed by profiled points on both sides or lies at an end of the axis (the next grid
     point beyond the lowest on each open side, both in one pool map); ``fits_at(values)``: the
     per-clip fits at those coordinates. The null point ``s_pts[0]`` becomes the first point."""
+    grid = sorted(s_pts)
     while True:
-        total = prof.total()
-        low = prof.s[int(np.argmin(total))]
+        low = prof.s[int(np.argmin(prof.total()))]
         todo = []
-        grid = sorted(s_pts)
         if low >= max(prof.s):
             todo += [v for v in grid if v > low + 1e-12][:1]
         if low <= min(prof.s) and not (prof.has_null and low == prof.s[0]):
@@ -320,7 +319,7 @@ def _bracket(prof: Profile, s_pts: Sequence[float], to_params: Callable[[float],
 
 def _add_null(ws: "Workspace", idx: Sequence[int], prof: Profile, to_params: Callable[[float], dict],
               others: Mapping[str, Mapping[str, float]], name: str) -> None:
-    """Profile the null point (coordinate 0) of a lazily profiled ``prof``
+    """Profile the null point (coordinate ``prof.null_s``) of a lazily profiled ``prof``
     (:func:`_profile_points`) as its first point, where it is not yet."""
     if not prof.has_null:
         null = to_params(prof.null_s)
@@ -339,8 +338,8 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
        summed minimum is refined by a parabola step (with the screen's point ``direction``:
        the screen's points only, then, after step 2, every clip fitted from the data at the
        joint fit's coefficients, which is a profile point with one coefficient, and the grid
-       outwards until the lowest point is bracketed). Fitting from the data at every strength avoids the basin in which the
-       current model compensated for the missing effect (warm-starting from it left a ball
+       outwards until the lowest point is bracketed). Fitting from the data at every
+       strength avoids the basin in which the current model compensated for the missing effect (warm-starting from it left a ball
        with air drag at chi2/n 3-6 instead of 0.8).
     2. Joint fit: from the best point, the coefficients and all clips' parameters together.
     3. Held-out (leave one clip out): the strength that minimises the other clips' profile,
@@ -379,7 +378,6 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
         # set of ``benchmarks/discrepancy_speed.py`` the joint fit's 6.96 kg/m^3 lies between
         # the screen's points 3 and 8, so 20 and the vertex need no fits (10.6 s of 76).
         # Several: off the axis, kept as ``prof.at_joint`` (the profile gain counts it).
-        at_joint = _fits_from_data(ws, idx, [joint.effects])[0]
         if len(keys) == 1:
             def fits_at(values: Sequence[float]) -> list[Fit]:
                 return _fits_from_data(ws, idx, [{**others, name: to_params(v)} for v in values])
@@ -413,7 +411,7 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
                     add_joint_point()
                     _bracket(prof, s_pts, to_params, fits_at)
         else:
-            prof.at_joint = at_joint
+            prof.at_joint = _fits_from_data(ws, idx, [joint.effects])[0]
     n = len(idx)
     s2 = max(1.0, current.rss / max(current.n - current.k, 1))   # misfit inflates the noise
     at_null = prof.has_null and b == 0
