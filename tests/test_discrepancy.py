@@ -20,7 +20,7 @@ import pytest
 
 from pipeline import discrepancy as D
 from pipeline import effects as fx
-from pipeline.discrepancy.benchmark import _bench_summary, _trial_job
+from pipeline.discrepancy.benchmark import _bench_summary, _trial_job, interval_coverage
 from pipeline.cli import main as dynamics_main
 from pipeline.discrepancy.clip_model import _clip_scene, simulate_clips
 from pipeline.discrepancy.profile import (_fmt_interval, _parabola_min, _profile_candidate, _profile_points,
@@ -669,6 +669,28 @@ def test_benchmark_scores_the_exact_set_and_the_noise_floor():
     assert s["naming_accuracy"] == 0.5
     assert s["gap_within_1p5_noise"] == 0.5
     assert s["median_shrink"] == pytest.approx(0.85)
+
+
+def test_interval_coverage_counts_each_coefficient_of_a_rightly_named_effect():
+    """Coverage counts every fitted coefficient the truth gives a value for, only in trials
+    named exactly right; an open side holds everything beyond it."""
+    trials = [
+        # wind named right: wind_x inside, wind_y outside the profile interval (inside GN)
+        {"correct": True, "truth": "wind", "named": ["wind"], "truth_parameters": {"wind_x": 1.0, "wind_y": -2.0},
+         "named_ci": {"wind": {"wind_x": [0.9, 1.1], "wind_y": [-1.9, -1.8]}},
+         "named_ci_gauss_newton": {"wind": {"wind_x": [0.95, 1.05], "wind_y": [-2.1, -1.7]}}},
+        # drag named right, upper side open: holds the truth
+        {"correct": True, "truth": "quadratic_drag", "named": ["quadratic_drag"], "truth_parameters": {"density": 5.0},
+         "named_ci": {"quadratic_drag": {"density": [4.0, None]}},
+         "named_ci_gauss_newton": {"quadratic_drag": {"density": [5.5, 6.0]}}},
+        # misnamed: not counted
+        {"correct": False, "truth": "wind", "named": ["wind", "floor_tilt"], "truth_parameters": {"wind_x": 1.0},
+         "named_ci": {"wind": {"wind_x": [5.0, 6.0]}}, "named_ci_gauss_newton": {"wind": {"wind_x": [5.0, 6.0]}}},
+    ]
+    cov = interval_coverage(trials)["ci_coverage"]
+    assert cov["profile"] == {"held": 2, "coefficients": 3, "fraction": pytest.approx(2 / 3)}
+    assert cov["gauss_newton"] == {"held": 2, "coefficients": 3, "fraction": pytest.approx(2 / 3)}
+    assert interval_coverage([])["ci_coverage"]["profile"]["fraction"] is None
 
 
 def test_joint_fits_in_a_pool_equal_the_in_process_fits():

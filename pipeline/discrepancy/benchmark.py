@@ -25,8 +25,10 @@ def run_trial(seed: int, effect: str, cfg: DiscrepancyConfig | None = None, hidd
     random strength, run the workflow on the measurements only, compare with the truth.
 
     Returns:
-        ``{seed, truth, truth_parameters, named, named_parameters, correct, gap_before,
-        gap_after, shrink, runtime_s}``.
+        ``{seed, truth, truth_parameters, named, named_parameters, named_ci,
+        named_ci_gauss_newton, correct, gap_before, gap_after, shrink, noise, excess_shrink,
+        runtime_s}`` (intervals ``{effect: {parameter: [low|None, high|None]}}``, ``None`` an
+        open side).
     """
     t0 = time.perf_counter()
     cols, truth = generate_hidden(seed, hidden, options, effect=effect)
@@ -38,6 +40,7 @@ def run_trial(seed: int, effect: str, cfg: DiscrepancyConfig | None = None, hidd
     return {"seed": seed, "truth": truth["effect"], "truth_parameters": truth["parameters"], "named": named,
             "named_parameters": {n["effect"]: n["parameters"] for n in result.named},
             "named_ci": {n["effect"]: n["ci"] for n in result.named},
+            "named_ci_gauss_newton": {n["effect"]: n.get("ci_gauss_newton") or {} for n in result.named},
             "correct": named == expected, "gap_before": gap["before"], "gap_after": gap["after"],
             "shrink": gap["shrink"], "noise": gap["noise"], "excess_shrink": gap["excess_shrink"],
             "runtime_s": time.perf_counter() - t0}
@@ -118,15 +121,44 @@ def _bench_summary(rs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     """Accuracy (exact set), gap-shrink figures and the fraction of trials whose shown gap after
     naming is within 1.5x the noise floor, over trials ``rs`` (``None`` where empty)."""
     if not rs:
-        return {"naming_accuracy": None, "shrink_at_least_50pct": None, "median_shrink": None,
+        return {**interval_coverage(rs), "naming_accuracy": None, "shrink_at_least_50pct": None, "median_shrink": None,
                 "excess_shrink_at_least_50pct": None, "median_excess_shrink": None, "gap_within_1p5_noise": None}
     n = len(rs)
-    return {"naming_accuracy": sum(r["correct"] for r in rs) / n,
+    return {**interval_coverage(rs), "naming_accuracy": sum(r["correct"] for r in rs) / n,
             "shrink_at_least_50pct": sum(r["shrink"] >= 0.5 for r in rs) / n,
             "median_shrink": float(np.median([r["shrink"] for r in rs])),
             "excess_shrink_at_least_50pct": sum(r["excess_shrink"] >= 0.5 for r in rs) / n,
             "median_excess_shrink": float(np.median([r["excess_shrink"] for r in rs])),
             "gap_within_1p5_noise": sum(r["gap_after"] <= 1.5 * r["noise"] for r in rs) / n}
+
+
+def interval_coverage(rs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """How often the reported intervals hold the simulated truth, over the trials ``rs`` whose
+    named set is exactly right: every fitted coefficient of the named effect that the truth
+    gives a value for counts once (a wind or a tilt twice), an open side holds everything on
+    its side.
+
+    Returns:
+        ``{"ci_coverage": {"profile": {"held", "coefficients", "fraction"},
+        "gauss_newton": {...}}}`` (``fraction`` ``None`` where nothing was counted). A
+        calibrated 95 % interval holds the truth in ~95 % of coefficients.
+    """
+    out = {}
+    for kind, column in (("profile", "named_ci"), ("gauss_newton", "named_ci_gauss_newton")):
+        held = total = 0
+        for r in rs:
+            if not (r.get("correct") and r.get("named")) or column not in r:
+                continue
+            for effect, cis in (r[column] or {}).items():
+                for p, ci in (cis or {}).items():
+                    truth = (r.get("truth_parameters") or {}).get(p)
+                    if truth is None or ci is None or effect != r.get("truth"):
+                        continue
+                    lo, hi = ci
+                    total += 1
+                    held += (lo is None or lo <= truth) and (hi is None or truth <= hi)
+        out[kind] = {"held": held, "coefficients": total, "fraction": held / total if total else None}
+    return {"ci_coverage": out}
 
 
 def _per_effect(rs: Sequence[Mapping[str, Any]], names: Sequence[str]) -> dict[str, dict[str, Any]]:
@@ -168,6 +200,11 @@ def benchmark_markdown(bench: Mapping[str, Any], command: str = "") -> str:
                  ["single clip: median forward-gap shrink / above the noise",
                   f"{pct(one['median_shrink'])} / {pct(one['median_excess_shrink'])}"],
                  ["single clip: forward gap after naming within 1.5x the noise floor", pct(one['gap_within_1p5_noise'])]]
+    for kind, label in (("profile", "profile likelihood"), ("gauss_newton", "Gauss-Newton")):
+        c = (s.get("ci_coverage") or {}).get(kind) or {}
+        if c.get("coefficients"):
+            rows.append([f"95 % intervals ({label}) holding the truth, correctly named effect trials",
+                         f"{c['held']}/{c['coefficients']} = {pct(c['fraction'])}"])
     rows.append(["runtime", f"{s['runtime_s'] / 60:.1f} min ({s['jobs']} jobs)"])
     lines += [*table_lines(["metric", "value"], rows), "",
               "Naming is scored as the exact set of named effects (an extra effect is a miss).", ""]
