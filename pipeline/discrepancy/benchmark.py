@@ -120,11 +120,12 @@ def run_benchmark(trials: int, null_trials: int, seed: int = 1000, jobs: int | C
 def _bench_summary(rs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     """Accuracy (exact set), gap-shrink figures and the fraction of trials whose shown gap after
     naming is within 1.5x the noise floor, over trials ``rs`` (``None`` where empty)."""
+    coverage = interval_coverage(rs)
     if not rs:
-        return {**interval_coverage(rs), "naming_accuracy": None, "shrink_at_least_50pct": None, "median_shrink": None,
+        return {**coverage, "naming_accuracy": None, "shrink_at_least_50pct": None, "median_shrink": None,
                 "excess_shrink_at_least_50pct": None, "median_excess_shrink": None, "gap_within_1p5_noise": None}
     n = len(rs)
-    return {**interval_coverage(rs), "naming_accuracy": sum(r["correct"] for r in rs) / n,
+    return {**coverage, "naming_accuracy": sum(r["correct"] for r in rs) / n,
             "shrink_at_least_50pct": sum(r["shrink"] >= 0.5 for r in rs) / n,
             "median_shrink": float(np.median([r["shrink"] for r in rs])),
             "excess_shrink_at_least_50pct": sum(r["excess_shrink"] >= 0.5 for r in rs) / n,
@@ -149,14 +150,13 @@ def interval_coverage(rs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         for r in rs:
             if not (r.get("correct") and r.get("named")) or column not in r:
                 continue
-            for effect, cis in (r[column] or {}).items():
-                for p, ci in (cis or {}).items():
-                    truth = (r.get("truth_parameters") or {}).get(p)
-                    if truth is None or ci is None or effect != r.get("truth"):
-                        continue
-                    lo, hi = ci
-                    total += 1
-                    held += (lo is None or lo <= truth) and (hi is None or truth <= hi)
+            truths = r.get("truth_parameters") or {}
+            for p, ci in ((r[column] or {}).get(r["truth"]) or {}).items():
+                if truths.get(p) is None or ci is None:
+                    continue
+                lo, hi = ci
+                total += 1
+                held += (lo is None or lo <= truths[p]) and (hi is None or truths[p] <= hi)
         out[kind] = {"held": held, "coefficients": total, "fraction": held / total if total else None}
     return {"ci_coverage": out}
 

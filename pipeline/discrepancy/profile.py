@@ -220,8 +220,8 @@ def _profile_points(ws: "Workspace", idx: Sequence[int], current: Fit, name: str
     bracket search, and no vertex (hidden wind trial 1031: from the screen's 5 m/s and 8
     alone, the joint fit stalled at chi2 153722 and floor tilt was named first; from the
     bracketed 2.5 it reaches the truth, chi2 1030). Up, because the screen refits the clips
-    to first order, which credits strong strengths with less than a refit gains (drag: 3 kg/m^3 for a true
-    6.95); below the screen's point the bracket search fits more where the joint fit ends
+    to first order, which credits strong strengths with less than a refit gains (drag:
+    3 kg/m^3 for a true 6.95); below the screen's point the bracket search fits more where the joint fit ends
     there. (The point below as well cost 8 clip fits, 5 s, on the 8-clip drag set of
     ``benchmarks/discrepancy_speed.py``, where the joint fit from 8 ends at 6.96.)
 
@@ -339,8 +339,8 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
        the screen's points only, then, after step 2, every clip fitted from the data at the
        joint fit's coefficients, which is a profile point with one coefficient, and the grid
        outwards until the lowest point is bracketed). Fitting from the data at every
-       strength avoids the basin in which the current model compensated for the missing effect (warm-starting from it left a ball
-       with air drag at chi2/n 3-6 instead of 0.8).
+       strength avoids the basin in which the current model compensated for the missing
+       effect (warm-starting from it left a ball with air drag at chi2/n 3-6 instead of 0.8).
     2. Joint fit: from the best point, the coefficients and all clips' parameters together.
     3. Held-out (leave one clip out): the strength that minimises the other clips' profile,
        refined by a parabola step; but the effect's default value (a profile point, e.g. air
@@ -390,16 +390,16 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
             add_joint_point()
             s_pts, _ = _profile_axis(ws, idx, current, name, direction)
             _bracket(prof, s_pts, to_params, fits_at)
-            low = int(np.argmin(prof.total()))
-            if abs(prof.s[low] - float(theta[0])) > 1e-12 and \
-                    prof.total()[low] < joint.rss - ws.cfg.heldout_threshold:
+            total = prof.total()
+            low = int(np.argmin(total))
+            if abs(prof.s[low] - float(theta[0])) > 1e-12 and total[low] < joint.rss - ws.cfg.heldout_threshold:
                 # The joint fit stalled at its start (hidden Magnus trial 1028: from the grid
                 # point 1 it stayed at 1.0009, chi2 7223, where the profile at 2 was lower; truth
                 # 1.74): the profile's vertex, and the joint fit again from the lowest point.
                 # (Not where the lowest point is the one at the joint fit's own value: clips
                 # fitted one by one from the data often end lower than a joint fit of many,
                 # 56 chi2 on the 8-clip drag set, at the same coefficient.)
-                star = _parabola_min(prof.s, prof.total())
+                star = _parabola_min(prof.s, total)
                 if all(abs(star - v) > 1e-9 for v in prof.s):
                     prof.add(star, to_params(star), fits_at([star])[0])
                 b = int(np.argmin(prof.total()))
