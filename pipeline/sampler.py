@@ -543,8 +543,9 @@ def _penetration(data: mujoco.MjData) -> float:
 
 
 def _canonical(scene: Scene, decimals: Decimals | None) -> Scene:
-    """The scene as its canonical text stores it."""
-    return scene.rounded(decimals)
+    """The scene as its quantised text stores it (fixed decimals, default :class:`Decimals`:
+    the model's targets, unchanged by issue 35's significant-digit canonical text)."""
+    return scene.rounded(decimals or Decimals())
 
 
 # --------------------------------------------------------------------------- public API
@@ -557,8 +558,8 @@ def sample_scene(rng: np.random.Generator, cfg: SampleConfig, split: str,
         cfg: sampling params.
         split: ``train``, ``val``, ``test`` or ``test_comp``.
         filt: a :class:`SceneFilter` to reuse (one is made and closed if None).
-        decimals: rounding of the canonical text (params ``scene.decimals``); the filters
-            see the scene as that text stores it.
+        decimals: rounding of the quantised text (params ``scene.decimals``, default
+            :class:`Decimals`); the filters see the scene as that text stores it.
     Returns:
         the scene as its canonical YAML represents it (rounded).
     Raises:

@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.scene import Scene, SceneError, load_scene
+from pipeline.scene import Decimals, Scene, SceneError, load_scene
 
 SCENE = """\
 version: 1
@@ -59,15 +59,32 @@ def test_canonical_text_round_trips_exactly():
 
 def test_canonical_text_rounds_and_orders_keys():
     messy = """objects:
-  - {material: {damping: 0.0}, position: [0.123456, 0, 0.1], mass: 1.23456, size: {radius: 0.1}, shape: sphere}
+  - {material: {damping: 0.0}, position: [0.1234564, 0, 0.1], mass: 1.23456789, size: {radius: 0.1}, shape: sphere}
 camera: {fov: 45, pitch: 35, height: 1.2}
 """
     scene = Scene.from_yaml(messy)
     text = scene.to_yaml()
     assert text.index("camera:") < text.index("objects:")
-    assert "position: [0.123, 0.0, 0.1]" in text and "mass: 1.235" in text
+    # six significant digits whatever the field (issue 35)
+    assert "position: [0.123456, 0.0, 0.1]" in text and "mass: 1.23457" in text
     assert scene.rounded() == Scene.from_yaml(text)
     assert Scene.from_yaml(text).to_yaml() == text  # idempotent
+    # the quantised form (model targets): fixed decimals per field
+    quantised = scene.to_yaml(Decimals())
+    assert "position: [0.123, 0.0, 0.1]" in quantised and "mass: 1.235" in quantised
+    assert Scene.from_yaml(quantised).to_yaml(Decimals()) == quantised
+
+
+@pytest.mark.parametrize("value", [1e-5, 2.5e-7, 1e16, 123456789.0, 0.00012345678, -3e-9])
+def test_canonical_text_reads_back_every_magnitude_as_a_number(value):
+    """A float in exponent form must read back as a number: YAML 1.1 reads ``1e-05`` as a
+    string, so the canonical text writes ``1.0e-05``."""
+    scene = Scene.from_yaml(f"camera: {{height: 1.2}}\nobjects: [{{shape: sphere, size: {{radius: 0.1}}, mass: 1.0, "
+                            f"position: [{value!r}, 0.0, 0.5], linear_velocity: [0.0, {value!r}, 0.0]}}]\n")
+    again = Scene.from_yaml(scene.to_yaml())
+    assert again.objects[0].position[0] == pytest.approx(value, rel=5e-6)
+    assert again.objects[0].linear_velocity[1] == pytest.approx(value, rel=5e-6)
+    assert Scene.from_yaml(scene.to_yaml(Decimals())).objects[0].mass == 1.0
 
 
 @pytest.mark.parametrize("text,message", [
