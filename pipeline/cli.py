@@ -9,6 +9,7 @@
 
 User mistakes (bad scene, unreadable video, missing shard, bad params or trajectories) print
 one line ``<file>: <field>: <problem>`` to stderr and exit with status 2; nothing is written.
+So does any ``mujoco.FatalError`` (a scene past MuJoCo's limits, e.g. its arena memory).
 """
 
 from __future__ import annotations
@@ -16,6 +17,8 @@ from __future__ import annotations
 import argparse
 import sys
 import warnings
+
+import mujoco
 
 from pipeline import discrepancy, reconstruct, traces, view
 from pipeline.atomic import write_text
@@ -94,9 +97,22 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as exc:   # every subcommand: one line, exit 2 (pipeline.entry)
         print(user_error_line(exc), file=sys.stderr)
         return USER_ERROR_STATUS
+    except mujoco.FatalError as exc:  # e.g. mj_stackAlloc out of memory: MuJoCo's limit, not a bug
+        print(user_error_line(UserError(f"{_input_of(args)}: MuJoCo: must stay within MuJoCo's limits, got "
+                                        f"{' '.join(str(exc).split())[:200]}")), file=sys.stderr)
+        return USER_ERROR_STATUS
     except KeyboardInterrupt:
         return 130
     return int(result or 0)
+
+
+def _input_of(args: argparse.Namespace) -> str:
+    """The input file a subcommand was given (for a one-line error), else the subcommand."""
+    for key in ("scene", "video", "trajectories", "shard", "path"):
+        value = getattr(args, key, None)
+        if value:
+            return str(value[0] if isinstance(value, (list, tuple)) else value)
+    return str(args.command)
 
 
 if __name__ == "__main__":

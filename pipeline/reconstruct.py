@@ -9,14 +9,20 @@ sources: the model's K samples (when a model is available) and the perception pr
 together (Best@K), and the best is refined by staged CMA-ES (:mod:`pipeline.search.staged`).
 Outputs in DIR:
 
-* ``scene.yaml``: the refined scene (scene language v1, canonical form);
+* ``scene.yaml``: the refined scene (scene language v1, canonical form): the better, by the
+  search's fitness, of the search's result and the Best@K pick it started from, each with
+  initial overlaps resolved and checked as ``dynamics simulate`` checks it, so that
+  ``dynamics simulate scene.yaml`` runs as it is and gives ``masks.npz``;
+* ``masks.npz``: the re-simulated masks that were scored (``seg (T, H, W) int8``, -1 =
+  background, and ``names``; the layout of ``dynamics simulate``), at the working size;
 * ``side_by_side.mp4``: original frames with pseudo ground-truth masks | with re-simulated
   masks | the re-simulated render, panels ``realvideo.panel_height`` px high;
 * ``contact_sheet.png``: the same three rows at six instants;
 * ``metrics.json``: IoU against *pseudo* ground-truth masks (background subtraction) and EPE
   against the observed flow (same estimator), for the first sample, Best@K and Best@K +
   CMA-ES, and per source (model, perception) the number of proposals, valid ones and the best
-  IoU;
+  IoU; ``search_gain`` says which scene was written and what the search gained (or that it
+  found no gain);
 * ``recording.rrd``: rerun recording (observed and re-simulated streams, 3D scene, camera);
 * ``tracks.csv``: the observed object tracks in the scene's world frame beside the
   re-simulated ones (:mod:`pipeline.infer_tracks`), so ``dynamics discrepancy DIR`` can ask
@@ -26,6 +32,7 @@ Outputs in DIR:
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import os
 import sys
@@ -42,9 +49,10 @@ from pipeline.mjcf import SimOptions
 from pipeline.observe import observe, original_frames, upscale
 from pipeline.params import load_params, path_of, section, typed_section
 from pipeline.render import render_scene
-from pipeline.scene import Scene
+from pipeline.sanity import PhysicsError, SanityConfig, check_simulation, resolve_overlaps
+from pipeline.scene import Scene, SceneError
 from pipeline.search import EvaluatorPool, SearchConfig, best_of_k
-from pipeline.search.staged import REFERENCE_WIDTH, staged_refine
+from pipeline.search.staged import REFERENCE_WIDTH, score_scene, staged_refine
 from pipeline.video import VideoError
 from pipeline.view import camera_dict, scene_objects
 
@@ -118,6 +126,62 @@ def _source_summary(scores: list[dict], sources: list[str], name: str) -> dict:
             "best_fitness": None if best is None else round(best["fitness"], 4)}
 
 
+def writable(scene: Scene, sim: SimOptions, sanity: SanityConfig) -> tuple[Scene, list[str], str | None]:
+    """The scene as the main job would write it: objects that start interpenetrating moved
+    apart (:func:`pipeline.sanity.resolve_overlaps`), rounded to its canonical text, and checked
+    as ``dynamics simulate`` checks it (:func:`pipeline.sanity.check_simulation`).
+
+    Returns:
+        ``(scene, moves, problem)``: ``problem`` is None when ``dynamics simulate`` accepts the
+        scene as it is, else its one-line error (the scene is then the best effort).
+    """
+    moves: list[str] = []
+    try:
+        scene, moves = resolve_overlaps(scene, sim, sanity)
+    except PhysicsError as exc:
+        return scene.rounded(), moves, str(exc)
+    scene = scene.rounded()
+    try:
+        check_simulation(scene, sim, sanity)
+    except (PhysicsError, SceneError) as exc:
+        return scene, moves, str(exc)
+    return scene, moves, None
+
+
+def choose_output(candidates: list[tuple[str, Scene]], obs_seg: np.ndarray, obs_flow: np.ndarray | None,
+                  cfg: SearchConfig, sim: SimOptions, sanity: SanityConfig, pool: EvaluatorPool | None = None
+                  ) -> tuple[int, Scene, list[dict]]:
+    """Pick the scene the main job writes: of the search's result and the candidate it started
+    from (and any other), each made :func:`writable` and scored with the search's fitness
+    (``IoU - lambda * EPE`` at the observation's width, :func:`pipeline.search.staged.score_scene`),
+    the best that ``dynamics simulate`` accepts; the best of all only if none does. So the
+    written scene never scores below the start, and what is written is what is scored
+    (issue 35).
+
+    Args:
+        candidates: ``[(name, scene), ...]``, e.g. ``[("cmaes", refined), ("best_of_k", start)]``.
+        obs_seg: ``(T, H, W)`` int8 observed labels.
+        obs_flow: ``(T-1, H, W, 2)`` float observed flow, px, or None.
+        cfg: search config (``lambda_epe`` per px at the reference width).
+        sim, sanity: simulation options and the checks' thresholds.
+        pool: evaluators to reuse.
+    Returns:
+        ``(index, scene, report)``: the index chosen, its writable scene, and per candidate
+        ``{name, fitness, full_iou, epe, simulate_ok, problem, moves}``.
+    """
+    report, scenes = [], []
+    for name, scene in candidates:
+        fixed, moves, problem = writable(scene, sim, sanity)
+        s = score_scene(fixed, obs_seg, obs_flow, cfg, sim, pool=pool)
+        scenes.append(fixed)
+        report.append({"name": name, "fitness": round(float(s["fitness"]), 6), "full_iou": round(float(s["full_iou"]), 6),
+                       "epe": round(float(s["epe"]), 6), "simulate_ok": problem is None, "problem": problem,
+                       "moves": moves})
+    pool_ok = [i for i, r in enumerate(report) if r["simulate_ok"]] or list(range(len(report)))
+    i = max(pool_ok, key=lambda k: (report[k]["fitness"], -k))   # ties: the earlier candidate
+    return i, scenes[i], report
+
+
 def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | None = None,
                 start: float | None = None, model_dir: str | Path | None = None, k: int | None = None,
                 seed: int = 0, use_model: bool = True) -> dict:
@@ -154,6 +218,7 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
                                    "iterations": int(rv.get("iterations", scfg.iterations)),
                                    "lambda_epe": float(rv.get("lambda_epe", scfg.lambda_epe))})
     sim = typed_section(params, "sim", SimOptions, required=True)
+    sanity = typed_section(params, "sanity", SanityConfig)
     scene_fps, duration = int(rv.get("fps", 30)), float(rv.get("duration", 1.0))
     max_objects = int(rv.get("max_objects", 4))
 
@@ -209,7 +274,23 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
         refined, history = staged_refine(candidates[best], obs.seg, obs.flow, scfg, sim, seed=seed,
                                          restarts=int(rv.get("restarts", 2)), pool=pool,
                                          workers=int(rv.get("workers", 1)))
-    refined = refined.rounded()  # what scene.yaml holds is what is scored
+        # what scene.yaml holds is what is scored: the better of the search's result and its
+        # start, each as written (overlaps resolved, canonical text) and as `dynamics simulate` checks it
+        chosen, refined, choice = choose_output([("cmaes", refined), ("best_of_k", candidates[best])],
+                                                obs.seg, obs.flow, scfg, sim, sanity, pool=pool)
+    gain = choice[0]["fitness"] - choice[1]["fitness"]
+    search_gain = {
+        "written": choice[chosen]["name"], "fitness_gain": round(gain, 6),
+        "full_iou_gain": round(choice[0]["full_iou"] - choice[1]["full_iou"], 6),
+        "candidates": choice,
+        "note": ("the search found a gain over its start: its result is written" if chosen == 0 else
+                 "the search found no gain over its start (the Best@K pick): the start is written"
+                 if choice[0]["simulate_ok"] or not choice[1]["simulate_ok"] else
+                 "the search's result fails dynamics simulate's checks: the start is written"),
+    }
+    if not choice[chosen]["simulate_ok"]:
+        search_gain["note"] += f"; dynamics simulate refuses it: {choice[chosen]['problem']}"
+    print(f"[infer] {search_gain['note']} (fitness {choice[0]['fitness']:.4f} vs start {choice[1]['fitness']:.4f})")
 
     def score(scene: Scene) -> tuple[dict, object]:
         trace, fr = render_scene(scene, W, H, options=sim)
@@ -225,6 +306,9 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
 
     out.mkdir(parents=True, exist_ok=True)
     shards.write_text(out / "scene.yaml", refined.to_yaml())
+    buf = io.BytesIO()  # the masks that were scored, in the layout of `dynamics simulate`'s masks.npz
+    np.savez_compressed(buf, seg=fr.seg, names=np.asarray(refined.object_names))
+    shards.write_bytes(out / "masks.npz", buf.getvalue())
     # for people: original frames at panel height, masks drawn over them
     ph = int(rv.get("panel_height", 320))
     orig = original_frames(obs, video, fps, height=ph)
@@ -262,7 +346,7 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
         "sample_errors": [e for e in errors if e][:5],
         "first_sample_source": sources[first_i], "first_sample": m_first,
         "best_of_k_source": sources[best], "best_of_k_label": labels[best], "best_of_k": m_best,
-        "best_of_k_cmaes": m_ref,
+        "best_of_k_cmaes": m_ref, "search_gain": search_gain,
         "cmaes_evaluations": int(history[-1]["evaluations"]) if history else 0,
         "cmaes_seconds": float(history[-1]["seconds"]) if history else 0.0,
         "seconds": round(time.time() - t0, 1),

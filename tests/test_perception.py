@@ -145,6 +145,16 @@ def test_dynamics_infer_without_model(tmp_path, capsys, monkeypatch):
     assert m["objects_found"] == 1
     # the search starts from the best proposal and keeps it unless it finds better
     assert m["best_of_k_cmaes"]["full_iou"] >= 0.5
-    for f in ("scene.yaml", "side_by_side.mp4", "contact_sheet.png", "recording.rrd"):
+    for f in ("scene.yaml", "side_by_side.mp4", "contact_sheet.png", "recording.rrd", "masks.npz"):
         assert (out / f).exists()
     Scene.from_yaml((out / "scene.yaml").read_text())
+    # issue 35: never worse than the start, and the written scene is valid input to
+    # `dynamics simulate`, as it is, giving the masks that were scored
+    gain = m["search_gain"]
+    written = next(c for c in gain["candidates"] if c["name"] == gain["written"])
+    assert written["simulate_ok"] and all(written["fitness"] >= c["fitness"] for c in gain["candidates"]), gain
+    W, H = m["window"]["width"], m["window"]["height"]
+    rc = main(["simulate", str(out / "scene.yaml"), "--width", str(W), "--height", str(H), "--out", str(tmp_path / "sim")])
+    assert rc == 0, capsys.readouterr().err
+    with np.load(out / "masks.npz") as scored, np.load(tmp_path / "sim" / "masks.npz") as resim:
+        np.testing.assert_array_equal(scored["seg"], resim["seg"])

@@ -257,15 +257,16 @@ def test_search_space_decodes_start_and_stays_valid():
         assert a.mass == pytest.approx(b.mass)
     assert back.camera.fov == pytest.approx(scene.camera.fov)
     # corners of the box and random points decode to valid scenes: no centre below the start
-    # object's floor contact height (the documented bound; with size and orientation free as
-    # well, the decoded object's own contact height can be higher: up to 1.5 cm into the floor
-    # at these points, which the physics checks of the rollout must catch), friction and mass
-    # in range, shapes fixed
+    # object's floor contact height (the documented bound) nor below the decoded object's own
+    # (its size and orientation are free as well: before issue 35 it sank up to 1.5 cm into the
+    # floor at these points, and `dynamics simulate` refused the written scene), friction and
+    # mass in range, shapes fixed
     rng = np.random.default_rng(0)
     for x in [np.zeros(space.dim), np.ones(space.dim)] + list(rng.uniform(0, 1, (20, space.dim))):
         decoded = space.decode(x)
         for o, start in zip(decoded.objects, scene.objects):
             assert o.position[2] >= floor_height(start) - 1e-9, (o.position, floor_height(start))
+            assert o.position[2] >= floor_height(o) - 1e-12, (o.position, floor_height(o))
             assert o.material.sliding_friction >= 0.0 and o.mass > 0
         assert [o.shape for o in decoded.objects] == [o.shape for o in scene.objects]
     # known answer: the box starts on the floor, so the lowest corner keeps it there (not below)
