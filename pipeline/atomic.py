@@ -14,6 +14,7 @@ Example::
         write_video(tmp)
     with atomic_dir("models/run") as tmp:                     # a folder, swapped whole
         model.save_pretrained(tmp)
+    tmp = temp_dir_for("out"); write_all(tmp); publish_dir(tmp, "out")  # files into a user's folder
 """
 
 from __future__ import annotations
@@ -72,6 +73,63 @@ def replace_path(tmp: str | Path, path: str | Path) -> None:
         shutil.rmtree(old)
     else:
         os.replace(tmp, path)
+
+
+class AtomicWriter:
+    """Base of the streaming writers whose target appears whole or not at all
+    (``pipeline.viz.Mp4Writer``, ``pipeline.npz.NpzWriter``, ``pipeline.shards.ArrayShardWriter``):
+    ``with`` calls :meth:`close` (finish, rename onto the target) when its block completes and
+    :meth:`abort` (remove the temporary) when it raises."""
+
+    def close(self) -> Any:
+        raise NotImplementedError
+
+    def abort(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+
+def publish_dir(tmp: str | Path, path: str | Path) -> list[Path]:
+    """Publish the finished folder ``tmp`` (made by :func:`temp_dir_for`) at ``path`` without
+    touching anything else there.
+
+    If ``path`` does not exist, ``tmp`` is renamed onto it (one step: a reader sees no folder or
+    the whole one). If it exists, each entry of ``tmp`` is moved into it by rename, replacing an
+    entry of the same name (a file by a file, a folder swapped whole, :func:`replace_path`), and
+    ``tmp`` is removed; the folder and its other entries are kept (a user's ``--out`` folder is
+    never deleted). Killed between two moves, ``path`` holds some new entries beside old ones.
+
+    Returns:
+        the published paths inside ``path``.
+    Raises:
+        FileExistsError: ``path`` exists and is not a folder, or an entry of ``tmp`` that is a
+            file would replace a folder in ``path`` (checked before anything is moved).
+    """
+    tmp, path = Path(tmp), Path(path)
+    names = sorted(p.name for p in tmp.iterdir())
+    if not path.exists() and not path.is_symlink():
+        try:
+            os.rename(tmp, path)
+            return [path / name for name in names]
+        except OSError:          # made meanwhile by someone else: merge into it
+            pass
+    if not path.is_dir():
+        raise FileExistsError(f"{path}: must be a folder (or not exist yet), got a file")
+    for name in names:
+        if (path / name).is_dir() and not (tmp / name).is_dir():
+            raise FileExistsError(f"{path / name}: must be a file (or not exist yet), got a folder")
+    for name in names:
+        replace_path(tmp / name, path / name)
+    shutil.rmtree(tmp, ignore_errors=True)
+    return [path / name for name in names]
 
 
 @contextmanager

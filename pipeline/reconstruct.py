@@ -35,6 +35,7 @@ import argparse
 import io
 import json
 import os
+import shutil
 import sys
 import time
 from pathlib import Path
@@ -43,6 +44,7 @@ import cv2
 import numpy as np
 
 from pipeline import infer_tracks, perception, shards, viz
+from pipeline.atomic import publish_dir, remove_stale_temps, temp_dir_for
 from pipeline.flow import FlowConfig, estimate_flow
 from pipeline.metrics import flow_epe, sequence_iou
 from pipeline.mjcf import SimOptions
@@ -189,7 +191,8 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
 
     Args:
         video: video file path.
-        out: output folder (created; files inside are replaced atomically).
+        out: output folder (created; its files are written into a temporary folder beside it
+            and moved in at the end, so a killed run leaves nothing that looks complete).
         params: parsed params.yaml (sections ``render``, ``flow``, ``model``, ``search``, ``sim``,
             ``realvideo``, ``paths``).
         fps: true frame rate of the video, overriding the container's.
@@ -304,66 +307,76 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     m_best, _ = score(candidates[best])
     m_ref, (trace, fr) = score(refined)
 
-    out.mkdir(parents=True, exist_ok=True)
-    shards.write_text(out / "scene.yaml", refined.to_yaml())
-    buf = io.BytesIO()  # the masks that were scored, in the layout of `dynamics simulate`'s masks.npz
-    np.savez_compressed(buf, seg=fr.seg, names=np.asarray(refined.object_names))
-    shards.write_bytes(out / "masks.npz", buf.getvalue())
-    # for people: original frames at panel height, masks drawn over them
-    ph = int(rv.get("panel_height", 320))
-    orig = original_frames(obs, video, fps, height=ph)
-    psize = (orig.shape[2], orig.shape[1])
-    _, big = render_scene(refined, psize[0], psize[1], options=sim)
-    obs_overlay = viz.mask_overlay(orig, upscale(obs.seg, psize))
-    pred_overlay = viz.mask_overlay(orig, big.seg)
-    cols = [obs_overlay, pred_overlay, big.rgb]
-    names = ["observed + pseudo-GT masks", "observed + re-simulated masks", "re-simulated"]
-    viz.side_by_side_mp4(out / "side_by_side.mp4", cols, names, fps=scene_fps)
-    sheet_h = int(rv.get("sheet_height", 180))  # px per tile: six columns of 320 px tiles make a 6 MB PNG
-    small = [np.stack([cv2.resize(f, (max(2, round(f.shape[1] * sheet_h / f.shape[0])), sheet_h),
-                                  interpolation=cv2.INTER_AREA) for f in c]) for c in cols]
-    viz.contact_sheet(out / "contact_sheet.png", small, names,
-                      title=f"{Path(video).name}: full IoU {m_ref['full_iou']:.3f} (pseudo GT), "
-                            f"{len(refined.objects)} objects, window {obs.start:.2f}-{obs.start + duration:.2f} s")
-    clip = obs.clip
-    tracks = proposals.tracks if proposals else []
-    metrics = {
-        "video": str(video), "fps_used": clip.fps, "container_fps": clip.container_fps,
-        "window": {"start_s": round(obs.start, 4), "chosen_automatically": obs.auto, "duration_s": duration,
-                   "frames": len(obs.frames), "fps": scene_fps, "crop": list(obs.crop),
-                   "width": W, "height": H, "original_size": list(clip.original_size)},
-        "ground_truth": "pseudo: masks from background subtraction, flow from the same estimator "
-                        f"({obs.flow_method})",
-        "objects_found": len(tracks),
-        "object_pixels": [round(float(np.median(t.area)), 1) for t in tracks],
-        "view": proposals.view if proposals else None,
-        "perception_notes": notes, "model_note": model_note,
-        "sources": {name: _source_summary(scores, sources, name) for name in ("model", "perception")},
-        "proposals": [{"source": src, "label": lab, "valid": s["valid"],
-                       "full_iou": None if not s["valid"] else round(s["full_iou"], 4),
-                       "fitness": None if not s["valid"] else round(s["fitness"], 4)}
-                      for src, lab, s in zip(sources, labels, scores)],
-        "sample_errors": [e for e in errors if e][:5],
-        "first_sample_source": sources[first_i], "first_sample": m_first,
-        "best_of_k_source": sources[best], "best_of_k_label": labels[best], "best_of_k": m_best,
-        "best_of_k_cmaes": m_ref, "search_gain": search_gain,
-        "cmaes_evaluations": int(history[-1]["evaluations"]) if history else 0,
-        "cmaes_seconds": float(history[-1]["seconds"]) if history else 0.0,
-        "seconds": round(time.time() - t0, 1),
-    }
-    if tracks:   # observed tracks in the scene's world frame: input of `dynamics discrepancy OUT`
-        table = infer_tracks.tracks_table(refined, trace.qpos, tracks, scene_fps, W, H, clip=Path(video).stem)
-        infer_tracks.write_tracks(out / "tracks.csv", table)
-        gap = infer_tracks.resimulation_gap(table, infer_tracks.observed_axes(refined)) if table["t"] else None
-        metrics["tracks"] = {"file": "tracks.csv", "rows": len(table["t"]),
-                             "resimulation_rmse_px": None if gap is None else round(gap["rmse_px"], 3)}
-    shards.write_json(out / "metrics.json", metrics)
-    viz.record_clip(out / "recording.rrd", rgb=obs.frames, seg=fr.seg, flow=obs.flow,
-                    positions=trace.qpos[..., :3], quaternions=trace.qpos[..., 3:],
-                    objects=scene_objects(refined), camera=camera_dict(refined, W, H), fps=scene_fps,
-                    app_id="dynamics_infer",
-                    scalars={"iou/frame": sequence_iou(obs.seg, fr.seg)["per_frame"]})
-    print(f"[infer] wrote {out}: full IoU {m_ref['full_iou']:.3f} (pseudo GT), EPE {m_ref['epe']:.2f} px, "
+    # every file is written into a temporary folder beside OUT and published at the end
+    # (pipeline.atomic.publish_dir): a run killed midway (or out of memory) leaves no OUT that
+    # looks complete, only a hidden temporary folder that the next run removes
+    final = out
+    remove_stale_temps(final)
+    out = temp_dir_for(final)
+    try:
+        shards.write_text(out / "scene.yaml", refined.to_yaml())
+        buf = io.BytesIO()  # the masks that were scored, in the layout of `dynamics simulate`'s masks.npz
+        np.savez_compressed(buf, seg=fr.seg, names=np.asarray(refined.object_names))
+        shards.write_bytes(out / "masks.npz", buf.getvalue())
+        # for people: original frames at panel height, masks drawn over them
+        ph = int(rv.get("panel_height", 320))
+        orig = original_frames(obs, video, fps, height=ph)
+        psize = (orig.shape[2], orig.shape[1])
+        _, big = render_scene(refined, psize[0], psize[1], options=sim)
+        obs_overlay = viz.mask_overlay(orig, upscale(obs.seg, psize))
+        pred_overlay = viz.mask_overlay(orig, big.seg)
+        cols = [obs_overlay, pred_overlay, big.rgb]
+        names = ["observed + pseudo-GT masks", "observed + re-simulated masks", "re-simulated"]
+        viz.side_by_side_mp4(out / "side_by_side.mp4", cols, names, fps=scene_fps)
+        sheet_h = int(rv.get("sheet_height", 180))  # px per tile: six columns of 320 px tiles make a 6 MB PNG
+        small = [np.stack([cv2.resize(f, (max(2, round(f.shape[1] * sheet_h / f.shape[0])), sheet_h),
+                                      interpolation=cv2.INTER_AREA) for f in c]) for c in cols]
+        viz.contact_sheet(out / "contact_sheet.png", small, names,
+                          title=f"{Path(video).name}: full IoU {m_ref['full_iou']:.3f} (pseudo GT), "
+                                f"{len(refined.objects)} objects, window {obs.start:.2f}-{obs.start + duration:.2f} s")
+        clip = obs.clip
+        tracks = proposals.tracks if proposals else []
+        metrics = {
+            "video": str(video), "fps_used": clip.fps, "container_fps": clip.container_fps,
+            "window": {"start_s": round(obs.start, 4), "chosen_automatically": obs.auto, "duration_s": duration,
+                       "frames": len(obs.frames), "fps": scene_fps, "crop": list(obs.crop),
+                       "width": W, "height": H, "original_size": list(clip.original_size)},
+            "ground_truth": "pseudo: masks from background subtraction, flow from the same estimator "
+                            f"({obs.flow_method})",
+            "objects_found": len(tracks),
+            "object_pixels": [round(float(np.median(t.area)), 1) for t in tracks],
+            "view": proposals.view if proposals else None,
+            "perception_notes": notes, "model_note": model_note,
+            "sources": {name: _source_summary(scores, sources, name) for name in ("model", "perception")},
+            "proposals": [{"source": src, "label": lab, "valid": s["valid"],
+                           "full_iou": None if not s["valid"] else round(s["full_iou"], 4),
+                           "fitness": None if not s["valid"] else round(s["fitness"], 4)}
+                          for src, lab, s in zip(sources, labels, scores)],
+            "sample_errors": [e for e in errors if e][:5],
+            "first_sample_source": sources[first_i], "first_sample": m_first,
+            "best_of_k_source": sources[best], "best_of_k_label": labels[best], "best_of_k": m_best,
+            "best_of_k_cmaes": m_ref, "search_gain": search_gain,
+            "cmaes_evaluations": int(history[-1]["evaluations"]) if history else 0,
+            "cmaes_seconds": float(history[-1]["seconds"]) if history else 0.0,
+            "seconds": round(time.time() - t0, 1),
+        }
+        if tracks:   # observed tracks in the scene's world frame: input of `dynamics discrepancy OUT`
+            table = infer_tracks.tracks_table(refined, trace.qpos, tracks, scene_fps, W, H, clip=Path(video).stem)
+            infer_tracks.write_tracks(out / "tracks.csv", table)
+            gap = infer_tracks.resimulation_gap(table, infer_tracks.observed_axes(refined)) if table["t"] else None
+            metrics["tracks"] = {"file": "tracks.csv", "rows": len(table["t"]),
+                                 "resimulation_rmse_px": None if gap is None else round(gap["rmse_px"], 3)}
+        shards.write_json(out / "metrics.json", metrics)
+        viz.record_clip(out / "recording.rrd", rgb=obs.frames, seg=fr.seg, flow=obs.flow,
+                        positions=trace.qpos[..., :3], quaternions=trace.qpos[..., 3:],
+                        objects=scene_objects(refined), camera=camera_dict(refined, W, H), fps=scene_fps,
+                        app_id="dynamics_infer",
+                        scalars={"iou/frame": sequence_iou(obs.seg, fr.seg)["per_frame"]})
+        publish_dir(out, final)
+    finally:
+        if out.exists():
+            shutil.rmtree(out, ignore_errors=True)
+    print(f"[infer] wrote {final}: full IoU {m_ref['full_iou']:.3f} (pseudo GT), EPE {m_ref['epe']:.2f} px, "
           f"{len(refined.objects)} objects, best proposal: {labels[best]}, {metrics['seconds']} s")
     return metrics
 

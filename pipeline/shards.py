@@ -26,8 +26,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 # atomic writes: pipeline.atomic is the one implementation; its writers stay importable from here
-from pipeline.atomic import (atomic_dir, atomic_path, json_default, remove_stale_temps, replace_path,  # noqa: F401
-                             temp_dir_for, write_bytes, write_json, write_text)
+from pipeline.atomic import (AtomicWriter, atomic_dir, atomic_path, json_default, remove_stale_temps,  # noqa: F401
+                             replace_path, temp_dir_for, write_bytes, write_json, write_text)
 from pipeline.errors import UserError
 
 SHARD_TEMPLATE = "shard-{index:05d}.{ext}"
@@ -137,13 +137,107 @@ def table_metadata(path: str | Path) -> dict:
     return json.loads(raw) if raw else {}
 
 
+class ArrayShardWriter(AtomicWriter):
+    """Write a Zarr shard (a directory store, zarr 3 API) scene by scene, so a shard never has
+    to be in memory whole.
+
+    The group is made in a temporary folder beside ``path`` (:func:`pipeline.atomic.temp_dir_for`);
+    :meth:`close` writes ``scene_id`` and the attributes and renames it onto ``path`` (a folder
+    there is swapped whole); :meth:`abort`, or an exception inside ``with``, removes it, so
+    ``path`` is the whole shard or untouched. Arrays have the scene axis first and are chunked
+    one scene per chunk.
+
+    Example::
+
+        with ArrayShardWriter(shard_path(out, 0, "zarr"), attrs={"fps": 30}) as shard:
+            for sid, frames in scenes:
+                shard.append({"rgb": frames.rgb, "seg": frames.seg}, scene_id=sid)   # one scene each
+
+    Args:
+        path: target ``.zarr`` directory.
+        attrs: JSON-serialisable group attributes (units, params, seed); more may be added to
+            :attr:`attrs` before :meth:`close`.
+    """
+
+    def __init__(self, path: str | Path, attrs: Mapping[str, Any] | None = None) -> None:
+        import zarr
+
+        self.path = Path(path)
+        self.attrs: dict[str, Any] = dict(attrs or {})
+        self.scene_ids: list[str] | None = None
+        """Scene keys stored as the array ``scene_id`` by :meth:`close` (None: no such array)."""
+        self._tmp = temp_dir_for(self.path)
+        self._group = zarr.open_group(str(self._tmp), mode="w")
+        self._arrays: dict[str, Any] = {}
+
+    def write(self, name: str, array: np.ndarray) -> None:
+        """Write a whole array ``(N, ...)`` (scene axis first; a 0-d or empty one is one chunk).
+
+        Raises:
+            ValueError: ``name`` was written or appended already.
+        """
+        if name in self._arrays:
+            raise ValueError(f"{self.path}: {name}: must be written once, got it twice")
+        array = np.asarray(array)
+        chunks = (1,) + array.shape[1:] if array.ndim >= 1 and array.shape[0] > 0 else array.shape
+        z = self._group.create_array(name, shape=array.shape, dtype=array.dtype, chunks=chunks)
+        z[...] = array
+        self._arrays[name] = z
+
+    def append(self, scene: Mapping[str, np.ndarray], scene_id: str | None = None) -> None:
+        """Append one scene: ``scene[name]`` is that scene's array without the scene axis (e.g.
+        ``rgb (T, H, W, 3) uint8``), stored at index ``N`` of array ``name (N + 1, ...)``; the
+        first scene fixes each array's shape and dtype.
+
+        Args:
+            scene: name -> array of this scene (the same names for every scene).
+            scene_id: this scene's key (appended to :attr:`scene_ids`).
+        Raises:
+            ValueError: a name, shape or dtype differs from the first scene's.
+        """
+        scene = {name: np.asarray(a) for name, a in scene.items()}
+        if self._arrays and set(scene) != set(self._arrays):
+            raise ValueError(f"{self.path}: scene {scene_id}: arrays must be {sorted(self._arrays)}, "
+                             f"got {sorted(scene)}")
+        for name, a in scene.items():
+            z = self._arrays.get(name)
+            if z is None:
+                z = self._arrays[name] = self._group.create_array(name, shape=(0, *a.shape), dtype=a.dtype,
+                                                                  chunks=(1, *a.shape))
+            elif a.shape != z.shape[1:] or a.dtype != z.dtype:
+                raise ValueError(f"{self.path}: scene {scene_id}: {name} must be {z.shape[1:]} {z.dtype} like the "
+                                 f"first scene's, got {a.shape} {a.dtype}")
+            z.append(a[None], axis=0)
+        if scene_id is not None:
+            self.scene_ids = [*(self.scene_ids or []), str(scene_id)]
+
+    def close(self) -> Path:
+        """Write ``scene_id`` and the attributes and rename the shard onto ``path``. Returns ``path``."""
+        try:
+            if self.scene_ids is not None:
+                ids = np.asarray(list(self.scene_ids), dtype=object)
+                z = self._group.create_array("scene_id", shape=ids.shape, dtype=str)  # variable-length UTF-8 (zarr v3 spec)
+                z[...] = ids
+            self._group.attrs.update(json.loads(json.dumps(self.attrs, default=json_default)))
+            replace_path(self._tmp, self.path)
+        except BaseException:
+            self.abort()
+            raise
+        return self.path
+
+    def abort(self) -> None:
+        """Remove the temporary shard; ``path`` stays as it was."""
+        shutil.rmtree(self._tmp, ignore_errors=True)
+
+
 def write_arrays(
     path: str | Path,
     arrays: Mapping[str, np.ndarray],
     attrs: Mapping[str, Any] | None = None,
     scene_ids: Sequence[str] | None = None,
 ) -> Path:
-    """Atomically write a Zarr shard (a directory store).
+    """Atomically write a Zarr shard (a directory store) from whole arrays in memory
+    (:class:`ArrayShardWriter`; to write scene by scene, use it directly).
 
     Args:
         path: target ``.zarr`` directory.
@@ -152,22 +246,12 @@ def write_arrays(
         attrs: JSON-serialisable group attributes (units, params, seed).
         scene_ids: ``N`` scene keys, stored as the array ``scene_id``.
     """
-    import zarr
-
-    path = Path(path)
-    with atomic_dir(path) as tmp:
-        group = zarr.open_group(str(tmp), mode="w")
+    with ArrayShardWriter(path, attrs) as shard:
         for name, arr in arrays.items():
-            arr = np.asarray(arr)
-            chunks = (1,) + arr.shape[1:] if arr.ndim >= 1 and arr.shape[0] > 0 else arr.shape
-            z = group.create_array(name, shape=arr.shape, dtype=arr.dtype, chunks=chunks)
-            z[...] = arr
+            shard.write(name, arr)
         if scene_ids is not None:
-            ids = np.asarray(list(scene_ids), dtype=object)
-            z = group.create_array("scene_id", shape=ids.shape, dtype=str)  # variable-length UTF-8 (zarr v3 spec)
-            z[...] = ids
-        group.attrs.update(json.loads(json.dumps(dict(attrs or {}), default=json_default)))
-    return path
+            shard.scene_ids = list(scene_ids)
+    return Path(path)
 
 
 def open_arrays(path: str | Path):

@@ -14,14 +14,16 @@ Two layouts of the same :class:`pipeline.simulate.Trace`:
 ``dynamics simulate SCENE.yaml --out DIR`` (:func:`write_simulation`) writes ``trace.parquet``,
 ``rgb.mp4``, ``masks.npz`` (``seg (T, H, W) int8``, -1 = background, and ``names``), a
 ``masks.mp4`` preview, and ``events.json``. A scene that fails validation prints the scene
-language's one-line error and exits with status 2, writing nothing.
+language's one-line error and exits with status 2, writing nothing. Frames are rendered and
+written in chunks, so memory does not grow with the clip's length (issue 35:
+``benchmarks/sim_memory.py``), and the files appear in ``DIR`` only once all are complete.
 """
 
 from __future__ import annotations
 
 import argparse
-import io
 import json
+import shutil
 import sys
 from pathlib import Path
 from typing import Any, Mapping
@@ -32,14 +34,16 @@ import pyarrow as pa
 from absl import logging as absl_logging
 
 from pipeline import sanity as checks, shards
+from pipeline.atomic import publish_dir, remove_stale_temps, temp_dir_for
 from pipeline.events import EventConfig, events_to_json, events_to_text, extract_events
 from pipeline.mjcf import SimOptions, compile_model
+from pipeline.npz import NpzWriter
 from pipeline.params import ParamsError, load_params, typed_section
 from pipeline.render import FrameRenderer
 from pipeline.sanity import PhysicsError, SanityConfig, resolve_overlaps
 from pipeline.scene import Scene, SceneError, load_scene
 from pipeline.simulate import Contact, Trace, mujoco_warnings, rollout
-from pipeline.viz import mask_overlay, side_by_side_mp4
+from pipeline.viz import Mp4Writer, mask_colours
 
 TRACES_SCHEMA = pa.schema([
     ("scene_id", pa.string()),
@@ -131,10 +135,29 @@ def check_stable(trace, data=None) -> None:
         raise SceneError("<scene>: simulation: must stay stable (MuJoCo), got " + "; ".join(problems))
 
 
+OUTPUT_FILES = {"trace": "trace.parquet", "rgb": "rgb.mp4", "masks": "masks.npz", "masks_preview": "masks.mp4",
+                "events": "events.json"}
+"""What ``dynamics simulate`` writes into ``--out``: key -> file name."""
+
+RENDER_CHUNK_PIXELS = 1 << 22
+"""Pixels rendered per chunk by :func:`write_simulation` (frames x H x W, at least one frame and at
+most :data:`RENDER_CHUNK_FRAMES`): ~16 bytes of chunk buffers per pixel (RGB, id colours, masks,
+the upright RGB copy, the preview), so ~70 MB whatever the clip's length (the whole clip in memory
+cost ~9.6 MB per frame at 480 x 320, issue 35)."""
+RENDER_CHUNK_FRAMES = 64
+"""Most frames rendered per chunk."""
+
+
+def chunk_frames(width: int, height: int) -> int:
+    """Frames per render chunk at ``width`` x ``height`` px (:data:`RENDER_CHUNK_PIXELS`)."""
+    return max(1, min(RENDER_CHUNK_FRAMES, RENDER_CHUNK_PIXELS // (width * height)))
+
+
 def write_simulation(scene: Scene, out_dir: str | Path, width: int = 480, height: int = 320,
                      options: SimOptions | None = None, events: EventConfig | None = None,
                      sanity: "SanityConfig | None" = None, source: str = "<scene>") -> dict[str, Path]:
-    """Simulate and render a scene and write what ``dynamics simulate`` promises.
+    """Simulate and render a scene and write what ``dynamics simulate`` promises
+    (:data:`OUTPUT_FILES`).
 
     The scene is compiled and checked before anything is written (``pipeline.sanity``: step
     budget and initial interpenetration before the rollout; stability, energy, bounding region,
@@ -143,9 +166,23 @@ def write_simulation(scene: Scene, out_dir: str | Path, width: int = 480, height
     where needed so that the frame interval is a whole number of steps
     (``pipeline.mjcf.frame_timestep``); ``trace.parquet`` metadata records the one used.
 
+    Memory does not grow with the clip's length: the rollout (``qpos``/``qvel``, T x n x 13
+    floats) is kept, but frames are rendered :func:`chunk_frames` at a time and each chunk is
+    appended to ``rgb.mp4``, ``masks.npz`` and ``masks.mp4`` (:class:`pipeline.viz.Mp4Writer`,
+    :class:`pipeline.npz.NpzWriter`) before the next; only the per-object visible pixel counts
+    (T, n) are accumulated for the events. What does grow is the trace, with frames x objects
+    (bounded by the scene schema: ``MAX_FRAMES`` x ``MAX_OBJECTS``; ~1.3 GB peak at 10,000
+    frames of 127 spheres). Every file goes into a temporary folder
+    ``.<out>.XXXX.tmp`` beside ``out_dir`` (what a killed earlier run left there is removed
+    first) that is published when all are complete (:func:`pipeline.atomic.publish_dir`):
+    renamed onto ``out_dir`` if it does not exist, otherwise each file moved into it (other
+    files there are kept). A run killed or failing midway leaves ``out_dir`` as it was (absent
+    if it was), never complete-looking files; two runs into one ``out_dir`` at the same time are
+    not supported (the second removes the first's temporary folder as stale).
+
     Args:
         scene: validated scene.
-        out_dir: output folder (created).
+        out_dir: output folder (created, or the files put into it).
         width, height: render size, px.
         options: simulation options (params ``sim``).
         events: event thresholds (params ``events``).
@@ -157,6 +194,7 @@ def write_simulation(scene: Scene, out_dir: str | Path, width: int = 480, height
         SceneError: the scene's effects are unknown or out of range, or the simulation is
             unstable (MuJoCo).
         pipeline.sanity.PhysicsError: a failed physical check (one line naming the check).
+        FileExistsError: ``out_dir`` holds a folder named like one of the output files.
     """
     options = options or SimOptions()
     model = compile_model(scene, options)
@@ -165,35 +203,67 @@ def write_simulation(scene: Scene, out_dir: str | Path, width: int = 480, height
     trace = rollout(model, len(scene.objects), scene.n_frames, scene.fps, data=data)
     check_stable(trace)
     checks.raise_problems(checks.rollout_problems(model, trace.qpos, trace.qvel, sanity), source)
-    with FrameRenderer(model, width, height) as renderer:
-        frames = renderer.render(trace.qpos, rgb=True, seg=True, depth=False, flow=False)
-    visible = frames.visible_pixels(len(scene.objects))
-    cfg = events or EventConfig()
-    found = extract_events(trace, visible, cfg)
 
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = {"trace": out / "trace.parquet", "rgb": out / "rgb.mp4", "masks": out / "masks.npz",
-             "masks_preview": out / "masks.mp4", "events": out / "events.json"}
-    shards.write_table(paths["trace"], object_frame_table(trace),
-                       metadata={"units": UNITS, "scene": scene.to_yaml(), "sim": options.model_dump(),
-                                 "timestep": float(model.opt.timestep)})
-    side_by_side_mp4(paths["rgb"], [frames.rgb], [""], scene.fps)
-    buf = io.BytesIO()
-    np.savez_compressed(buf, seg=frames.seg, names=np.asarray(scene.object_names))
-    shards.write_bytes(paths["masks"], buf.getvalue())
-    preview = mask_overlay(np.zeros_like(frames.rgb), frames.seg, alpha=1.0)  # object colours on black
-    side_by_side_mp4(paths["masks_preview"], [preview], [""], scene.fps)
-    shards.write_json(paths["events"], {
-        "names": scene.object_names, "fps": scene.fps, "n_frames": scene.n_frames,
-        "width": width, "height": height, "events": events_to_json(found),
-        "text": events_to_text(found, scene.object_names, cfg.decimals), "config": cfg.model_dump(),
-    })
-    return paths
+    remove_stale_temps(out)      # what a killed earlier run left beside out_dir
+    tmp = temp_dir_for(out)
+    try:
+        paths = {key: tmp / name for key, name in OUTPUT_FILES.items()}
+        shards.write_table(paths["trace"], object_frame_table(trace),
+                           metadata={"units": UNITS, "scene": scene.to_yaml(), "sim": options.model_dump(),
+                                     "timestep": float(model.opt.timestep)})
+        visible = render_streamed(model, trace.qpos, width, height, scene.fps, scene.object_names,
+                                  paths["rgb"], paths["masks"], paths["masks_preview"])
+        cfg = events or EventConfig()
+        found = extract_events(trace, visible, cfg)
+        shards.write_json(paths["events"], {
+            "names": scene.object_names, "fps": scene.fps, "n_frames": scene.n_frames,
+            "width": width, "height": height, "events": events_to_json(found),
+            "text": events_to_text(found, scene.object_names, cfg.decimals), "config": cfg.model_dump(),
+        })
+        publish_dir(tmp, out)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+    return {key: out / name for key, name in OUTPUT_FILES.items()}
+
+
+def render_streamed(model: mujoco.MjModel, qpos: np.ndarray, width: int, height: int, fps: float,
+                    names: list[str], rgb_path: Path, masks_path: Path, preview_path: Path) -> np.ndarray:
+    """Render ``qpos`` :func:`chunk_frames` frames at a time into ``rgb.mp4``, ``masks.npz`` and
+    the ``masks.mp4`` preview (object colours on black), each written atomically.
+
+    Args:
+        model: compiled scene (camera ``main``).
+        qpos: (T, n, 7) float body poses per frame.
+        width, height: render size W x H, px.
+        fps: frames per second of the videos.
+        names: the n object names (``masks.npz``'s ``names``).
+        rgb_path, masks_path, preview_path: the three files.
+    Returns:
+        (T, n) int64 visible pixels per frame and object (``Frames.visible_pixels``).
+    """
+    T, n = qpos.shape[:2]
+    step = chunk_frames(width, height)
+    visible = np.zeros((T, n), dtype=np.int64)
+    with (FrameRenderer(model, width, height) as renderer, Mp4Writer(rgb_path, [""], fps) as rgb_video,
+          Mp4Writer(preview_path, [""], fps) as preview_video, NpzWriter(masks_path) as npz):
+        with npz.stream("seg", (T, height, width), np.int8) as seg:
+            for a in range(0, T, step):
+                frames = renderer.render(qpos[a:a + step], rgb=True, seg=True, depth=False, flow=False)
+                visible[a:a + step] = frames.visible_pixels(n)
+                rgb_video.write([frames.rgb])
+                seg.write(frames.seg)
+                preview_video.write([mask_colours(frames.seg)])
+        npz.write("names", np.asarray(names))
+    return visible
 
 
 MIN_SIZE, MAX_SIZE = 2, 4096
-"""Render sizes ``dynamics simulate`` accepts, px (the mp4 encoder needs >= 2)."""
+"""Render sizes ``dynamics simulate`` accepts, px (the mp4 encoder needs >= 2). Memory grows with
+the frame size, not with the clip's length: ~0.6 GB at 160 x 120 or 480 x 320 (mostly the
+imported libraries), ~2.6 GB at 4096 x 4096 (one frame per chunk; MuJoCo's offscreen buffers
+included)."""
 
 
 def add_simulate_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
@@ -226,6 +296,9 @@ def simulate_cli(args: argparse.Namespace) -> int:
             return fail(f"--{name}: must be in {MIN_SIZE}..{MAX_SIZE} px, got {value}")
     if Path(args.out).exists() and not Path(args.out).is_dir():
         return fail(f"{args.out}: --out: must be a folder (or not exist yet), got an existing file")
+    for name in OUTPUT_FILES.values():
+        if (Path(args.out) / name).is_dir():
+            return fail(f"{Path(args.out) / name}: --out: must not hold a folder named {name}, got one")
     try:
         scene = load_scene(args.scene)
         options, events, sanity = SimOptions(), EventConfig(), SanityConfig()

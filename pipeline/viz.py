@@ -4,7 +4,8 @@ Everything here takes plain arrays (no :class:`~pipeline.scene.Scene`), so any s
 anything: rendered or real frames, masks, depth, flow, 3D poses and per-frame metrics.
 Every file is written atomically (temporary sibling, then rename).
 
-- :func:`side_by_side_mp4`: columns of equal-length videos in one mp4, labelled.
+- :func:`side_by_side_mp4`: columns of equal-length videos in one mp4, labelled;
+  :class:`Mp4Writer` the same, streamed a frame or a chunk of frames at a time.
 - :func:`record_clip`: a rerun ``.rrd`` recording (open with ``rerun FILE.rrd``), written
   headless; ``rerun`` is imported only here, lazily.
 - :func:`plot_curves`: line plots to PNG with matplotlib's Agg canvas (no pyplot state).
@@ -29,7 +30,7 @@ import cv2
 import numpy as np
 
 from pipeline.flow import flow_to_rgb
-from pipeline.atomic import atomic_path, write_bytes
+from pipeline.atomic import AtomicWriter, atomic_path, replace_path, temp_file_for, write_bytes
 
 PALETTE = np.array([
     (31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
@@ -90,6 +91,23 @@ def mask_overlay(rgb: np.ndarray, seg: np.ndarray, alpha: float = 0.5) -> np.nda
     return np.clip(np.rint(out), 0, 255).astype(np.uint8)
 
 
+def mask_colours(seg: np.ndarray) -> np.ndarray:
+    """Each object's palette colour on black: ``mask_overlay(np.zeros(...), seg, alpha=1.0)``
+    pixel for pixel, without its float temporaries (~4 bytes per pixel instead of ~60; the
+    ``masks.mp4`` preview of ``dynamics simulate``).
+
+    Args:
+        seg: ``(..., H, W)`` integer object ids, ``-1`` (or any negative) = background.
+
+    Returns:
+        ``(..., H, W, 3)`` uint8: ``PALETTE[id % 10]`` on objects, 0 on the background.
+    """
+    seg = np.asarray(seg)
+    out = PALETTE[np.where(seg >= 0, seg, 0) % len(PALETTE)]
+    out[seg < 0] = 0
+    return out
+
+
 def _put_label(frame: np.ndarray, text: str) -> None:
     """Write ``text`` top-left on an RGB frame, white on a black outline, in place."""
     scale = max(0.3, frame.shape[0] / 400)
@@ -102,13 +120,134 @@ def _put_label(frame: np.ndarray, text: str) -> None:
                 cv2.LINE_AA)
 
 
+class Mp4Writer(AtomicWriter):
+    """Streaming side-by-side mp4 (MPEG-4 Part 2, fourcc ``mp4v``): frames are encoded as they
+    come, so memory does not grow with the clip's length.
+
+    Columns of equal height are placed side by side, each labelled top-left (labels are drawn
+    on copies, never on the input). The encoder writes a temporary sibling ``.<name>.XXXX.mp4``
+    of ``path`` (OpenCV picks the container from the name), renamed onto ``path`` by
+    :meth:`close`; :meth:`abort` (or an exception inside ``with``) removes it, so ``path`` is
+    either the whole video or untouched.
+
+    Example::
+
+        with Mp4Writer("out/rgb.mp4", ["rgb", "seg"], fps=30) as video:
+            for a in range(0, T, 32):
+                video.write([rgb[a:a + 32], mask_overlay(rgb[a:a + 32], seg[a:a + 32])])
+
+    Args:
+        path: output file (``.mp4``); its directory is created.
+        labels: one short text per column (may be empty strings).
+        fps: playback rate, frames per second.
+
+    Raises:
+        ValueError: no labels (no columns) or ``fps <= 0``.
+    """
+
+    def __init__(self, path: str | Path, labels: Sequence[str], fps: float) -> None:
+        if not labels:
+            raise ValueError("columns: must hold at least one video, got none")
+        if not fps > 0:
+            raise ValueError(f"fps: must be > 0, got {fps}")
+        self.path = Path(path)
+        self.labels = list(labels)
+        self.fps = float(fps)
+        self.frames = 0
+        """Frames written so far."""
+        self._tmp: Path | None = None
+        self._writer: cv2.VideoWriter | None = None
+        self._shape: tuple[int, tuple[int, ...]] | None = None  # H and the column widths
+
+    def write(self, columns: Sequence[np.ndarray]) -> None:
+        """Append one frame (each column ``(H, W_i, 3)``) or a chunk of ``k`` frames (each
+        column ``(k, H, W_i, 3)``), uint8 RGB. The first call fixes ``H`` and the widths; the
+        frame is ``sum(W_i)`` wide and ``H`` high, an odd total width or height padded with one
+        black column/row (the codec needs even sizes).
+
+        Raises:
+            ValueError: column count differs from the labels, a column is not uint8 RGB, the
+                columns disagree in length or height, a size differs from the first call's, or
+                the writer was closed.
+            OSError: the encoder could not be opened for this path.
+        """
+        if len(columns) != len(self.labels):
+            raise ValueError(f"labels: must have one per column ({len(columns)}), got {len(self.labels)}")
+        if self._shape is not None and self._writer is None:
+            raise ValueError(f"{self.path}: must not be written after close or abort")
+        cols = [np.asarray(c) for c in columns]
+        if cols and cols[0].ndim == 3:
+            cols = [c[None] if c.ndim == 3 else c for c in cols]
+        for i, c in enumerate(cols):
+            if c.ndim != 4 or c.shape[-1] != 3 or c.dtype != np.uint8:
+                raise ValueError(f"columns[{i}]: must be (T, H, W, 3) uint8, got {c.shape} {c.dtype}")
+            if c.shape[:2] != cols[0].shape[:2]:
+                raise ValueError(f"columns[{i}]: must have (T, H) = {cols[0].shape[:2]} like "
+                                 f"columns[0], got {c.shape[:2]}")
+        shape = (cols[0].shape[1], tuple(c.shape[2] for c in cols))
+        if self._shape is None:
+            self._open(*shape)
+        elif shape != self._shape:
+            raise ValueError(f"columns: must keep height and widths {self._shape} of the first frames, "
+                             f"got {shape}")
+        H, W = self._shape[0], sum(self._shape[1])
+        size = (W + W % 2, H + H % 2)
+        for t in range(cols[0].shape[0]):
+            frame = np.zeros((size[1], size[0], 3), dtype=np.uint8)
+            x = 0
+            for c, label in zip(cols, self.labels):
+                tile = c[t].copy()                     # never draw on the input
+                if label:
+                    _put_label(tile, label)
+                frame[:H, x:x + tile.shape[1]] = tile
+                x += tile.shape[1]
+            self._writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
+            self.frames += 1
+
+    def _open(self, height: int, widths: tuple[int, ...]) -> None:
+        """Open the encoder on a temporary sibling of ``path`` for frames of this size."""
+        W = sum(widths)
+        size = (W + W % 2, height + height % 2)
+        self._tmp = temp_file_for(self.path, suffix=".mp4")  # OpenCV picks the container from the name
+        self._writer = cv2.VideoWriter(str(self._tmp), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, size)
+        if not self._writer.isOpened():
+            self.abort()
+            raise OSError(f"{self.path}: cannot open an mp4v video writer")
+        self._shape = (height, widths)
+
+    def close(self) -> Path:
+        """Finish the video and rename it onto ``path``. Returns ``path``.
+
+        Raises:
+            ValueError: nothing was written (the frame size is unknown).
+        """
+        if self._writer is None:
+            self.abort()
+            raise ValueError(f"{self.path}: no frames written")
+        self._writer.release()
+        self._writer = None
+        replace_path(self._tmp, self.path)
+        self._tmp = None
+        return self.path
+
+    def abort(self) -> None:
+        """Stop and remove the temporary file; ``path`` stays as it was."""
+        if self._writer is not None:
+            self._writer.release()
+            self._writer = None
+        if self._tmp is not None:
+            self._tmp.unlink(missing_ok=True)
+            self._tmp = None
+
+
 def side_by_side_mp4(
     path: str | Path,
     columns: Sequence[np.ndarray],
     labels: Sequence[str],
     fps: float,
 ) -> Path:
-    """Write videos side by side into one mp4 (MPEG-4 Part 2, fourcc ``mp4v``).
+    """Write videos side by side into one mp4 (MPEG-4 Part 2, fourcc ``mp4v``): the whole clip
+    in one call through :class:`Mp4Writer`.
 
     Args:
         path: output file (``.mp4``); its directory is created. Written atomically.
@@ -125,42 +264,13 @@ def side_by_side_mp4(
         ValueError: no columns, label count mismatch, or mismatched shapes/dtypes.
         OSError: the encoder could not be opened for this path.
     """
-    path = Path(path)
     if not columns:
         raise ValueError("columns: must hold at least one video, got none")
     if len(labels) != len(columns):
         raise ValueError(f"labels: must have one per column ({len(columns)}), got {len(labels)}")
-    if not fps > 0:
-        raise ValueError(f"fps: must be > 0, got {fps}")
-    cols = [np.asarray(c) for c in columns]
-    for i, c in enumerate(cols):
-        if c.ndim != 4 or c.shape[-1] != 3 or c.dtype != np.uint8:
-            raise ValueError(f"columns[{i}]: must be (T, H, W, 3) uint8, got {c.shape} {c.dtype}")
-        if c.shape[:2] != cols[0].shape[:2]:
-            raise ValueError(f"columns[{i}]: must have (T, H) = {cols[0].shape[:2]} like "
-                             f"columns[0], got {c.shape[:2]}")
-    T, H = cols[0].shape[:2]
-    W = sum(c.shape[2] for c in cols)
-    size = (W + W % 2, H + H % 2)
-
-    with atomic_path(path, suffix=".mp4") as tmp:  # OpenCV picks the container from the name
-        writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), size)
-        if not writer.isOpened():
-            raise OSError(f"{path}: cannot open an mp4v video writer")
-        try:
-            for t in range(T):
-                frame = np.zeros((size[1], size[0], 3), dtype=np.uint8)
-                x = 0
-                for c, label in zip(cols, labels):
-                    tile = c[t].copy()                     # never draw on the input
-                    if label:
-                        _put_label(tile, label)
-                    frame[:H, x:x + tile.shape[1]] = tile
-                    x += tile.shape[1]
-                writer.write(cv2.cvtColor(frame, cv2.COLOR_RGB2BGR))
-        finally:
-            writer.release()
-    return path
+    with Mp4Writer(path, labels, fps) as video:
+        video.write(columns)
+    return Path(path)
 
 
 def contact_sheet(path: str | Path, rows: Sequence[np.ndarray], labels: Sequence[str],

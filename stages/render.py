@@ -12,6 +12,8 @@ local processes or Ray tasks), each worker with one GL context reused for all it
 (``pipeline.render.shared_gl``). A worker writes the shards it renders itself (temp-then-rename,
 so a task Ray retries after its worker died leaves one complete shard): sending ~1.8 MB of
 arrays per scene back to one writer process would make that process the bottleneck on 2 cores.
+The video shard is streamed scene by scene (``pipeline.shards.ArrayShardWriter``), so a worker
+holds one scene's arrays at a time, not a whole shard's.
 
 A scene whose MJCF does not compile or whose simulation diverges is left out of the shards and
 listed by id in ``meta.json`` of both outputs (``failed``: [{scene_id, error}]), never dropped
@@ -52,33 +54,31 @@ def render_shard(task: tuple[str, int, str, str, dict]) -> tuple[list[dict], dic
     """
     shard, i, video, traces, p = task
     W, H = int(p["render"]["width"]), int(p["render"]["height"])
-    attrs = {"units": UNITS, "params": {"render": p["render"]}, "width": W, "height": H}
-    arrays = {k: [] for k in ("rgb", "seg", "depth", "flow")}
     rows, failed = [], []
     flags: dict[str, list[str]] = {}
     table = shards.read_table(shard).to_pylist()
-    for r in table:
-        try:
-            trace, frames = render_mjcf(r["mjcf"], r["n_objects"], r["n_frames"], r["fps"], W, H)
-        except (ValueError, SimulationError) as exc:  # this scene's MJCF or its simulation
-            failed.append({"scene_id": r["scene_id"], "error": str(exc).splitlines()[0]})
-            continue
-        flags[r["scene_id"]] = [*(["mujoco_warning"] if trace.warnings else []),
-                                *rollout_problems(compile_model(r["mjcf"]), trace.qpos, trace.qvel)]
-        arrays["rgb"].append(frames.rgb)
-        arrays["seg"].append(frames.seg)
-        arrays["depth"].append(frames.depth.astype(np.float16))
-        arrays["flow"].append(frames.flow.astype(np.float16))
-        rows.append({"scene_id": r["scene_id"], "split": r["split"],
-                     **trace_to_row(trace, frames.visible_pixels(r["n_objects"]))})
-    if not rows:
-        raise SimulationError(f"{shard}: no scene could be rendered, e.g. {failed[0] if failed else 'empty shard'}")
-    ids = [r["scene_id"] for r in rows]
+    if not table:
+        raise SimulationError(f"{shard}: no scene could be rendered, e.g. empty shard")
+    attrs = {"units": UNITS, "params": {"render": p["render"]}, "width": W, "height": H, "fps": int(table[0]["fps"])}
     out_video, out_traces = shards.shard_path(video, i, "zarr"), shards.shard_path(traces, i, "parquet")
     for path in (out_video, out_traces):  # what an earlier attempt of this task left (a killed worker)
         shards.remove_stale_temps(path)
-    shards.write_arrays(out_video, {k: np.stack(v) for k, v in arrays.items()},
-                        attrs={**attrs, "fps": int(table[0]["fps"])}, scene_ids=ids)
+    with shards.ArrayShardWriter(out_video, attrs) as arrays:  # one scene in memory at a time
+        for r in table:
+            try:
+                trace, frames = render_mjcf(r["mjcf"], r["n_objects"], r["n_frames"], r["fps"], W, H)
+            except (ValueError, SimulationError) as exc:  # this scene's MJCF or its simulation
+                failed.append({"scene_id": r["scene_id"], "error": str(exc).splitlines()[0]})
+                continue
+            flags[r["scene_id"]] = [*(["mujoco_warning"] if trace.warnings else []),
+                                    *rollout_problems(compile_model(r["mjcf"]), trace.qpos, trace.qvel)]
+            arrays.append({"rgb": frames.rgb, "seg": frames.seg, "depth": frames.depth.astype(np.float16),
+                           "flow": frames.flow.astype(np.float16)}, scene_id=r["scene_id"])
+            rows.append({"scene_id": r["scene_id"], "split": r["split"],
+                         **trace_to_row(trace, frames.visible_pixels(r["n_objects"]))})
+            del frames
+        if not rows:  # leaves no video shard (the writer removes its temporary folder)
+            raise SimulationError(f"{shard}: no scene could be rendered, e.g. {failed[0]}")
     shards.write_table(out_traces, rows, schema=TRACES_SCHEMA,
                        metadata={"units": "t s; qpos m + quaternion wxyz; qvel m/s, rad/s (world); "
                                           "contacts N; visible px", "params": {"render": p["render"]}})

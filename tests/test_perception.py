@@ -158,3 +158,30 @@ def test_dynamics_infer_without_model(tmp_path, capsys, monkeypatch):
     assert rc == 0, capsys.readouterr().err
     with np.load(out / "masks.npz") as scored, np.load(tmp_path / "sim" / "masks.npz") as resim:
         np.testing.assert_array_equal(scored["seg"], resim["seg"])
+
+
+def test_dynamics_infer_killed_midway_leaves_no_output_folder(tmp_path, monkeypatch):
+    """Issue 35: the main job stages its files beside OUT and publishes them at the end; failing
+    (or killed) at the last file leaves no OUT, and the staging folder is gone."""
+    import pipeline.model as vlm
+    from pipeline import reconstruct as rec
+
+    monkeypatch.setattr(vlm, "SHIPPED_CHECKPOINT", tmp_path / "no_shipped_checkpoint")
+    puck = {"shape": "cylinder", "size": {"radius": 0.04, "height": 0.015}, "mass": 0.05,
+            "material": {"sliding_friction": 0.03}}
+    truth = _scene({"height": 1.0, "pitch": 89.0, "fov": 45.0},
+                   [{**puck, "position": [-0.15, -1.95, 0.0075], "linear_velocity": [0.4, 0.05, 0.0]}])
+    video = _video(tmp_path, truth, "puck")
+    params = yaml.safe_load(Path("params.yaml").read_text())
+    params["realvideo"].update(popsize=4, iterations=1, restarts=1)
+    params["paths"]["model"] = str(tmp_path / "no_model_here")
+
+    def killed(path, **kwargs):   # the last file of the run
+        assert (Path(path).parent / "metrics.json").exists()
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(rec.viz, "record_clip", killed)
+    out = tmp_path / "out"
+    with pytest.raises(KeyboardInterrupt):
+        rec.reconstruct(video, out, params, start=0.0)
+    assert not out.exists() and not list(tmp_path.glob(".out.*"))
