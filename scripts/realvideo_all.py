@@ -15,9 +15,10 @@ Markdown table on stdout:
   scored (``masks.npz`` of the main job's output, when it writes one): 1.0 means the file
   re-simulates to what was scored.
 
-Usage::
+Usage (``OUT/table.md`` and ``OUT/summary.json``; copies of a full run are in
+``reports/realvideo_all/``)::
 
-    python scripts/realvideo_all.py --out outputs/realvideo_all [--only 09_ball_rolling_on_desk]
+    python scripts/realvideo_all.py --out outputs/realvideo_all [--only dev09_ball_rolling_on_desk]
 
 True frame rates are those of ``shared/data/real/*/SOURCES.md`` (240 fps PhysTrack clips,
 1000 fps ``dev/01``); every other clip uses its container rate.
@@ -135,7 +136,9 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(row), flush=True, file=sys.stderr)
         rows.append(row)
     (args.out / "summary.json").write_text(json.dumps(rows, indent=1) + "\n")
-    print(table(rows))
+    text = table(rows)
+    (args.out / "table.md").write_text(text + "\n")
+    print(text)
     return 0
 
 
