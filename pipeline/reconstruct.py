@@ -49,7 +49,7 @@ from pipeline.flow import FlowConfig, estimate_flow
 from pipeline.metrics import flow_epe, sequence_iou
 from pipeline.mjcf import SimOptions
 from pipeline.observe import observe, original_frames, upscale
-from pipeline.params import load_params, path_of, section, typed_section
+from pipeline.params import ParamsError, load_params, path_of, section, typed_section
 from pipeline.render import render_scene
 from pipeline.sanity import PhysicsError, SanityConfig, check_simulation, resolve_overlaps
 from pipeline.scene import Scene, SceneError
@@ -57,6 +57,13 @@ from pipeline.search import EvaluatorPool, SearchConfig, best_of_k
 from pipeline.search.staged import REFERENCE_WIDTH, score_scene, staged_refine
 from pipeline.video import VideoError
 from pipeline.view import camera_dict, scene_objects
+
+
+MAX_WINDOW_FRAMES = 300
+"""Most frames of the main job's window (``realvideo.duration * realvideo.fps``; the default is
+30). The search scores the whole window at once, so its frames, flow and masks stay in memory
+(~2.5 MB per frame at the working size with the side-by-side panels): the limit keeps a run
+under ~1 GB and is checked before the video is decoded (issue 35)."""
 
 
 def default_model_dir(params: dict) -> Path | None:
@@ -223,6 +230,11 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     sim = typed_section(params, "sim", SimOptions, required=True)
     sanity = typed_section(params, "sanity", SanityConfig)
     scene_fps, duration = int(rv.get("fps", 30)), float(rv.get("duration", 1.0))
+    frames = int(round(scene_fps * duration))
+    if not 2 <= frames <= MAX_WINDOW_FRAMES:   # before any video is decoded
+        raise ParamsError(f"{getattr(params, 'source', 'params.yaml')}: realvideo.duration * realvideo.fps: must give "
+                          f"2..{MAX_WINDOW_FRAMES} frames (the main job holds the window's frames, flow and masks "
+                          f"in memory, ~2.5 MB per frame), got {frames}")
     max_objects = int(rv.get("max_objects", 4))
 
     # the model folder is checked first (milliseconds), before decoding the video (seconds)

@@ -266,3 +266,23 @@ def test_dev09_written_scene_beats_its_start_and_resimulates_as_scored(tmp_path,
     assert rc == 0, capsys.readouterr().err
     with np.load(out / "masks.npz") as scored, np.load(tmp_path / "sim" / "masks.npz") as resim:
         np.testing.assert_array_equal(scored["seg"], resim["seg"])
+
+
+def test_main_job_window_limit_is_checked_before_decoding(tmp_path, capsys):
+    """The main job keeps its window in memory (the search scores it whole): a window past
+    ``MAX_WINDOW_FRAMES`` is refused in one line that states the limit, before any decoding
+    (the video here does not even exist)."""
+    import yaml
+
+    from pipeline.reconstruct import MAX_WINDOW_FRAMES
+
+    params = yaml.safe_load((ROOT / "params.yaml").read_text())
+    params["realvideo"].update(fps=240, duration=10.0)
+    pfile = tmp_path / "params.yaml"
+    pfile.write_text(yaml.safe_dump(params))
+    rc = main(["infer", str(tmp_path / "missing.mp4"), "--out", str(tmp_path / "o"), "--params", str(pfile),
+               "--no-model"])
+    err = capsys.readouterr().err
+    assert rc == 2 and len(err.strip().splitlines()) == 1, err
+    assert f"must give 2..{MAX_WINDOW_FRAMES} frames" in err and "got 2400" in err and str(pfile) in err
+    assert not (tmp_path / "o").exists()
