@@ -115,23 +115,30 @@ def test_oblique_view_sliding_box(tmp_path):
     assert _match_positions(truth, props.scenes[0], obs).max() < 0.5 * max(diameter_px, 20)
 
 
-def test_dynamics_infer_without_model(tmp_path, capsys, monkeypatch):
-    """`dynamics infer` with no trained model (none at ``paths.model``, no shipped checkpoint,
-    no ``--model``) says so in one line and still reconstructs from the perception proposals.
-    (An explicit ``--model`` that does not exist is refused instead: test_video.py.)"""
+def _puck_clip_without_model(tmp_path, monkeypatch, iterations: int) -> tuple[Path, dict]:
+    """A rendered top-down clip of one sliding puck, and params with no trained model (none at
+    ``paths.model``, no shipped checkpoint) and a tiny search (popsize 4, one restart)."""
     import pipeline.model as vlm
-    from pipeline.cli import main
 
     monkeypatch.setattr(vlm, "SHIPPED_CHECKPOINT", tmp_path / "no_shipped_checkpoint")
-
     puck = {"shape": "cylinder", "size": {"radius": 0.04, "height": 0.015}, "mass": 0.05,
             "material": {"sliding_friction": 0.03}}
     truth = _scene({"height": 1.0, "pitch": 89.0, "fov": 45.0},
                    [{**puck, "position": [-0.15, -1.95, 0.0075], "linear_velocity": [0.4, 0.05, 0.0]}])
     video = _video(tmp_path, truth, "puck")
     params = yaml.safe_load(Path("params.yaml").read_text())
-    params["realvideo"].update(popsize=4, iterations=2, restarts=1)
+    params["realvideo"].update(popsize=4, iterations=iterations, restarts=1)
     params["paths"]["model"] = str(tmp_path / "no_model_here")
+    return video, params
+
+
+def test_dynamics_infer_without_model(tmp_path, capsys, monkeypatch):
+    """`dynamics infer` with no trained model (none at ``paths.model``, no shipped checkpoint,
+    no ``--model``) says so in one line and still reconstructs from the perception proposals.
+    (An explicit ``--model`` that does not exist is refused instead: test_video.py.)"""
+    from pipeline.cli import main
+
+    video, params = _puck_clip_without_model(tmp_path, monkeypatch, iterations=2)
     pfile = tmp_path / "params.yaml"
     pfile.write_text(yaml.safe_dump(params))
     out = tmp_path / "out"
@@ -163,18 +170,9 @@ def test_dynamics_infer_without_model(tmp_path, capsys, monkeypatch):
 def test_dynamics_infer_killed_midway_leaves_no_output_folder(tmp_path, monkeypatch):
     """Issue 35: the main job stages its files beside OUT and publishes them at the end; failing
     (or killed) at the last file leaves no OUT, and the staging folder is gone."""
-    import pipeline.model as vlm
     from pipeline import reconstruct as rec
 
-    monkeypatch.setattr(vlm, "SHIPPED_CHECKPOINT", tmp_path / "no_shipped_checkpoint")
-    puck = {"shape": "cylinder", "size": {"radius": 0.04, "height": 0.015}, "mass": 0.05,
-            "material": {"sliding_friction": 0.03}}
-    truth = _scene({"height": 1.0, "pitch": 89.0, "fov": 45.0},
-                   [{**puck, "position": [-0.15, -1.95, 0.0075], "linear_velocity": [0.4, 0.05, 0.0]}])
-    video = _video(tmp_path, truth, "puck")
-    params = yaml.safe_load(Path("params.yaml").read_text())
-    params["realvideo"].update(popsize=4, iterations=1, restarts=1)
-    params["paths"]["model"] = str(tmp_path / "no_model_here")
+    video, params = _puck_clip_without_model(tmp_path, monkeypatch, iterations=1)
 
     def killed(path, **kwargs):   # the last file of the run
         assert (Path(path).parent / "metrics.json").exists()
