@@ -37,6 +37,7 @@ measured figures: docs/reliability.md, "Simulation".
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import mujoco
@@ -221,9 +222,11 @@ def resolve_overlaps(scene, options=None, cfg: SanityConfig | None = None, max_m
     for _ in range(max_moves):
         pair = centre_inside(scene)
         if pair is not None:   # coincident or nested: no contact normal; lift the later one above
-            i, j = pair
-            a, b = scene.objects[i], scene.objects[j]   # b's lowest point above a's highest
-            lift = a.position[2] + _top(a) + _top(b) + cfg.overlap_tolerance - b.position[2]
+            i, j = pair        # every object under it (a stack of 47 boxes at one spot: 46 moves)
+            b = scene.objects[j]
+            under = [a.position[2] + _top(a) for k, a in enumerate(scene.objects)
+                     if k != j and math.dist(a.position[:2], b.position[:2]) < _top(a) + _top(b)]
+            lift = max(under) + _top(b) + cfg.overlap_tolerance - b.position[2]
             objects = [ob.model_dump() for ob in scene.objects]
             objects[j]["position"] = [objects[j]["position"][0], objects[j]["position"][1],
                                       float(objects[j]["position"][2] + lift)]

@@ -286,3 +286,15 @@ def test_main_job_window_limit_is_checked_before_decoding(tmp_path, capsys):
     assert rc == 2 and len(err.strip().splitlines()) == 1, err
     assert f"must give 2..{MAX_WINDOW_FRAMES} frames" in err and "got 2400" in err and str(pfile) in err
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.skipif(not ROUND3.exists(), reason="../shared/repro/round3 not present")
+def test_resolve_overlaps_unstacks_47_coincident_boxes(tmp_path, capsys):
+    """``--resolve-overlaps`` on 47 boxes at one spot lifts each box above every box under it:
+    46 moves (one per box but the first), then the rollout's own checks judge the 16 m tower;
+    whatever they say, it is said in one line, never a traceback."""
+    rc, err, out = _simulate(tmp_path, capsys, ROUND3 / "scene_47_boxes_fatal_error.yaml", "--resolve-overlaps")
+    lines = err.strip().splitlines()
+    assert sum("moved" in line for line in lines) == 46, lines[:3]
+    rest = [line for line in lines if "moved" not in line]
+    assert "Traceback" not in err and (rc == 0 and not rest or rc == 2 and len(rest) == 1 and not out.exists()), rest
