@@ -13,6 +13,9 @@ Outputs in DIR:
   search's fitness, of the search's result and the Best@K pick it started from, each with
   initial overlaps resolved and checked as ``dynamics simulate`` checks it, so that
   ``dynamics simulate scene.yaml`` runs as it is and gives ``masks.npz``;
+* ``observation.npz``: the observation the search fitted (issue 36): ``seg (T, H, W) int8``
+  pseudo masks at the working size (-1 background), ``crop`` ``[x, y, w, h]`` px of the
+  original frame, ``size`` ``[W, H]`` px, ``start`` s and ``fps`` of the window;
 * ``masks.npz``: the re-simulated masks that were scored (``seg (T, H, W) int8``, -1 =
   background, and ``names``; the layout of ``dynamics simulate``), at the working size;
 * ``side_by_side.mp4``: original frames with pseudo ground-truth masks | with re-simulated
@@ -330,6 +333,11 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
         buf = io.BytesIO()  # the masks that were scored, in the layout of `dynamics simulate`'s masks.npz
         np.savez_compressed(buf, seg=fr.seg, names=np.asarray(refined.object_names))
         shards.write_bytes(out / "masks.npz", buf.getvalue())
+        buf = io.BytesIO()  # what was fitted: the observation, so it can be checked against truth
+        np.savez_compressed(buf, seg=obs.seg.astype(np.int8), crop=np.asarray(obs.crop, dtype=np.int64),
+                            size=np.asarray(obs.size, dtype=np.int64), start=np.float64(obs.start),
+                            fps=np.float64(scene_fps))
+        shards.write_bytes(out / "observation.npz", buf.getvalue())
         # for people: original frames at panel height, masks drawn over them
         ph = int(rv.get("panel_height", 320))
         orig = original_frames(obs, video, fps, height=ph)

@@ -165,6 +165,12 @@ def test_dynamics_infer_without_model(tmp_path, capsys, monkeypatch):
     assert rc == 0, capsys.readouterr().err
     with np.load(out / "masks.npz") as scored, np.load(tmp_path / "sim" / "masks.npz") as resim:
         np.testing.assert_array_equal(scored["seg"], resim["seg"])
+    # the observation the search fitted is an artifact: the window, crop and pseudo masks
+    with np.load(out / "observation.npz") as o:
+        assert o["seg"].dtype == np.int8 and o["seg"].shape == (m["window"]["frames"], H, W)
+        assert list(o["size"]) == [W, H] and list(o["crop"]) == m["window"]["crop"]
+        assert float(o["start"]) == pytest.approx(m["window"]["start_s"], abs=1e-4) and float(o["fps"]) == 30
+        assert (o["seg"] >= 0).any()                   # the sliding puck is observed
 
 
 def test_dynamics_infer_killed_midway_leaves_no_output_folder(tmp_path, monkeypatch):
