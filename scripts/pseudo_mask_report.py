@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 
@@ -34,15 +35,20 @@ from pipeline.video import pseudo_ground_truth  # noqa: E402
 def frame_scores(pred: np.ndarray, label: np.ndarray) -> tuple[float, float]:
     """(foreground IoU, mean per-object IoU after Hungarian matching) of one frame.
 
-    ``pred``: int ids, -1 background; ``label``: uint8, 0 background, 1..n objects.
+    ``pred``: int ids, -1 background; ``label``: uint8, 0 background, 1..n objects. A frame
+    where label and prediction are both empty is no evidence of a good mask: both scores are
+    NaN there (no free credit, DESIGN §7) and the clip means skip it; a prediction on an empty
+    label scores 0.
     """
     a, b = pred >= 0, label > 0
     union = np.count_nonzero(a | b)
-    fg = np.count_nonzero(a & b) / union if union else 1.0
+    if not union:
+        return math.nan, math.nan
+    fg = np.count_nonzero(a & b) / union
     objs = [k for k in range(1, int(label.max()) + 1) if (label == k).any()]
     ids = [k for k in range(int(pred.max()) + 1) if (pred == k).any()]
     if not objs:
-        return fg, (1.0 if not ids else 0.0)
+        return fg, 0.0
     iou = np.zeros((len(objs), len(ids)))
     for i, o in enumerate(objs):
         for j, k in enumerate(ids):
@@ -65,12 +71,13 @@ def clip_scores(clip: str, spec: dict, video_dir: Path | None = None,
     size = (labels.shape[2], labels.shape[1])
     seg = pseudo_ground_truth(video_dir / spec["file"], spec.get("fps"), idx, size,
                               max_objects=len(spec["objects"]))
-    fg, obj = zip(*(frame_scores(p, lab) for p, lab in zip(seg, labels)))
+    scores = np.asarray([frame_scores(p, lab) for p, lab in zip(seg, labels)], dtype=np.float64)   # (F, 2)
+    fg, obj = scores[:, 0], scores[:, 1]
     return {"frames": idx, "size": list(size), "objects": spec["objects"],
-            "foreground_iou": [round(v, 4) for v in fg],
-            "object_iou": [round(v, 4) for v in obj],
-            "mean_foreground_iou": round(float(np.mean(fg)), 4),
-            "mean_object_iou": round(float(np.mean(obj)), 4)}
+            "foreground_iou": [None if np.isnan(v) else round(float(v), 4) for v in fg],
+            "object_iou": [None if np.isnan(v) else round(float(v), 4) for v in obj],
+            "mean_foreground_iou": round(float(np.nanmean(fg)), 4) if not np.isnan(fg).all() else None,
+            "mean_object_iou": round(float(np.nanmean(obj)), 4) if not np.isnan(obj).all() else None}
 
 
 def main(argv: list[str] | None = None) -> None:

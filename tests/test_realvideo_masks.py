@@ -59,6 +59,11 @@ def test_frame_scores():
     pred[:2, :2] = -1
     fg, obj = frame_scores(pred, label)
     assert fg == pytest.approx(6 / 10) and obj == pytest.approx(0.5)
+    # no free credit: both empty is no evidence (NaN, skipped by the clip means); a prediction
+    # where nothing is labelled scores 0
+    empty = np.zeros((4, 6), np.uint8)
+    assert all(np.isnan(frame_scores(np.full((4, 6), -1, np.int8), empty)))
+    assert frame_scores(pred, empty) == (0.0, 0.0)
 
 
 @pytest.mark.parametrize("clip", sorted(SPECS))
