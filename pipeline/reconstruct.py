@@ -35,7 +35,6 @@ Outputs in DIR:
 from __future__ import annotations
 
 import argparse
-import io
 import json
 import os
 import shutil
@@ -49,6 +48,7 @@ import numpy as np
 from pipeline import infer_tracks, perception, shards, viz
 from pipeline.atomic import publish_dir, remove_stale_temps, temp_dir_for
 from pipeline.flow import FlowConfig, estimate_flow
+from pipeline.npz import NpzWriter
 from pipeline.metrics import flow_epe, sequence_iou
 from pipeline.mjcf import SimOptions
 from pipeline.observe import observe, original_frames, upscale
@@ -330,14 +330,14 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     out = temp_dir_for(final)
     try:
         shards.write_text(out / "scene.yaml", refined.to_yaml())
-        buf = io.BytesIO()  # the masks that were scored, in the layout of `dynamics simulate`'s masks.npz
-        np.savez_compressed(buf, seg=fr.seg, names=np.asarray(refined.object_names))
-        shards.write_bytes(out / "masks.npz", buf.getvalue())
-        buf = io.BytesIO()  # what was fitted: the observation, so it can be checked against truth
-        np.savez_compressed(buf, seg=obs.seg.astype(np.int8), crop=np.asarray(obs.crop, dtype=np.int64),
-                            size=np.asarray(obs.size, dtype=np.int64), start=np.float64(obs.start),
-                            fps=np.float64(scene_fps))
-        shards.write_bytes(out / "observation.npz", buf.getvalue())
+        with NpzWriter(out / "masks.npz") as npz:   # the masks that were scored, as `dynamics simulate` writes them
+            npz.write("seg", fr.seg)
+            npz.write("names", np.asarray(refined.object_names))
+        with NpzWriter(out / "observation.npz") as npz:   # what was fitted, to be checked against truth
+            for key, value in (("seg", obs.seg.astype(np.int8)), ("crop", np.asarray(obs.crop, dtype=np.int64)),
+                               ("size", np.asarray(obs.size, dtype=np.int64)), ("start", np.float64(obs.start)),
+                               ("fps", np.float64(scene_fps))):
+                npz.write(key, value)
         # for people: original frames at panel height, masks drawn over them
         ph = int(rv.get("panel_height", 320))
         orig = original_frames(obs, video, fps, height=ph)

@@ -48,7 +48,7 @@ from pipeline.errors import UserError
 from pipeline.geometry import half_extents, smallest_half_extent
 from pipeline.mjcf import compile_model, steps_per_frame
 from pipeline.rotation import quat_to_mat
-from pipeline.simulate import rollout
+from pipeline.simulate import Trace, rollout
 
 
 class PhysicsError(UserError, ValueError):
@@ -261,9 +261,12 @@ def _top(obj) -> float:
     return float(np.linalg.norm(half_extents(obj.shape, obj.size)))
 
 
-def check_simulation(scene, options=None, cfg: SanityConfig | None = None, source: str = "<scene>") -> None:
-    """Every check ``dynamics simulate`` makes, without rendering: :func:`check_initial`, the
-    rollout's stability (non-finite states, MuJoCo's warnings) and :func:`rollout_problems`.
+def check_simulation(scene, options=None, cfg: SanityConfig | None = None, source: str = "<scene>",
+                     record_contacts: bool = False) -> tuple[mujoco.MjModel, Trace]:
+    """Every check ``dynamics simulate`` makes (it calls this), without rendering:
+    :func:`check_initial`, the rollout's stability (a non-finite state, or one of MuJoCo's own
+    warnings, ``Trace.warnings``: bad qacc, which makes MuJoCo reset the state silently, contact
+    or constraint buffer overflow, ...; MuJoCo docs, "mjtWarning") and :func:`rollout_problems`.
     The main job runs it on the scene it is about to write, so the file it writes is one
     ``dynamics simulate`` accepts as it is (issue 35).
 
@@ -272,16 +275,25 @@ def check_simulation(scene, options=None, cfg: SanityConfig | None = None, sourc
         options: ``pipeline.mjcf.SimOptions``.
         cfg: thresholds.
         source: file name for the message.
+        record_contacts: gather the contacts of every step into the trace (for events).
+    Returns:
+        ``(model, trace)``: the compiled model and the checked rollout.
     Raises:
-        PhysicsError: the first failed check (one line).
+        PhysicsError: the first failed check (one line), e.g. ``<file>: simulation: must stay
+            stable (MuJoCo), got a non-finite state from frame 3``.
     """
     model = compile_model(scene, options)
     check_initial(scene, model, cfg, source)
-    trace = rollout(model, len(scene.objects), scene.n_frames, scene.fps, record_contacts=False)
-    if trace.warnings:
-        raise PhysicsError(f"{source}: simulation: must stay stable (MuJoCo), got MuJoCo warning "
-                           f"{'; '.join(trace.warnings)}")
+    trace = rollout(model, len(scene.objects), scene.n_frames, scene.fps, record_contacts=record_contacts)
+    unstable = []
+    bad = ~np.isfinite(trace.qpos).all(axis=(1, 2))
+    if bad.any():
+        unstable.append(f"a non-finite state from frame {int(np.argmax(bad))}")
+    unstable += [f"MuJoCo warning {w}" for w in trace.warnings]
+    if unstable:
+        raise PhysicsError(f"{source}: simulation: must stay stable (MuJoCo), got " + "; ".join(unstable))
     raise_problems(rollout_problems(model, trace.qpos, trace.qvel, cfg), source)
+    return model, trace
 
 
 # --------------------------------------------------------------------------- rollout checks

@@ -36,13 +36,13 @@ from absl import logging as absl_logging
 from pipeline import sanity as checks, shards
 from pipeline.atomic import publish_dir, remove_stale_temps, temp_dir_for
 from pipeline.events import EventConfig, events_to_json, events_to_text, extract_events
-from pipeline.mjcf import SimOptions, compile_model
+from pipeline.mjcf import SimOptions
 from pipeline.npz import NpzWriter
 from pipeline.params import ParamsError, load_params, typed_section
 from pipeline.render import FrameRenderer
 from pipeline.sanity import PhysicsError, SanityConfig, resolve_overlaps
 from pipeline.scene import Scene, SceneError, load_scene
-from pipeline.simulate import Contact, Trace, mujoco_warnings, rollout
+from pipeline.simulate import Contact, Trace
 from pipeline.viz import Mp4Writer, mask_colours
 
 TRACES_SCHEMA = pa.schema([
@@ -118,23 +118,6 @@ def object_frame_table(trace: Trace) -> pa.Table:
 
 
 # --------------------------------------------------------------------------- dynamics simulate
-def check_stable(trace, data=None) -> None:
-    """Raise when the simulation is not to be trusted: a non-finite state, or one of MuJoCo's
-    own warnings (``Trace.warnings``: bad qacc, which makes MuJoCo reset the state silently,
-    contact or constraint buffer overflow, ...; MuJoCo docs, "mjtWarning").
-
-    Raises:
-        SceneError: ``<scene>: simulation: must stay stable, got ...`` (one line).
-    """
-    problems = []
-    bad = ~np.isfinite(trace.qpos).all(axis=(1, 2))
-    if bad.any():
-        problems.append(f"a non-finite state from frame {int(np.argmax(bad))}")
-    problems += [f"MuJoCo warning {w}" for w in (mujoco_warnings(data) if data is not None else trace.warnings)]
-    if problems:
-        raise SceneError("<scene>: simulation: must stay stable (MuJoCo), got " + "; ".join(problems))
-
-
 OUTPUT_FILES = {"trace": "trace.parquet", "rgb": "rgb.mp4", "masks": "masks.npz", "masks_preview": "masks.mp4",
                 "events": "events.json"}
 """What ``dynamics simulate`` writes into ``--out``: key -> file name."""
@@ -191,18 +174,13 @@ def write_simulation(scene: Scene, out_dir: str | Path, width: int = 480, height
     Returns:
         name -> path of ``trace``, ``rgb``, ``masks``, ``masks_preview``, ``events``.
     Raises:
-        SceneError: the scene's effects are unknown or out of range, or the simulation is
-            unstable (MuJoCo).
-        pipeline.sanity.PhysicsError: a failed physical check (one line naming the check).
+        SceneError: the scene's effects are unknown or out of range.
+        pipeline.sanity.PhysicsError: an unstable simulation (MuJoCo) or a failed physical
+            check (one line naming the check; :func:`pipeline.sanity.check_simulation`).
         FileExistsError: ``out_dir`` holds a folder named like one of the output files.
     """
     options = options or SimOptions()
-    model = compile_model(scene, options)
-    checks.check_initial(scene, model, sanity, source)
-    data = mujoco.MjData(model)
-    trace = rollout(model, len(scene.objects), scene.n_frames, scene.fps, data=data)
-    check_stable(trace)
-    checks.raise_problems(checks.rollout_problems(model, trace.qpos, trace.qvel, sanity), source)
+    model, trace = checks.check_simulation(scene, options, sanity, source, record_contacts=True)
 
     out = Path(out_dir)
     remove_stale_temps(out)      # what a killed earlier run left beside out_dir
@@ -288,7 +266,7 @@ def simulate_cli(args: argparse.Namespace) -> int:
         print(msg, file=sys.stderr)
         return 2
 
-    # MuJoCo's per-step "simulation is unstable" log lines (via absl): check_stable reports
+    # MuJoCo's per-step "simulation is unstable" log lines (via absl): check_simulation reports
     absl_logging.set_verbosity(absl_logging.ERROR)
 
     for name, value in (("width", args.width), ("height", args.height)):
