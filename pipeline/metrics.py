@@ -491,3 +491,131 @@ def json_safe(obj: Any) -> Any:
     if isinstance(obj, (float, np.floating)):
         return float(obj) if math.isfinite(obj) else None
     return obj
+
+
+# --------------------------------------------------------------------------- observation vs truth
+def track_iou(true_seg: np.ndarray, pred_seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-object IoU of every (true, predicted) pair over the frames where either is visible.
+
+    Unlike :func:`pairwise_iou` (which the search uses, and where a frame with both masks empty
+    counts 1.0), a frame where neither object is visible is *skipped*: no free credit for
+    agreeing on absence (issue 36). Frames where only one of the two is visible count 0.
+
+    Args:
+        true_seg, pred_seg: ``(T, H, W)`` int label maps (-1 background) or bool, same shape.
+    Returns:
+        ``(iou, frames)``: ``iou`` ``(n_true, n_pred)`` float64, the mean per-frame IoU over the
+        frames where either is visible (0.0 if neither ever is); ``frames`` ``(n_true, n_pred)``
+        int64, how many frames that is.
+    Raises:
+        ValueError: shapes differ or a segmentation is malformed.
+    """
+    counts = _label_counts(true_seg, pred_seg)
+    if counts is None:
+        t, p = as_labels(true_seg, "true_seg"), as_labels(pred_seg, "pred_seg")
+        nt, npd = n_labels(t), n_labels(p)
+        T = t.shape[0]
+        code = ((t + 1) * (npd + 1) + (p + 1)).reshape(T, -1)
+        counts = np.stack([np.bincount(c, minlength=(nt + 1) * (npd + 1)) for c in code]) \
+            .reshape(T, nt + 1, npd + 1) if T else np.zeros((0, nt + 1, npd + 1), np.int64)
+    inter = counts[:, 1:, 1:].astype(np.float64)
+    area_t = counts[:, 1:, :].sum(axis=2).astype(np.float64)     # (T, nt)
+    area_p = counts[:, :, 1:].sum(axis=1).astype(np.float64)     # (T, np)
+    union = area_t[:, :, None] + area_p[:, None, :] - inter
+    either = union > 0
+    per_frame = np.where(either, inter / np.maximum(union, 1.0), 0.0)
+    frames = either.sum(axis=0)
+    iou = np.where(frames > 0, per_frame.sum(axis=0) / np.maximum(frames, 1), 0.0)
+    return iou, frames.astype(np.int64)
+
+
+def identity_switches(true_seg: np.ndarray, pred_seg: np.ndarray, min_iou: float = 0.5) -> int:
+    """Identity switches of a tracker against the truth (CLEAR MOT, Bernardin & Stiefelhagen 2008).
+
+    In each frame true and predicted objects are matched by Hungarian assignment on that
+    frame's IoU, keeping pairs with IoU >= ``min_iou``; a switch is a true object matched to a
+    different predicted id than at its previous match.
+
+    Args:
+        true_seg, pred_seg: ``(T, H, W)`` label maps (-1 background), same shape.
+        min_iou: smallest per-frame IoU of a match.
+    Returns:
+        the number of switches, >= 0.
+    """
+    iou = pairwise_iou(true_seg, pred_seg)                       # (T, nt, np); both-empty = 1
+    t, p = as_labels(true_seg, "true_seg"), as_labels(pred_seg, "pred_seg")
+    nt, npd = iou.shape[1:]
+    vis_t = np.stack([(t == k).any(axis=(1, 2)) for k in range(nt)], axis=1) if nt else np.zeros((len(t), 0), bool)
+    vis_p = np.stack([(p == k).any(axis=(1, 2)) for k in range(npd)], axis=1) if npd else np.zeros((len(p), 0), bool)
+    last: dict[int, int] = {}
+    switches = 0
+    for f in range(iou.shape[0]):
+        m = np.where(vis_t[f][:, None] & vis_p[f][None, :], iou[f], 0.0)
+        if not m.size:
+            continue
+        for i, j in zip(*linear_sum_assignment(m, maximize=True)):
+            if m[i, j] >= min_iou:
+                switches += int(i in last and last[i] != j)
+                last[int(i)] = int(j)
+    return switches
+
+
+def observation_scores(true_seg: np.ndarray, pred_seg: np.ndarray,
+                       still: Sequence[bool] | None = None, found_iou: float = 0.5) -> dict[str, Any]:
+    """An observation (masks split into objects) scored against true instance masks (issue 36).
+
+    True and predicted objects are matched one-to-one by Hungarian assignment
+    (``scipy.optimize.linear_sum_assignment``) on :func:`track_iou`, the per-object IoU over
+    the frames where either is visible; an unmatched true object scores 0. A true object
+    that is never visible in these frames is not counted.
+
+    Args:
+        true_seg: ``(T, H, W)`` true labels (-1 background); the frames may be a sparse set
+            (hand-labelled frames) as long as ``pred_seg`` holds the same frames.
+        pred_seg: ``(T, H, W)`` observed labels, same shape.
+        still: per true object (index = label), whether it is at rest in these frames; None
+            means unknown (every object reported as moving).
+        found_iou: a true object is *found* when its matched IoU reaches this.
+    Returns:
+        dict: ``matched_iou`` (mean over visible true objects, NaN if there is none),
+        ``per_object`` (list of dicts: ``true``, ``pred`` (None if unmatched), ``iou``,
+        ``frames``, ``still``), ``n_true`` / ``n_pred`` (objects visible in the frames),
+        ``count_right`` (bool), ``id_switches`` (:func:`identity_switches`), and
+        ``moving_iou`` / ``still_iou`` / ``still_found`` (fraction of still objects found,
+        NaN when there is none) reported apart.
+    Raises:
+        ValueError: shapes differ or a segmentation is malformed.
+    """
+    t, p = as_labels(true_seg, "true_seg"), as_labels(pred_seg, "pred_seg")
+    if t.shape != p.shape:
+        raise ValueError(f"segmentations must have equal shapes, got {t.shape} and {p.shape}")
+    iou, frames = track_iou(t, p)
+    nt, npd = iou.shape
+    vis_t = [k for k in range(nt) if (t == k).any()]
+    vis_p = [k for k in range(npd) if (p == k).any()]
+    sub = iou[np.ix_(vis_t, vis_p)] if vis_t and vis_p else np.zeros((len(vis_t), len(vis_p)))
+    pairs = {}
+    if sub.size:
+        for a, b in zip(*linear_sum_assignment(sub, maximize=True)):
+            pairs[vis_t[a]] = vis_p[b]
+    still = [False] * nt if still is None else [bool(s) for s in still] + [False] * max(0, nt - len(still))
+    rows = []
+    for k in vis_t:
+        j = pairs.get(k)
+        rows.append({"true": k, "pred": j, "iou": float(iou[k, j]) if j is not None else 0.0,
+                     "frames": int(frames[k, j]) if j is not None else int((t == k).any(axis=(1, 2)).sum()),
+                     "still": still[k]})
+
+    def mean(xs):
+        return float(np.mean(xs)) if len(xs) else math.nan
+
+    still_rows = [r for r in rows if r["still"]]
+    return {
+        "matched_iou": mean([r["iou"] for r in rows]),
+        "per_object": rows,
+        "n_true": len(vis_t), "n_pred": len(vis_p), "count_right": len(vis_t) == len(vis_p),
+        "id_switches": identity_switches(t, p),
+        "moving_iou": mean([r["iou"] for r in rows if not r["still"]]),
+        "still_iou": mean([r["iou"] for r in still_rows]),
+        "still_found": mean([r["iou"] >= found_iou for r in still_rows]),
+    }

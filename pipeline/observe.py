@@ -29,7 +29,7 @@ import numpy as np
 from pipeline.flow import estimate_flow
 from pipeline.perception import object_tracks
 from pipeline.video import (Clip, VideoError, drop_ghosts, hold_resting, label_objects, merge_touching,
-                            pseudo_masks, read_video, resample)
+                            pseudo_ground_truth, pseudo_masks, read_video, resample)
 
 DETECT_LONG_SIDE = 320
 """px, long side of the detection pass (whole frame)."""
@@ -107,13 +107,74 @@ def choose_start(video, fps: float | None, scene_fps: int, duration: float) -> f
     return float(np.argmax(sums)) / scene_fps
 
 
+MASK_METHODS = ("median", "mog2", "segmenter")
+"""``realvideo.mask_method``: background subtraction (``median``, ``mog2``:
+:func:`pipeline.video.pseudo_masks`) or the learned segmenter (:mod:`pipeline.segmenter`)."""
+
+FG_THRESHOLD = 0.5
+"""Segmenter foreground probability above which a pixel belongs to an object."""
+
+
+def segment_objects(frames: np.ndarray, context: np.ndarray, method: str, max_objects: int) -> np.ndarray:
+    """Masks of the objects in ``frames``, split into tracks (before :func:`keep_objects`).
+
+    ``median`` / ``mog2``: background subtraction against ``context``
+    (:func:`pipeline.video.pseudo_masks`), then :func:`pipeline.video.label_objects`.
+    ``segmenter``: the learned segmenter's foreground (:mod:`pipeline.segmenter`, with the
+    median of ``context`` as the background it compares against) minus its contact pixels
+    (where two objects touch), tracked by :func:`pipeline.video.label_objects`; the contact
+    pixels are then given to the nearest track (within 3 px).
+
+    Args:
+        frames: ``(T, H, W, 3)`` uint8 RGB; context: ``(N, H, W, 3)`` uint8 frames of the same
+            video spread over the clip (the background model's).
+        method: one of :data:`MASK_METHODS`.
+    Returns:
+        ``(T, H, W)`` int8 track ids, -1 background.
+    Raises:
+        ValueError: unknown method.
+    """
+    if method not in MASK_METHODS:
+        raise ValueError(f"realvideo.mask_method: must be one of {', '.join(MASK_METHODS)}, got {method!r}")
+    if method != "segmenter":
+        masks = pseudo_masks(frames, method=method, background=context)
+        return label_objects(masks, max_objects=max_objects)
+    from scipy import ndimage
+
+    from pipeline.segmenter import median_background, shipped
+    fg, contact = shipped()(frames, median_background(context))
+    fg = fg > FG_THRESHOLD
+    h, w = frames.shape[1:3]
+    min_area = max(4, round(1e-3 * h * w))
+    core = fg & (contact < 0.5)
+    core = np.stack([_keep_components(c, min_area) for c in core])
+    seg = label_objects(core, max_objects=max_objects)
+    out = seg.copy()
+    for t in range(len(seg)):
+        if not (fg[t] & (seg[t] < 0)).any() or not (seg[t] >= 0).any():
+            continue
+        dist, (iy, ix) = ndimage.distance_transform_edt(seg[t] < 0, return_indices=True)
+        grow = fg[t] & (seg[t] < 0) & (dist <= 3)
+        out[t][grow] = seg[t][iy[grow], ix[grow]]
+    return out
+
+
+def _keep_components(mask: np.ndarray, min_area: int) -> np.ndarray:
+    """The 8-connected components of ``mask`` with at least ``min_area`` px (bool)."""
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    keep = np.flatnonzero(stats[:, cv2.CC_STAT_AREA] >= min_area)
+    return np.isin(labels, keep[keep > 0])
+
+
 def _masks(frames: np.ndarray, context: np.ndarray, method: str, max_objects: int) -> np.ndarray:
-    masks = pseudo_masks(frames, method=method, background=context)
-    return label_objects(masks, max_objects=max_objects)
+    return segment_objects(frames, context, method, max_objects)
 
 
-def keep_objects(seg: np.ndarray, flow: np.ndarray, max_objects: int) -> tuple[np.ndarray, list]:
-    """Pseudo masks of the objects only: tracks that touch all along are merged
+def keep_objects(seg: np.ndarray, flow: np.ndarray, max_objects: int, still: bool = False
+                 ) -> tuple[np.ndarray, list]:
+    """Pseudo masks of the objects only. With ``still`` (masks from the segmenter, which sees
+    objects at rest too) the tracks of :func:`still_tracks` are kept, moving or not. Otherwise
+    (background subtraction) tracks that touch all along are merged
     (:func:`merge_touching`), ghosts of resting objects dropped (:func:`drop_ghosts`), then the
     tracks :func:`pipeline.perception.object_tracks` accepts
     (they move, they are not slivers) are kept, renumbered 0..n-1 in order of first appearance;
@@ -123,12 +184,26 @@ def keep_objects(seg: np.ndarray, flow: np.ndarray, max_objects: int) -> tuple[n
         ``(seg, tracks)``: ``(T, H, W)`` int8 labels and the kept
         :class:`pipeline.perception.Track` s (with their labels before renumbering).
     """
-    seg = drop_ghosts(merge_touching(seg))
-    tracks = object_tracks(seg, flow, max_objects)
+    if still:
+        tracks = still_tracks(seg, max_objects)
+    else:
+        seg = drop_ghosts(merge_touching(seg))
+        tracks = object_tracks(seg, flow, max_objects)
     lut = np.full(int(seg.max()) + 2, -1, dtype=np.int8)
     for new, t in enumerate(tracks):
         lut[t.label] = new
     return lut[seg.astype(np.int64)], tracks  # index -1 (background) -> lut[-1] = -1
+
+
+def still_tracks(seg: np.ndarray, max_objects: int) -> list:
+    """Tracks of segmenter masks that are objects, moving or at rest: seen in at least 30 % of the
+    frames (4 at least), the ``max_objects`` largest; ordered by first appearance, then left to
+    right (as :func:`pipeline.perception.object_tracks`)."""
+    from pipeline.perception import find_tracks
+    T = len(seg)
+    tracks = find_tracks(seg, None, min_frames=max(4, int(0.3 * T)))
+    tracks = sorted(tracks, key=lambda t: -float(np.sum(t.area)))[:max_objects]
+    return sorted(tracks, key=lambda t: (int(t.frames[0]), float(t.centre[0, 0])))
 
 
 def motion_crop(seg: np.ndarray, diameter: float, scale: float, orig_size: tuple[int, int]
@@ -213,7 +288,8 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     _, det_frames, det_ctx = window(dsize, full)
     det_seg = _masks(det_frames, det_ctx, mask_method, max_objects)
     det_flow = estimate_flow(det_frames, method="dis", preset="fast")
-    det_seg, tracks = keep_objects(hold_resting(det_seg), det_flow, max_objects)
+    learned = mask_method == "segmenter"
+    det_seg, tracks = keep_objects(det_seg if learned else hold_resting(det_seg), det_flow, max_objects, learned)
     scale = W0 / dsize[0]
     diameter = float(np.median([t.diameter for t in tracks])) if tracks else 0.05 * dsize[1]
     crop = motion_crop(det_seg, diameter, scale, (W0, H0))
@@ -222,7 +298,7 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     seg = _masks(frames, ctx, mask_method, max_objects)
     method = "dis" if flow_method == "gt" else flow_method
     flow = estimate_flow(frames, method=method, preset=flow_preset)
-    seg, _ = keep_objects(hold_resting(seg), flow, max_objects)
+    seg, _ = keep_objects(seg if learned else hold_resting(seg), flow, max_objects, learned)
     return Observation(frames, seg, flow, clip, float(start), auto, clip.crop, size, scene_fps, method)
 
 
@@ -235,6 +311,48 @@ def original_frames(obs: Observation, video, fps: float | None, height: int = 32
     clip = read_video(video, fps=fps, start=obs.start, duration=len(obs.frames) / obs.scene_fps + 1.0 / obs.scene_fps,
                       size=size, crop=obs.crop)
     return resample(clip.frames, clip.fps, obs.scene_fps, len(obs.frames) / obs.scene_fps)
+
+
+def observe_frames(video, fps: float | None, frame_indices, size: tuple[int, int] | None = None,
+                   max_objects: int = 4) -> np.ndarray:
+    """The observation's masks of chosen source frames of a whole clip (for scoring against hand
+    labels, which are spread over the clip rather than one window): the same masks and tracks as
+    :func:`observe`, over the whole clip at ``size`` (:func:`pipeline.video.pseudo_ground_truth`).
+
+    Returns:
+        ``(len(frame_indices), H, W)`` int8 object ids, -1 background.
+    Raises:
+        VideoError: unreadable video or a frame index out of range.
+    """
+    return pseudo_ground_truth(video, fps, frame_indices, size, max_objects=max_objects)
+
+
+def source_frames(obs: Observation) -> np.ndarray:
+    """``(T,)`` int64 source-frame indices (0-based, as decoded) of the window's frames:
+    ``start_frame + rint(k * fps / scene_fps)`` (:func:`pipeline.video.resample`)."""
+    T = len(obs.frames)
+    return obs.clip.start_frame + np.rint(np.arange(T) * (obs.clip.fps / obs.scene_fps)).astype(np.int64)
+
+
+def truth_in_window(seg: np.ndarray, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
+    """True labels of a whole clip as the observation sees them: the window's source frames, cut
+    to the working crop and resized (nearest) to the working size.
+
+    Args:
+        seg: ``(N, H0, W0)`` int labels of every source frame at the original size, -1 background.
+        obs: the observation (:func:`observe`).
+    Returns:
+        ``(seg, frames)``: ``(T, H, W)`` int8 labels and ``(T,)`` int64 source-frame indices.
+    Raises:
+        ValueError: ``seg`` does not cover the window or has another frame size than the video.
+    """
+    seg = np.asarray(seg)
+    idx = source_frames(obs)
+    W0, H0 = obs.clip.original_size
+    if seg.ndim != 3 or seg.shape[1:] != (H0, W0) or idx[-1] >= len(seg):
+        raise ValueError(f"seg: must be (>= {idx[-1] + 1}, {H0}, {W0}) labels of the whole clip, got {seg.shape}")
+    x, y, w, h = obs.crop
+    return upscale(seg[idx, y:y + h, x:x + w].astype(np.int8), obs.size), idx
 
 
 def upscale(seg: np.ndarray, size: tuple[int, int]) -> np.ndarray:

@@ -15,7 +15,8 @@ Outputs in DIR:
   ``dynamics simulate scene.yaml`` runs as it is and gives ``masks.npz``;
 * ``observation.npz``: the observation the search fitted (issue 36): ``seg (T, H, W) int8``
   pseudo masks at the working size (-1 background), ``crop`` ``[x, y, w, h]`` px of the
-  original frame, ``size`` ``[W, H]`` px, ``start`` s and ``fps`` of the window;
+  original frame, ``size`` ``[W, H]`` px, ``start`` s and ``fps`` of the window, ``source_fps`` and
+  ``source_frames`` ``(T,)`` int64 (the decoded frame, 0-based, behind each window frame);
 * ``masks.npz``: the re-simulated masks that were scored (``seg (T, H, W) int8``, -1 =
   background, and ``names``; the layout of ``dynamics simulate``), at the working size;
 * ``side_by_side.mp4``: original frames with pseudo ground-truth masks | with re-simulated
@@ -48,17 +49,18 @@ import numpy as np
 from pipeline import infer_tracks, perception, shards, viz
 from pipeline.atomic import publish_dir, remove_stale_temps, temp_dir_for
 from pipeline.flow import FlowConfig, estimate_flow
+from pipeline.labels import load_labels, score_against_labels
 from pipeline.npz import NpzWriter
 from pipeline.metrics import flow_epe, sequence_iou
 from pipeline.mjcf import SimOptions
-from pipeline.observe import observe, original_frames, upscale
+from pipeline.observe import observe, original_frames, source_frames, upscale
 from pipeline.params import ParamsError, load_params, path_of, section, typed_section
 from pipeline.render import render_scene
 from pipeline.sanity import PhysicsError, SanityConfig, check_simulation, resolve_overlaps
 from pipeline.scene import Scene, SceneError
 from pipeline.search import EvaluatorPool, SearchConfig, best_of_k
 from pipeline.search.staged import REFERENCE_WIDTH, score_scene, staged_refine
-from pipeline.video import VideoError
+from pipeline.video import VideoError, read_video
 from pipeline.view import camera_dict, scene_objects
 
 
@@ -196,7 +198,7 @@ def choose_output(candidates: list[tuple[str, Scene]], obs_seg: np.ndarray, obs_
 
 def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | None = None,
                 start: float | None = None, model_dir: str | Path | None = None, k: int | None = None,
-                seed: int = 0, use_model: bool = True) -> dict:
+                seed: int = 0, use_model: bool = True, labels: str | Path | None = None) -> dict:
     """Run the main job on one video and write its outputs (see module docstring).
 
     Args:
@@ -211,6 +213,9 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
         k: samples for Best@K (default ``model.k``).
         seed: sampling and CMA-ES seed.
         use_model: False skips the model (perception proposals only).
+        labels: hand labels or true masks of the video (:mod:`pipeline.labels`): the
+            re-simulation and the observation are also scored against them (``metrics.json``
+            ``against_labels``). Read for scoring only; the search fits the observation.
     Returns:
         the metrics dict written to ``metrics.json``.
     Raises:
@@ -251,6 +256,9 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     else:
         model_note = "model not used (--no-model)"
 
+    truth = None
+    if labels is not None:   # read (and checked) before the search, used only after it
+        truth = load_labels(labels, read_video(video, fps=fps, max_frames=1).original_size)
     obs = observe(video, fps, start, scene_fps, duration, fcfg.method, fcfg.preset,
                   rv.get("mask_method", "median"), max_objects)
     W, H = obs.size
@@ -336,7 +344,8 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
         with NpzWriter(out / "observation.npz") as npz:   # what was fitted, to be checked against truth
             for key, value in (("seg", obs.seg.astype(np.int8)), ("crop", np.asarray(obs.crop, dtype=np.int64)),
                                ("size", np.asarray(obs.size, dtype=np.int64)), ("start", np.float64(obs.start)),
-                               ("fps", np.float64(scene_fps))):
+                               ("fps", np.float64(scene_fps)), ("source_fps", np.float64(obs.clip.fps)),
+                               ("source_frames", source_frames(obs))):
                 npz.write(key, value)
         # for people: original frames at panel height, masks drawn over them
         ph = int(rv.get("panel_height", 320))
@@ -380,6 +389,8 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
             "cmaes_seconds": float(history[-1]["seconds"]) if history else 0.0,
             "seconds": round(time.time() - t0, 1),
         }
+        if truth is not None:
+            metrics["against_labels"] = {"labels": str(labels), **score_against_labels(truth, obs, fr.seg)}
         if tracks:   # observed tracks in the scene's world frame: input of `dynamics discrepancy OUT`
             table = infer_tracks.tracks_table(refined, trace.qpos, tracks, scene_fps, W, H, clip=Path(video).stem)
             infer_tracks.write_tracks(out / "tracks.csv", table)
@@ -396,6 +407,10 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     finally:
         if out.exists():
             shutil.rmtree(out, ignore_errors=True)
+    if truth is not None:
+        a = metrics["against_labels"]
+        print(f"[infer] against {labels} ({a['n_labelled']} labelled frames in the window): re-simulation "
+              f"{a['resim_vs_labels']}, observation {a['observation_vs_labels']} (matched IoU)")
     print(f"[infer] wrote {final}: full IoU {m_ref['full_iou']:.3f} (pseudo GT), EPE {m_ref['epe']:.2f} px, "
           f"{len(refined.objects)} objects, best proposal: {labels[best]}, {metrics['seconds']} s")
     return metrics
@@ -413,13 +428,19 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-model", action="store_true", help="perception proposals only")
     p.add_argument("-k", type=int, default=None, help="samples for Best@K (default params model.k)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--labels", default=None,
+                   help="hand labels (folder of NNNN.png, 0 background, 1..n objects) or true masks (npz with seg) of "
+                        "the video: also score the re-simulation and the observation against them (metrics.json "
+                        "against_labels); never used by the search")
     p.add_argument("--params", default=None, help="params.yaml (default ./params.yaml)")
 
 
 def main_cli(args: argparse.Namespace) -> int:
     params = load_params(args.params)
     metrics = reconstruct(args.video, args.out, params, fps=args.fps, start=args.start,
-                          model_dir=args.model, k=args.k, seed=args.seed, use_model=not args.no_model)
-    print(json.dumps({k: metrics[k] for k in ("sources", "first_sample", "best_of_k", "best_of_k_cmaes")},
+                          model_dir=args.model, k=args.k, seed=args.seed, use_model=not args.no_model,
+                          labels=args.labels)
+    print(json.dumps({k: metrics[k] for k in ("sources", "first_sample", "best_of_k", "best_of_k_cmaes", "against_labels")
+                      if k in metrics},
                      indent=1), file=sys.stdout)
     return 0

@@ -27,6 +27,7 @@ from pipeline.render import render_scene
 from pipeline.scene import Scene
 
 W, H, FPS = 320, 240, 30
+VIDEO_SIZE = (W, H)   # px of the rendered videos (the tests below reuse W, H for the working size)
 
 
 def _video(tmp_path: Path, scene: Scene, name: str) -> Path:
@@ -126,6 +127,7 @@ def _puck_clip_without_model(tmp_path, monkeypatch, iterations: int) -> tuple[Pa
     truth = _scene({"height": 1.0, "pitch": 89.0, "fov": 45.0},
                    [{**puck, "position": [-0.15, -1.95, 0.0075], "linear_velocity": [0.4, 0.05, 0.0]}])
     video = _video(tmp_path, truth, "puck")
+    (tmp_path / "puck.yaml").write_text(truth.to_yaml())
     params = yaml.safe_load(Path("params.yaml").read_text())
     params["realvideo"].update(popsize=4, iterations=iterations, restarts=1)
     params["paths"]["model"] = str(tmp_path / "no_model_here")
@@ -142,7 +144,12 @@ def test_dynamics_infer_without_model(tmp_path, capsys, monkeypatch):
     pfile = tmp_path / "params.yaml"
     pfile.write_text(yaml.safe_dump(params))
     out = tmp_path / "out"
-    rc = main(["infer", str(video), "--out", str(out), "--start", "0", "--params", str(pfile)])
+    # the true masks of the clip, given as labels: scored against, never fitted (issue 36)
+    truth = Scene.from_yaml((tmp_path / "puck.yaml").read_text())
+    _, true_frames = render_scene(truth, *VIDEO_SIZE, rgb=False, depth=False, flow=False)
+    np.savez(tmp_path / "truth.npz", seg=true_frames.seg)
+    rc = main(["infer", str(video), "--out", str(out), "--start", "0", "--params", str(pfile),
+               "--labels", str(tmp_path / "truth.npz")])
     assert rc == 0
     printed = capsys.readouterr().out
     assert sum("no trained model" in line for line in printed.splitlines()) == 1
@@ -171,6 +178,12 @@ def test_dynamics_infer_without_model(tmp_path, capsys, monkeypatch):
         assert list(o["size"]) == [W, H] and list(o["crop"]) == m["window"]["crop"]
         assert float(o["start"]) == pytest.approx(m["window"]["start_s"], abs=1e-4) and float(o["fps"]) == 30
         assert (o["seg"] >= 0).any()                   # the sliding puck is observed
+        assert o["source_frames"].tolist() == list(range(m["window"]["frames"]))   # 30 fps, start 0
+    # scored against the truth beside the observation: every window frame is labelled; the
+    # observation of a lone puck on a plain floor is close to the truth, and so is its fit
+    a = m["against_labels"]
+    assert a["n_labelled"] == m["window"]["frames"]
+    assert a["observation_vs_labels"] >= 0.8 and a["resim_vs_labels"] >= 0.5, a
 
 
 def test_dynamics_infer_killed_midway_leaves_no_output_folder(tmp_path, monkeypatch):

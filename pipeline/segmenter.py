@@ -1,0 +1,328 @@
+"""A small class-agnostic object segmenter: which pixels belong to *some* rigid object, moving or
+still, and where two objects touch (issue 36).
+
+Background subtraction sees only what moves: an object at rest throughout the clip is in the
+background model, a slow one comes out as a crescent. This network looks at one frame *and* at its
+difference from the clip's median background, so motion is a cue but not the only one. It is
+trained here, on the CPU, on randomised MuJoCo renders (``pipeline.truthsets``: floor textures,
+colours, light and camera pitch 0-90 deg randomised) with the renderer's true instance masks.
+
+Network: a U-Net (Ronneberger et al., MICCAI 2015) of four levels, 12-24-32-48 channels, batch
+norm and ReLU, bilinear upsampling; 0.12 M parameters. Fully convolutional: any image size whose
+sides are multiples of 8 (inputs are padded).
+
+Input ``(4, H, W)`` float32: RGB / 255 - 0.5, and the largest RGB difference from the median
+background / 255 (``pipeline.video`` conventions). Output ``(2, H, W)`` logits: foreground (the
+pixel belongs to an object) and *contact* (the pixel lies within 1 px of a boundary between two
+different objects), the cue that splits touching objects.
+
+Usage::
+
+    python -m pipeline.segmenter train --data data/truthsets/mujoco/train --out pipeline/weights/segmenter.pt
+    python -m pipeline.segmenter eval --data data/truthsets/pybullet/dev
+
+The shipped weights are ``pipeline/weights/segmenter.pt`` (``DEFAULT_WEIGHTS``), with a card beside
+them (``segmenter.md``: data, steps, time, scores).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+import torch.nn as nn
+import torch.nn.functional as F
+
+DEFAULT_WEIGHTS = Path(__file__).resolve().parent / "weights" / "segmenter.pt"
+"""The shipped checkpoint (package data)."""
+
+CHANNELS = (12, 24, 32, 48)
+
+
+class SegmenterError(RuntimeError):
+    """A checkpoint is missing or does not fit the network."""
+
+
+def _block(cin: int, cout: int) -> nn.Sequential:
+    return nn.Sequential(nn.Conv2d(cin, cout, 3, padding=1, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True),
+                         nn.Conv2d(cout, cout, 3, padding=1, bias=False), nn.BatchNorm2d(cout), nn.ReLU(inplace=True))
+
+
+class UNet(nn.Module):
+    """The segmenter network (module docstring): ``(B, 4, H, W)`` -> ``(B, 2, H, W)`` logits."""
+
+    def __init__(self, channels: tuple[int, ...] = CHANNELS, inputs: int = 4, outputs: int = 2) -> None:
+        super().__init__()
+        self.down = nn.ModuleList()
+        c = inputs
+        for k in channels:
+            self.down.append(_block(c, k))
+            c = k
+        self.up = nn.ModuleList(_block(channels[i] + channels[i - 1], channels[i - 1])
+                                for i in range(len(channels) - 1, 0, -1))
+        self.head = nn.Conv2d(channels[0], outputs, 1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        skips = []
+        for i, block in enumerate(self.down):
+            x = block(x if i == 0 else F.max_pool2d(x, 2))
+            skips.append(x)
+        for block, skip in zip(self.up, reversed(skips[:-1])):
+            x = F.interpolate(x, size=skip.shape[-2:], mode="bilinear", align_corners=False)
+            x = block(torch.cat([x, skip], dim=1))
+        return self.head(x)
+
+
+def median_background(frames: np.ndarray, max_frames: int = 120) -> np.ndarray:
+    """``(H, W, 3)`` uint8 per-pixel median of up to ``max_frames`` frames spread over ``(N, H, W, 3)``."""
+    idx = np.unique(np.linspace(0, len(frames) - 1, min(len(frames), max_frames)).round().astype(int))
+    return np.median(frames[idx], axis=0).astype(np.uint8)
+
+
+def network_input(frames: np.ndarray, background: np.ndarray) -> np.ndarray:
+    """``(T, 4, H, W)`` float32 network input of ``(T, H, W, 3)`` uint8 RGB frames and their
+    ``(H, W, 3)`` uint8 background (module docstring)."""
+    f = frames.astype(np.float32)
+    b = background.astype(np.float32)[None]
+    sigma = max(0.5, 0.002 * min(frames.shape[1:3]))
+    blur = lambda x: np.stack([cv2.GaussianBlur(i, (0, 0), sigma) for i in x])  # noqa: E731
+    diff = np.abs(blur(f) - blur(b)).max(axis=-1, keepdims=True) / 255.0
+    x = np.concatenate([f / 255.0 - 0.5, diff], axis=-1)
+    return np.ascontiguousarray(x.transpose(0, 3, 1, 2))
+
+
+def targets(seg: np.ndarray) -> np.ndarray:
+    """``(T, 2, H, W)`` float32 training targets of ``(T, H, W)`` int labels: foreground, and
+    contact (within 1 px of a pixel of another object)."""
+    seg = np.asarray(seg)
+    fg = seg >= 0
+    contact = np.zeros_like(fg)
+    for t in range(len(seg)):
+        s = seg[t].astype(np.int16)
+        for k in np.unique(s[s >= 0]):
+            own = (s == k).astype(np.uint8)
+            other = ((s >= 0) & (s != k)).astype(np.uint8)
+            near_other = cv2.dilate(other, np.ones((3, 3), np.uint8)) > 0
+            near_own = cv2.dilate(own, np.ones((3, 3), np.uint8)) > 0
+            contact[t] |= (own > 0) & near_other | (other > 0) & near_own
+    return np.stack([fg, contact], axis=1).astype(np.float32)
+
+
+class Segmenter:
+    """A loaded segmenter: :meth:`__call__` gives per-pixel probabilities.
+
+    Args:
+        weights: checkpoint path (default :data:`DEFAULT_WEIGHTS`).
+    Raises:
+        SegmenterError: the file is missing or its tensors do not fit :class:`UNet`.
+    """
+
+    def __init__(self, weights: str | Path | None = None) -> None:
+        path = Path(weights) if weights is not None else DEFAULT_WEIGHTS
+        if not path.is_file():
+            raise SegmenterError(f"{path}: no segmenter checkpoint (train one: python -m pipeline.segmenter train)")
+        try:
+            ckpt = torch.load(path, map_location="cpu", weights_only=True)
+            self.net = UNet(tuple(ckpt.get("channels", CHANNELS)))
+            self.net.load_state_dict(ckpt["state_dict"])
+        except Exception as exc:   # noqa: BLE001 - any unreadable checkpoint is one error
+            raise SegmenterError(f"{path}: not a segmenter checkpoint ({exc})") from None
+        self.net.eval()
+        self.path = path
+
+    @torch.no_grad()
+    def __call__(self, frames: np.ndarray, background: np.ndarray, batch: int = 16) -> tuple[np.ndarray, np.ndarray]:
+        """Probabilities of foreground and contact.
+
+        Args:
+            frames: ``(T, H, W, 3)`` uint8 RGB.
+            background: ``(H, W, 3)`` uint8 background image of the clip (:func:`median_background`).
+        Returns:
+            ``(fg, contact)``: ``(T, H, W)`` float32 in [0, 1] each.
+        """
+        T, H, W = frames.shape[:3]
+        ph, pw = (-H) % 8, (-W) % 8
+        out = []
+        for a in range(0, T, batch):
+            x = torch.from_numpy(network_input(frames[a:a + batch], background))
+            x = F.pad(x, (0, pw, 0, ph), mode="replicate")
+            out.append(torch.sigmoid(self.net(x))[:, :, :H, :W].numpy())
+        p = np.concatenate(out)
+        return p[:, 0], p[:, 1]
+
+
+_SHIPPED: dict[str, Segmenter] = {}
+
+
+def shipped(weights: str | Path | None = None) -> Segmenter:
+    """The segmenter of ``weights`` (default :data:`DEFAULT_WEIGHTS`), loaded once per process."""
+    key = str(Path(weights) if weights is not None else DEFAULT_WEIGHTS)
+    if key not in _SHIPPED:
+        _SHIPPED[key] = Segmenter(key)
+    return _SHIPPED[key]
+
+
+# ------------------------------------------------------------------------------ training
+def _load_set(folders: list[Path], size: tuple[int, int], per_clip: int, rng: np.random.Generator):
+    """Frames, backgrounds and targets of rendered clips at ``size = (W, H)``."""
+    from pipeline.video import read_video
+    xs, ys = [], []
+    for folder in folders:
+        truth = np.load(folder / "truth.npz")
+        clip = read_video(folder / "video.mp4", size=size, crop=(0, 0, *truth["seg"].shape[:0:-1]))
+        frames = clip.frames
+        seg = np.stack([cv2.resize(s.astype(np.int16), size, interpolation=cv2.INTER_NEAREST)
+                        for s in truth["seg"][: len(frames)]])
+        bg = median_background(frames)
+        pick = rng.choice(len(frames), size=min(per_clip, len(frames)), replace=False)
+        xs.append(network_input(frames[pick], bg))
+        ys.append(targets(seg[pick]))
+    return np.concatenate(xs), np.concatenate(ys)
+
+
+def _augment(x: torch.Tensor, y: torch.Tensor, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+    """Random flips, a random zoomed crop (the working crop makes objects larger) and colour jitter."""
+    if torch.rand(1, generator=gen) < 0.5:
+        x, y = x.flip(-1), y.flip(-1)
+    B, _, H, W = x.shape
+    s = float(torch.empty(1).uniform_(0.5, 0.8, generator=gen))
+    h, w = int(H * s) // 8 * 8, int(W * s) // 8 * 8
+    i = int(torch.randint(0, H - h + 1, (1,), generator=gen))
+    j = int(torch.randint(0, W - w + 1, (1,), generator=gen))
+    x, y = x[:, :, i:i + h, j:j + w], y[:, :, i:i + h, j:j + w]
+    gain = torch.empty(B, 3, 1, 1).uniform_(0.7, 1.3, generator=gen)
+    shift = torch.empty(B, 3, 1, 1).uniform_(-0.15, 0.15, generator=gen)
+    rgb = ((x[:, :3] + 0.5) * gain + shift).clamp(0, 1) - 0.5
+    grey = torch.rand(B, 1, 1, 1, generator=gen) < 0.15          # some clips are greyscale
+    rgb = torch.where(grey, rgb.mean(1, keepdim=True).expand_as(rgb), rgb)
+    noise = torch.randn(rgb.shape, generator=gen) * 0.02
+    return torch.cat([rgb + noise, x[:, 3:]], dim=1), y
+
+
+def loss_fn(logits: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    """Binary cross-entropy of both maps (contact weighted x5, it is rare) plus a soft Dice loss of
+    the foreground (Milletari et al. 2016), so small objects weigh as much as large ones."""
+    bce = F.binary_cross_entropy_with_logits(logits[:, 0], y[:, 0]) + \
+        F.binary_cross_entropy_with_logits(logits[:, 1], y[:, 1], pos_weight=torch.tensor(5.0))
+    p = torch.sigmoid(logits[:, 0])
+    inter = (p * y[:, 0]).sum(dim=(1, 2))
+    dice = 1 - (2 * inter + 1) / (p.sum(dim=(1, 2)) + y[:, 0].sum(dim=(1, 2)) + 1)
+    return bce + dice.mean()
+
+
+def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 16, lr: float = 3e-3,
+          size: tuple[int, int] = (192, 144), per_clip: int = 12, seed: int = 0,
+          max_minutes: float | None = None, log_every: int = 50) -> dict:
+    """Train the segmenter on rendered clips and save the checkpoint atomically.
+
+    Args:
+        data: folders holding clip folders (``video.mp4`` + ``truth.npz``, :mod:`pipeline.truthsets`).
+        out: checkpoint path (``.pt``); a card ``<out>.json`` is written beside it.
+        steps, batch, lr: AdamW steps, images per step, peak learning rate (cosine decay).
+        size: ``(W, H)`` px the clips are read at.
+        per_clip: frames taken per clip.
+        max_minutes: stop early after this much wall time.
+    Returns:
+        the card dict (data, steps done, seconds, final losses).
+    """
+    from pipeline.atomic import atomic_path, write_json
+    torch.manual_seed(seed)
+    torch.set_num_threads(max(1, torch.get_num_threads()))
+    rng = np.random.default_rng(seed)
+    folders = sorted(c for d in data for c in Path(d).iterdir() if (c / "truth.npz").exists())
+    if not folders:
+        raise SegmenterError(f"{', '.join(map(str, data))}: no clip folders with truth.npz")
+    t0 = time.time()
+    X, Y = _load_set(folders, size, per_clip, rng)
+    print(f"[segmenter] {len(X)} frames from {len(folders)} clips in {time.time() - t0:.0f} s", flush=True)
+    X, Y = torch.from_numpy(X), torch.from_numpy(Y)
+    net = UNet()
+    opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
+    gen = torch.Generator().manual_seed(seed)
+    t1 = time.time()
+    history = []
+    done = 0
+    for step in range(steps):
+        if max_minutes is not None and time.time() - t1 > 60 * max_minutes:
+            break
+        for g in opt.param_groups:
+            g["lr"] = lr * 0.5 * (1 + math.cos(math.pi * step / steps))
+        idx = torch.randint(0, len(X), (batch,), generator=gen)
+        x, y = _augment(X[idx], Y[idx], gen)
+        loss = loss_fn(net(x), y)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        done = step + 1
+        history.append(float(loss))
+        if done % log_every == 0:
+            print(f"[segmenter] step {done}/{steps} loss {np.mean(history[-log_every:]):.4f} "
+                  f"{(time.time() - t1) / done:.3f} s/step", flush=True)
+        if done % 500 == 0:
+            _save(net, out)
+    _save(net, out)
+    card = {"data": [str(d) for d in data], "clips": len(folders), "frames": int(len(X)), "size": list(size),
+            "steps": done, "batch": batch, "lr": lr, "seconds": round(time.time() - t1, 1),
+            "final_loss": round(float(np.mean(history[-100:])), 4) if history else None,
+            "parameters": int(sum(p.numel() for p in net.parameters())), "threads": torch.get_num_threads()}
+    write_json(out.with_suffix(".json"), card)
+    return card
+
+
+def _save(net: UNet, out: Path) -> None:
+    from pipeline.atomic import atomic_path
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(out, suffix=".pt") as tmp:
+        torch.save({"channels": list(CHANNELS), "state_dict": net.state_dict()}, tmp)
+
+
+def evaluate(data: list[Path], weights: Path | None = None, size: tuple[int, int] = (192, 144)) -> dict:
+    """Foreground IoU of the segmenter (threshold 0.5) per clip of rendered sets, and its mean."""
+    seg_net = Segmenter(weights)
+    folders = sorted(c for d in data for c in Path(d).iterdir() if (c / "truth.npz").exists())
+    from pipeline.video import read_video
+    ious = []
+    for folder in folders:
+        truth = np.load(folder / "truth.npz")
+        clip = read_video(folder / "video.mp4", size=size, crop=(0, 0, *truth["seg"].shape[:0:-1]))
+        seg = np.stack([cv2.resize(s.astype(np.int16), size, interpolation=cv2.INTER_NEAREST)
+                        for s in truth["seg"][: len(clip.frames)]])
+        fg, _ = seg_net(clip.frames, median_background(clip.frames))
+        p, t = fg > 0.5, seg >= 0
+        ious.append(float((p & t).sum() / max(1, (p | t).sum())))
+    return {"clips": len(folders), "foreground_iou": round(float(np.mean(ious)), 4) if ious else None,
+            "per_clip": [round(v, 4) for v in ious]}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m pipeline.segmenter", description=__doc__.split("\n\n")[0])
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    t = sub.add_parser("train", help="train on rendered clips (pipeline.truthsets folders)")
+    t.add_argument("--data", type=Path, nargs="+", required=True)
+    t.add_argument("--out", type=Path, default=DEFAULT_WEIGHTS)
+    t.add_argument("--steps", type=int, default=3000)
+    t.add_argument("--batch", type=int, default=16)
+    t.add_argument("--lr", type=float, default=3e-3)
+    t.add_argument("--max-minutes", type=float, default=None)
+    t.add_argument("--seed", type=int, default=0)
+    e = sub.add_parser("eval", help="foreground IoU on rendered clips")
+    e.add_argument("--data", type=Path, nargs="+", required=True)
+    e.add_argument("--weights", type=Path, default=None)
+    args = ap.parse_args(argv)
+    if args.cmd == "train":
+        card = train(args.data, args.out, steps=args.steps, batch=args.batch, lr=args.lr,
+                     max_minutes=args.max_minutes, seed=args.seed)
+    else:
+        card = evaluate(args.data, args.weights)
+    print(json.dumps(card, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
