@@ -66,10 +66,12 @@ STILL_LABEL = 0.02
 """fraction of the frame diagonal: a labelled object whose centroid moves less is *still*."""
 
 
-def ensure_set(root: Path, engine: str, split: str) -> Path:
+def ensure_set(root: Path, engine: str, split: str, generate: bool = True) -> Path:
     """The folder of one rendered set, generated (``python -m pipeline.truthsets``) if missing."""
     seed, n = SETS[(engine, split)]
     out = root / engine / split
+    if not generate:
+        return out
     subprocess.run([sys.executable, "-m", "pipeline.truthsets", "generate", "--engine", engine, "--n", str(n),
                     "--seed", str(seed), "--out", str(out)], check=True, cwd=ROOT)
     return out
@@ -165,6 +167,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sets", type=Path, default=ROOT / "data/truthsets", help="rendered sets' root (generated if missing)")
     ap.add_argument("--only", default="mujoco,pybullet,real", help="comma list of mujoco, pybullet, real")
+    ap.add_argument("--no-generate", action="store_true", help="use the clips that are there")
     ap.add_argument("--limit", type=int, default=None, help="first N clips per rendered set (quick looks)")
     ap.add_argument("--params", default=None, help="params.yaml (default ./params.yaml)")
     ap.add_argument("--report", type=Path, default=ROOT / "reports/observation_truth", help="report path stem")
@@ -175,7 +178,9 @@ def main(argv: list[str] | None = None) -> int:
     for (engine, split) in SETS:
         if engine not in only:
             continue
-        folder = ensure_set(args.sets, engine, split)
+        folder = ensure_set(args.sets, engine, split, not args.no_generate)
+        if not folder.is_dir():
+            continue
         clips = sorted(p for p in folder.iterdir() if (p / "truth.npz").exists())[: args.limit]
         rows = []
         for c in tqdm(clips, desc=f"{engine}/{split}"):

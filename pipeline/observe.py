@@ -316,15 +316,31 @@ def original_frames(obs: Observation, video, fps: float | None, height: int = 32
 def observe_frames(video, fps: float | None, frame_indices, size: tuple[int, int] | None = None,
                    max_objects: int = 4) -> np.ndarray:
     """The observation's masks of chosen source frames of a whole clip (for scoring against hand
-    labels, which are spread over the clip rather than one window): the same masks and tracks as
-    :func:`observe`, over the whole clip at ``size`` (:func:`pipeline.video.pseudo_ground_truth`).
+    labels, which are spread over the clip rather than one window): the same masks as
+    :func:`observe`, tracked over the whole clip at ``size`` (:func:`pipeline.video.pseudo_ground_truth`),
+    keeping the tracks that are objects (seen in 4 tracked frames or more, the centroid travels half
+    a diameter, a median area within 1/4..4 times that of the track seen longest, the
+    ``max_objects`` seen longest; no flow over the whole clip, so no flow check).
 
     Returns:
         ``(len(frame_indices), H, W)`` int8 object ids, -1 background.
     Raises:
         VideoError: unreadable video or a frame index out of range.
     """
-    return pseudo_ground_truth(video, fps, frame_indices, size, max_objects=max_objects)
+    def objects(seg: np.ndarray) -> np.ndarray:
+        from pipeline.perception import find_tracks
+        tracks = sorted((t for t in find_tracks(seg, None, min_frames=4) if t.travel >= 0.5 * t.diameter),
+                        key=lambda t: -len(t.frames))
+        if tracks:   # sizes relative to the track seen longest (a hand or a person passes briefly)
+            ref = float(np.median(tracks[0].area))
+            tracks = [t for t in tracks if 0.25 * ref <= float(np.median(t.area)) <= 4.0 * ref]
+        tracks = tracks[:max_objects]
+        lut = np.full(int(seg.max()) + 2, -1, dtype=np.int8)
+        for new, t in enumerate(tracks):
+            lut[t.label] = new
+        return lut[seg.astype(np.int64)]
+
+    return pseudo_ground_truth(video, fps, frame_indices, size, max_objects=max_objects, keep=objects)
 
 
 def source_frames(obs: Observation) -> np.ndarray:

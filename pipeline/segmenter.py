@@ -260,7 +260,7 @@ def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 16, lr: f
         loss.backward()
         opt.step()
         done = step + 1
-        history.append(float(loss))
+        history.append(loss.item())
         if done % log_every == 0:
             print(f"[segmenter] step {done}/{steps} loss {np.mean(history[-log_every:]):.4f} "
                   f"{(time.time() - t1) / done:.3f} s/step", flush=True)

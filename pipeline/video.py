@@ -716,6 +716,7 @@ def pseudo_ground_truth(
     max_fit: int = 150,
     crop: tuple[int, int, int, int] | None = None,
     hold_rest: bool = True,
+    keep=None,
     **mask_kwargs,
 ) -> np.ndarray:
     """Pseudo ground-truth segmentation of chosen source frames of a whole clip.
@@ -753,6 +754,8 @@ def pseudo_ground_truth(
         max_fit: most frames to fit the background on.
         hold_rest: hold objects that come to rest, merge split tracks, drop ghosts (the same
             post-processing as the main job's pseudo masks, ``pipeline.observe.keep_objects``).
+        keep: optional function ``(T', H, W) int8 -> (T', H, W) int8`` applied to the tracked
+            frames last (e.g. keep only tracks that are objects, :func:`pipeline.observe.observe_frames`).
         **mask_kwargs: more keyword arguments of :func:`pseudo_masks`
             (``threshold``, ``kernel``, ``min_area``, ``ghosts``, ``gain``, ``shadows``,
             ``edge``).
@@ -780,6 +783,8 @@ def pseudo_ground_truth(
     seg = label_objects(masks, max_objects=max_objects)
     if hold_rest:
         seg = drop_ghosts(merge_touching(hold_resting(seg)))
+    if keep is not None:
+        seg = keep(seg)
     where = {t: k for k, t in enumerate(tracked)}
     out = seg[[where[i] for i in wanted]]
     return _renumber(out)
