@@ -16,11 +16,19 @@ object and frame, one of
 All coordinates are in px of the ORIGINAL frame; a per-object ``default`` rule is merged
 under each frame's rule (so a frame only needs its ``roi`` or ``circle``). Labels are
 rasterised at the clip's ``label_size`` (``[width, height]``; the original size unless
-given), uint8: 0 background, 1..n the objects in the order of ``objects``.
+given), uint8: 0 background, 1..n the objects in the order of ``objects``. An object
+missing from a frame's rules is absent there (an all-background label is allowed).
+
+Two specs: ``labels.yaml`` (the six clips of ``<real data root>/video``, the default) and
+``labels_dev.yaml`` (the 13 development clips ``dev01`` ... ``dev13``; its top-level
+``video_dir: dev`` names their folder under the real-data root, ``$DYNAMICS_REAL_DATA`` or
+``shared/data/real``). PNGs go to ``tests/fixtures/realvideo/<clip>/<frame:04d>.png``.
 
 Usage::
 
-    python scripts/label_masks.py                     # (re)write all fixtures
+    python scripts/label_masks.py                     # (re)write the six clips' fixtures
+    python scripts/label_masks.py --spec tests/fixtures/realvideo/labels_dev.yaml  # dev clips
+    python scripts/label_masks.py --dev --clip dev05 --overlay /tmp/overlays  # --dev: that spec
     python scripts/label_masks.py --clip 05 --overlay /tmp/overlays
     python scripts/label_masks.py --clip 05 --dump /tmp/frames --frames 100,200
     python scripts/label_masks.py --clip 07 --propose 300 --roi 0,100,120,240 --radius 10,30
@@ -46,6 +54,7 @@ from pipeline.atomic import atomic_path  # noqa: E402
 
 FIXTURES = ROOT / "tests" / "fixtures" / "realvideo"
 SPEC = FIXTURES / "labels.yaml"
+DEV_SPEC = FIXTURES / "labels_dev.yaml"
 
 
 def write_png(path: Path, img: np.ndarray, flags: list[int] | None = None) -> None:
@@ -59,19 +68,30 @@ def write_png(path: Path, img: np.ndarray, flags: list[int] | None = None) -> No
             raise OSError(f"{path}: cannot write PNG")
 
 
-def real_video_dir() -> Path:
-    """Folder of the real clips: ``$DYNAMICS_REAL_DATA/video`` or ``shared/data/real/video``
-    next to (or inside) the repository."""
+def real_data_root() -> Path:
+    """Root of the real data: ``$DYNAMICS_REAL_DATA`` or ``shared/data/real`` next to (or
+    inside) the repository."""
     for p in [Path(os.environ.get("DYNAMICS_REAL_DATA", "/nonexistent")),
               ROOT / "shared/data/real", ROOT.parent / "shared/data/real"]:
         if p.is_dir():
-            return p / "video"
-    return ROOT.parent / "shared/data/real/video"
+            return p
+    return ROOT.parent / "shared/data/real"
+
+
+def real_video_dir(sub: str = "video") -> Path:
+    """Folder of the real clips: ``<real data root>/video`` (or ``/<sub>``, e.g. ``dev``)."""
+    return real_data_root() / sub
 
 
 def load_spec(path: Path = SPEC) -> dict:
     """The labelling spec: ``{clip: {file, fps, objects, frames: {index: {obj: rule}}, ...}}``."""
     return yaml.safe_load(path.read_text())["clips"]
+
+
+def spec_video_dir(path: Path = SPEC) -> Path:
+    """Folder of a spec's clips: its top-level ``video_dir`` (relative to the real-data root;
+    ``video`` when absent)."""
+    return real_video_dir(yaml.safe_load(path.read_text()).get("video_dir", "video"))
 
 
 def read_frames(path: Path, indices: list[int]) -> dict[int, np.ndarray]:
@@ -239,7 +259,8 @@ def propose(clip: str, spec: dict, video_dir: Path, index: int, roi: list[int],
 
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--spec", type=Path, default=SPEC)
+    ap.add_argument("--spec", type=Path, default=SPEC, help="labelling spec (default labels.yaml)")
+    ap.add_argument("--dev", action="store_true", help=f"use the dev spec {DEV_SPEC.name}")
     ap.add_argument("--clip", action="append", help="clip key(s), e.g. 05 (default: all)")
     ap.add_argument("--out", type=Path, default=FIXTURES)
     ap.add_argument("--overlay", type=Path, help="also write outline overlays here")
@@ -249,8 +270,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--roi", default=None, help="x0,y0,x1,y1 for --propose")
     ap.add_argument("--radius", default="5,40", help="rmin,rmax for --propose")
     args = ap.parse_args(argv)
-    specs = load_spec(args.spec)
-    video_dir = real_video_dir()
+    spec_path = DEV_SPEC if args.dev else args.spec
+    specs = load_spec(spec_path)
+    video_dir = spec_video_dir(spec_path)
     for clip in args.clip or sorted(specs):
         spec = specs[clip]
         if args.dump:

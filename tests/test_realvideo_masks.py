@@ -27,7 +27,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "scripts"))
 
-from label_masks import FIXTURES, load_spec, real_video_dir  # noqa: E402
+from label_masks import DEV_SPEC, FIXTURES, load_spec, real_video_dir  # noqa: E402
 from pseudo_mask_report import clip_scores, frame_scores  # noqa: E402
 
 SPECS = load_spec()
@@ -48,6 +48,35 @@ def test_fixtures_are_labels():
             assert lab.dtype == np.uint8 and lab.ndim == 2
             assert 1 <= lab.max() <= len(spec["objects"])
     assert total < 2_000_000
+
+
+def test_dev_fixtures_are_labels():
+    """Hand labels of the 13 development clips (``labels_dev.yaml``): present, uint8 label
+    images with ids in 0..n_objects, and every object a frame lists has pixels there (frames
+    listing none are all background: the object has left the view). No accuracy targets."""
+    import cv2
+    specs = load_spec(DEV_SPEC)
+    assert sorted(specs) == [f"dev{k:02d}" for k in range(1, 14)]
+    total = 0
+    for clip, spec in specs.items():
+        n = len(spec["objects"])
+        frames = sorted(int(i) for i in spec["frames"])
+        assert len(frames) >= 5, clip
+        for i in frames:
+            p = FIXTURES / clip / f"{i:04d}.png"
+            total += p.stat().st_size
+            lab = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
+            assert lab is not None and lab.dtype == np.uint8 and lab.ndim == 2, p
+            if "label_size" in spec:
+                assert lab.shape == tuple(spec["label_size"][::-1]), p
+            assert lab.max() <= n, p
+            listed = spec["frames"][i] or {}
+            for k, name in enumerate(spec["objects"], 1):
+                if listed.get(name):
+                    assert (lab == k).any(), (clip, i, name)
+                else:
+                    assert not (lab == k).any(), (clip, i, name)
+    assert total < 3_000_000
 
 
 def test_frame_scores():
