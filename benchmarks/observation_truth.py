@@ -105,8 +105,9 @@ def real_clip(name: str, spec: dict, fixtures: Path, video_dir: Path, params: di
     true = labels.astype(np.int16) - 1                                        # 0 background -> -1
     size = (labels.shape[2], labels.shape[1])
     t0 = time.perf_counter()
+    rv = params.get("realvideo", {})
     pred = observe_frames(video_dir / spec["file"], spec.get("fps"), idx, size,
-                          max_objects=int(params.get("realvideo", {}).get("max_objects", 4)))
+                          max_objects=int(rv.get("max_objects", 4)), mask_method=rv.get("mask_method", "median"))
     seconds = time.perf_counter() - t0
     n = len(spec["objects"])
     diag = math.hypot(*size)
@@ -167,12 +168,15 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sets", type=Path, default=ROOT / "data/truthsets", help="rendered sets' root (generated if missing)")
     ap.add_argument("--only", default="mujoco,pybullet,real", help="comma list of mujoco, pybullet, real")
+    ap.add_argument("--mask-method", default=None, help="override realvideo.mask_method (median, mog2, segmenter)")
     ap.add_argument("--no-generate", action="store_true", help="use the clips that are there")
     ap.add_argument("--limit", type=int, default=None, help="first N clips per rendered set (quick looks)")
     ap.add_argument("--params", default=None, help="params.yaml (default ./params.yaml)")
     ap.add_argument("--report", type=Path, default=ROOT / "reports/observation_truth", help="report path stem")
     args = ap.parse_args(argv)
     params = load_params(args.params)
+    if args.mask_method:
+        params.setdefault("realvideo", {})["mask_method"] = args.mask_method
     only = set(args.only.split(","))
     sets: dict[str, list[dict]] = {}
     for (engine, split) in SETS:
@@ -187,20 +191,19 @@ def main(argv: list[str] | None = None) -> int:
             rows.append(rendered_clip(c, params))
         sets[f"{engine} {split}"] = rows
     if "real" in only:
-        from label_masks import FIXTURES, load_spec, real_video_dir
-        root = real_video_dir().parent
+        from label_masks import FIXTURES, load_spec, spec_video_dir
         for name, spec_file in (("real shared (6)", FIXTURES / "labels.yaml"),
                                 ("real dev (13)", FIXTURES / "labels_dev.yaml")):
             if not spec_file.exists():
                 continue
             specs = load_spec(spec_file)
+            vdir = spec_video_dir(spec_file)
             rows = []
             for clip in tqdm(sorted(specs), desc=name):
                 spec = specs[clip]
                 if not all((FIXTURES / clip / f"{int(i):04d}.png").exists() for i in spec["frames"]):
                     print(f"{clip}: label PNGs missing, skipped (python scripts/label_masks.py --spec {spec_file})")
                     continue
-                vdir = root / spec.get("video_dir", "video")
                 rows.append(real_clip(clip, spec, FIXTURES, vdir, params))
             sets[name] = rows
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()

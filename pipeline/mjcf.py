@@ -17,6 +17,10 @@ A frictionless object (``sliding_friction: 0``) gets ``condim=1``: MuJoCo's pyra
 with a zero coefficient and ``condim > 1`` is degenerate and blows up (a box spinning on the
 floor was launched metres into the air); with ``condim=1`` it slides and spins freely.
 ``damping`` is the free joint's ``damping`` (applies to all 6 DoF).
+Looks: every scene is drawn with one fixed look (grey checker floor, :data:`OBJECT_COLOURS`, one
+light). :class:`Appearance` (an optional argument of :func:`build_mjcf`) replaces it for rendered
+benchmark clips (``pipeline.truthsets``): floor texture and colours, object colours, the light and
+the headlight. Without it the MJCF text is exactly what it was before it existed.
 Static geoms get the floor's contact parameters (``priority=0``, ``condim=3``,
 ``floor_friction``, ``floor_solref``), so an object on a ramp slides with its own
 ``sliding_friction`` exactly as on the floor.
@@ -25,9 +29,10 @@ Static geoms get the floor's contact parameters (``priority=0``, ``condim=3``,
 from __future__ import annotations
 
 import math
+from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 import pipeline  # noqa: F401  (sets MUJOCO_GL before dm_control is imported)
 from dm_control import mjcf
@@ -70,6 +75,66 @@ class SimOptions(BaseModel):
     object_solref: tuple[float, float] = (0.02, 1.0)
     offscreen_size: int = Field(640, gt=0, description="px, max render width/height")
     textured: bool = True
+
+
+RGB = tuple[float, float, float]
+
+
+class Appearance(BaseModel):
+    """The look of a rendered scene beyond the scene language (no effect on the physics).
+
+    ``build_mjcf(scene, options)`` without an ``Appearance`` draws the project's fixed look; the
+    defaults here are that look, but the MJCF text is only guaranteed unchanged without one.
+    Colours are RGB in [0, 1].
+
+    Attributes:
+        floor_texture: ``checker`` / ``gradient`` / ``flat`` (MuJoCo builtin textures of
+            ``floor_rgb1`` and ``floor_rgb2``), or ``png`` (the image ``floor_png``).
+        floor_rgb1, floor_rgb2: the builtin texture's two colours.
+        floor_texrepeat: texture repeats over the floor's 20 m x 20 m (MJCF ``texrepeat``).
+        floor_png: PNG file contents (``floor_texture: png``), given to MuJoCo as an asset, so
+            compile with ``MjModel.from_xml_string(root.to_xml_string(), root.get_assets())``.
+        object_rgb: one colour per object (cycled); empty: :data:`OBJECT_COLOURS`.
+        object_checker: objects wear a checker of their colour and a darker one (as by
+            default, so that rotation shows); False: plain colour.
+        light_dir: direction the directional light shines along (world frame, not normalised).
+        light_diffuse, light_ambient, light_specular: the light's colours (``None``: MuJoCo's
+            default, not written).
+        light_castshadow: the light casts shadows (~15x slower per RGB frame, DESIGN §10).
+        headlight_ambient, headlight_diffuse: the camera headlight's colours.
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    floor_texture: Literal["checker", "gradient", "flat", "png"] = "checker"
+    floor_rgb1: RGB = (0.42, 0.42, 0.45)
+    floor_rgb2: RGB = (0.5, 0.5, 0.53)
+    floor_texrepeat: tuple[float, float] = (8.0, 8.0)
+    floor_png: bytes | None = None
+    object_rgb: tuple[RGB, ...] = ()
+    object_checker: bool = True
+    light_dir: tuple[float, float, float] = (0.0, 0.3, -1.0)
+    light_diffuse: RGB = (0.6, 0.6, 0.6)
+    light_ambient: RGB | None = None
+    light_specular: RGB | None = None
+    light_castshadow: bool = False
+    headlight_ambient: RGB = (0.45, 0.45, 0.45)
+    headlight_diffuse: RGB = (0.5, 0.5, 0.5)
+
+    @model_validator(mode="after")
+    def _png_given(self) -> "Appearance":
+        if (self.floor_texture == "png") != (self.floor_png is not None):
+            raise ValueError("floor_png: must be given exactly when floor_texture is png")
+        return self
+
+
+def _floor_texture(root: mjcf.RootElement, look: Appearance) -> mjcf.Element:
+    """Add the floor's texture asset of an :class:`Appearance` (named ``floor_tex``)."""
+    if look.floor_texture == "png":
+        return root.asset.add("texture", name="floor_tex", type="2d",
+                              file=mjcf.Asset(contents=look.floor_png, extension=".png"))
+    return root.asset.add("texture", name="floor_tex", type="2d", builtin=look.floor_texture,
+                          rgb1=list(look.floor_rgb1), rgb2=list(look.floor_rgb2), width=64, height=64)
 
 
 def static_geom_size(geom) -> list[float]:
@@ -130,10 +195,12 @@ def frame_timestep(fps: float, timestep: float) -> float:
     return 1.0 / (float(fps) * n)
 
 
-def build_mjcf(scene: Scene, options: SimOptions | None = None) -> mjcf.RootElement:
+def build_mjcf(scene: Scene, options: SimOptions | None = None,
+               appearance: Appearance | None = None) -> mjcf.RootElement:
     """Build the MJCF element tree of a validated scene.
 
     The MJCF ``timestep`` is :func:`frame_timestep` of the scene's fps and ``options.timestep``.
+    ``appearance`` replaces the fixed look (floor, colours, light); None keeps it, byte for byte.
 
     Raises:
         SceneError: an effect in ``scene.effects`` is unknown or has bad parameters.
@@ -147,16 +214,19 @@ def build_mjcf(scene: Scene, options: SimOptions | None = None) -> mjcf.RootElem
     glob = getattr(root.visual, "global")
     glob.offwidth = opt.offscreen_size
     glob.offheight = opt.offscreen_size
-    root.visual.headlight.ambient = [0.45, 0.45, 0.45]
-    root.visual.headlight.diffuse = [0.5, 0.5, 0.5]
+    look = appearance or Appearance()
+    root.visual.headlight.ambient = list(look.headlight_ambient)
+    root.visual.headlight.diffuse = list(look.headlight_diffuse)
 
     floor_mat = None
     if opt.textured:
-        tex = root.asset.add("texture", name="floor_tex", type="2d", builtin="checker",
-                             rgb1=[0.42, 0.42, 0.45], rgb2=[0.5, 0.5, 0.53], width=64, height=64)
-        floor_mat = root.asset.add("material", name="floor_mat", texture=tex, texrepeat=[8, 8])
-    root.worldbody.add("light", name="sun", pos=[0, 0, 4], dir=[0, 0.3, -1], directional=True,
-                       castshadow=False, diffuse=[0.6, 0.6, 0.6])
+        tex = _floor_texture(root, look)
+        repeat = [8, 8] if appearance is None else list(look.floor_texrepeat)
+        floor_mat = root.asset.add("material", name="floor_mat", texture=tex, texrepeat=repeat)
+    light = {} if appearance is None else {"ambient": look.light_ambient, "specular": look.light_specular}
+    root.worldbody.add("light", name="sun", pos=[0, 0, 4], dir=list(look.light_dir), directional=True,
+                       castshadow=look.light_castshadow, diffuse=list(look.light_diffuse),
+                       **{k: list(v) for k, v in light.items() if v is not None})
     root.worldbody.add("geom", name="floor", type="plane", size=[10, 10, 0.1], material=floor_mat,
                        rgba=None if floor_mat else [0.45, 0.45, 0.48, 1],
                        friction=[opt.floor_friction, 0.0, 0.0], solref=list(opt.floor_solref),
@@ -172,10 +242,11 @@ def build_mjcf(scene: Scene, options: SimOptions | None = None) -> mjcf.RootElem
     root.worldbody.add("camera", name="main", pos=pose.eye.tolist(),
                        xyaxes=[*pose.right.tolist(), *pose.up.tolist()], fovy=scene.camera.fov)
 
+    colours = list(look.object_rgb) or OBJECT_COLOURS
     for i, (obj, name) in enumerate(zip(scene.objects, scene.object_names)):
-        colour = OBJECT_COLOURS[i % len(OBJECT_COLOURS)]
+        colour = colours[i % len(colours)]
         mat = None
-        if opt.textured:
+        if opt.textured and look.object_checker:
             dark = [c * 0.55 for c in colour]
             tex = root.asset.add("texture", name=f"{name}_tex", type="2d", builtin="checker",
                                  rgb1=list(colour), rgb2=dark, width=32, height=32)

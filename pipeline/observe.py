@@ -314,7 +314,7 @@ def original_frames(obs: Observation, video, fps: float | None, height: int = 32
 
 
 def observe_frames(video, fps: float | None, frame_indices, size: tuple[int, int] | None = None,
-                   max_objects: int = 4) -> np.ndarray:
+                   max_objects: int = 4, mask_method: str = "median") -> np.ndarray:
     """The observation's masks of chosen source frames of a whole clip (for scoring against hand
     labels, which are spread over the clip rather than one window): the same masks as
     :func:`observe`, tracked over the whole clip at ``size`` (:func:`pipeline.video.pseudo_ground_truth`),
@@ -340,7 +340,28 @@ def observe_frames(video, fps: float | None, frame_indices, size: tuple[int, int
             lut[t.label] = new
         return lut[seg.astype(np.int64)]
 
-    return pseudo_ground_truth(video, fps, frame_indices, size, max_objects=max_objects, keep=objects)
+    if mask_method != "segmenter":
+        return pseudo_ground_truth(video, fps, frame_indices, size, max_objects=max_objects, keep=objects,
+                                   method=mask_method)
+    # the segmenter sees objects at rest too: every track seen often enough is kept (still_tracks);
+    # it runs at most at the working size's upper bound and its labels are scaled up
+    probe = read_video(video, fps=fps, max_frames=1)
+    W, H = size or probe.original_size
+    s = min(1.0, MAX_LONG_SIDE / max(W, H))
+    work = (max(2, round(W * s / 2) * 2), max(2, round(H * s / 2) * 2))
+    clip = read_video(video, fps=fps, size=work, crop=(0, 0, *probe.original_size))
+    n = len(clip.frames)
+    wanted = [int(i) for i in frame_indices]
+    bad = [i for i in wanted if not 0 <= i < n]
+    if bad:
+        raise VideoError(f"{video}: frame_indices {bad} outside 0..{n - 1}")
+    tracked = sorted(set(range(0, n, max(1, n // 200))) | set(wanted))
+    fit = np.unique(np.linspace(0, n - 1, min(n, 150)).round().astype(int))
+    seg = segment_objects(clip.frames[tracked], clip.frames[fit], "segmenter", max_objects)
+    seg, _ = keep_objects(seg, None, max_objects, still=True)
+    where = {t: k for k, t in enumerate(tracked)}
+    out = seg[[where[i] for i in wanted]]
+    return upscale(out, (W, H)) if (W, H) != work else out
 
 
 def source_frames(obs: Observation) -> np.ndarray:
