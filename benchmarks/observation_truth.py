@@ -21,8 +21,8 @@ tracks); the true masks of the window's source frames are cut to the same crop a
 labels' size).
 
 Metrics (:func:`pipeline.metrics.observation_scores`): matched per-object mask IoU over the frames
-where either the object or its match is visible (an unmatched true object scores 0), object count
-right, identity switches, moving and still objects apart (still: the true object moves < 5 mm in
+where either the object or its match is visible (an unmatched true object scores 0, and so does one
+that the working crop cuts out), object count right, identity switches, moving and still objects apart (still: the true object moves < 5 mm in
 the window; on real labels < 2 % of the frame diagonal over the labelled frames).
 
 Usage::
@@ -91,6 +91,20 @@ def rendered_clip(folder: Path, params: dict) -> dict:
     pos = truth["pos"][frames]                                              # (T, n, 3) m
     still = np.linalg.norm(pos - pos[:1], axis=-1).max(axis=0) < STILL_M     # (n,)
     s = observation_scores(seg, obs.seg, still)
+    # an object the working crop cuts out is missed, not absent: it counts 0
+    whole = truth["seg"][frames]
+    for k in range(len(still)):
+        if (whole == k).any() and not (seg == k).any():
+            s["per_object"].append({"true": k, "pred": None, "iou": 0.0, "frames": 0, "still": bool(still[k]),
+                                    "outside_crop": True})
+    objs = s["per_object"]
+    s["n_true"] = len(objs)
+    s["count_right"] = s["n_true"] == s["n_pred"]
+    s["matched_iou"] = float(np.mean([o["iou"] for o in objs])) if objs else math.nan
+    for key, sel in (("moving_iou", [o for o in objs if not o["still"]]), ("still_iou", [o for o in objs if o["still"]])):
+        s[key] = float(np.mean([o["iou"] for o in sel])) if sel else math.nan
+    st = [o for o in objs if o["still"]]
+    s["still_found"] = float(np.mean([o["iou"] >= 0.5 for o in st])) if st else math.nan
     meta = json.loads((folder / "meta.json").read_text()) if (folder / "meta.json").exists() else {}
     return {"clip": folder.name, "seconds": round(seconds, 2), "tags": meta.get("tags", meta.get("categories", [])),
             **{k: v for k, v in s.items() if k != "per_object"}, "per_object": s["per_object"]}

@@ -58,6 +58,7 @@ class Observation:
         crop: ``(x, y, w, h)`` in original px; ``size``: working ``(W, H)`` px.
         scene_fps: frames per second of ``frames``.
         flow_method: optical-flow estimator used.
+        mask_method: how ``seg`` was made (:data:`MASK_METHODS`).
     """
 
     frames: np.ndarray
@@ -70,6 +71,7 @@ class Observation:
     size: tuple[int, int]
     scene_fps: int
     flow_method: str
+    mask_method: str = "median"
 
 
 def _detect_size(orig_w: int, orig_h: int) -> tuple[int, int]:
@@ -299,7 +301,7 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     method = "dis" if flow_method == "gt" else flow_method
     flow = estimate_flow(frames, method=method, preset=flow_preset)
     seg, _ = keep_objects(seg if learned else hold_resting(seg), flow, max_objects, learned)
-    return Observation(frames, seg, flow, clip, float(start), auto, clip.crop, size, scene_fps, method)
+    return Observation(frames, seg, flow, clip, float(start), auto, clip.crop, size, scene_fps, method, mask_method)
 
 
 def original_frames(obs: Observation, video, fps: float | None, height: int = 320) -> np.ndarray:
@@ -317,7 +319,8 @@ def observe_frames(video, fps: float | None, frame_indices, size: tuple[int, int
                    max_objects: int = 4, mask_method: str = "median") -> np.ndarray:
     """The observation's masks of chosen source frames of a whole clip (for scoring against hand
     labels, which are spread over the clip rather than one window): the same masks as
-    :func:`observe`, tracked over the whole clip at ``size`` (:func:`pipeline.video.pseudo_ground_truth`),
+    :func:`observe`, tracked over the whole clip at ``size`` (at most :data:`MAX_LONG_SIDE` px long,
+    scaled up to ``size``; :func:`pipeline.video.pseudo_ground_truth` or the segmenter),
     keeping the tracks that are objects (seen in 4 tracked frames or more, the centroid travels half
     a diameter, a median area within 1/4..4 times that of the track seen longest, the
     ``max_objects`` seen longest; no flow over the whole clip, so no flow check).
@@ -340,15 +343,16 @@ def observe_frames(video, fps: float | None, frame_indices, size: tuple[int, int
             lut[t.label] = new
         return lut[seg.astype(np.int64)]
 
-    if mask_method != "segmenter":
-        return pseudo_ground_truth(video, fps, frame_indices, size, max_objects=max_objects, keep=objects,
-                                   method=mask_method)
-    # the segmenter sees objects at rest too: every track seen often enough is kept (still_tracks);
-    # it runs at most at the working size's upper bound and its labels are scaled up
+    # at most the working size's upper bound (MAX_LONG_SIDE), labels scaled up to ``size``
     probe = read_video(video, fps=fps, max_frames=1)
     W, H = size or probe.original_size
     s = min(1.0, MAX_LONG_SIDE / max(W, H))
     work = (max(2, round(W * s / 2) * 2), max(2, round(H * s / 2) * 2))
+    if mask_method != "segmenter":
+        out = pseudo_ground_truth(video, fps, frame_indices, work, max_objects=max_objects, keep=objects,
+                                  method=mask_method, crop=(0, 0, *probe.original_size))
+        return upscale(out, (W, H)) if (W, H) != work else out
+    # the segmenter sees objects at rest too: every track seen often enough is kept (still_tracks)
     clip = read_video(video, fps=fps, size=work, crop=(0, 0, *probe.original_size))
     n = len(clip.frames)
     wanted = [int(i) for i in frame_indices]

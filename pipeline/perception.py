@@ -659,7 +659,7 @@ def object_tracks(seg: np.ndarray, flow: np.ndarray | None, max_objects: int = 4
 
 
 def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: float,
-            max_objects: int = 4) -> Proposals:
+            max_objects: int = 4, still: bool = False) -> Proposals:
     """Scene-language proposals for a labelled clip (see module docstring).
 
     Args:
@@ -668,15 +668,24 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
         fps: frame rate of ``seg``, frames per second (the scene's ``fps``; an int).
         duration: scene duration, s.
         max_objects: keep at most this many tracks (largest first).
+        still: the masks come from the segmenter, which sees objects at rest too: every track
+            seen often enough is an object, moving or not (``pipeline.observe.still_tracks``);
+            otherwise only tracks that move (:func:`object_tracks`: background-subtraction masks
+            also hold shadows and flicker).
     Returns:
         :class:`Proposals` with at least one valid scene.
     Raises:
-        PerceptionError: no moving object in the clip.
+        PerceptionError: no (moving) object in the clip.
     """
     T, H, W = np.shape(seg)
-    tracks = object_tracks(seg, flow, max_objects)
+    if still:
+        from pipeline.observe import still_tracks
+        tracks = still_tracks(seg, max_objects)
+    else:
+        tracks = object_tracks(seg, flow, max_objects)
     if not tracks:
-        raise PerceptionError("no moving object found (background subtraction + flow)")
+        raise PerceptionError("no object found (segmenter)" if still else
+                              "no moving object found (background subtraction + flow)")
     motions = [initial_motion(t, fps) for t in tracks]
     gravity = [gravity_motion(t, fps) for t in tracks]
     view, shows = estimate_view(tracks, gravity)

@@ -279,7 +279,8 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
         errors += errs
     proposals = None
     try:
-        proposals = perception.propose(obs.seg, obs.flow, scene_fps, duration, max_objects)
+        proposals = perception.propose(obs.seg, obs.flow, scene_fps, duration, max_objects,
+                                       still=obs.mask_method == "segmenter")
         candidates += proposals.scenes
         sources += ["perception"] * len(proposals.scenes)
         labels += [f"perception: {l}" for l in proposals.labels]

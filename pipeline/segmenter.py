@@ -181,21 +181,25 @@ def _load_set(folders: list[Path], size: tuple[int, int], per_clip: int, rng: np
                         for s in truth["seg"][: len(frames)]])
         bg = median_background(frames)
         pick = rng.choice(len(frames), size=min(per_clip, len(frames)), replace=False)
-        xs.append(network_input(frames[pick], bg))
-        ys.append(targets(seg[pick]))
+        xs.append(network_input(frames[pick], bg).astype(np.float16))
+        ys.append(targets(seg[pick]).astype(np.uint8))
     return np.concatenate(xs), np.concatenate(ys)
 
 
-def _augment(x: torch.Tensor, y: torch.Tensor, gen: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
-    """Random flips, a random zoomed crop (the working crop makes objects larger) and colour jitter."""
+def _augment(x: torch.Tensor, y: torch.Tensor, gen: torch.Generator, out: tuple[int, int] = (160, 120)
+             ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Random flips, a random crop of 35-100 % of the frame resized to ``out = (W, H)`` (objects
+    appear at 0.5-1.4 times their size in the clip, as the working crop and size make them), and
+    colour jitter (gain, offset, some greyscale, noise)."""
     if torch.rand(1, generator=gen) < 0.5:
         x, y = x.flip(-1), y.flip(-1)
     B, _, H, W = x.shape
-    s = float(torch.empty(1).uniform_(0.5, 0.8, generator=gen))
-    h, w = int(H * s) // 8 * 8, int(W * s) // 8 * 8
+    s = float(torch.empty(1).uniform_(0.35, 1.0, generator=gen))
+    h, w = max(8, int(H * s)), max(8, int(W * s))
     i = int(torch.randint(0, H - h + 1, (1,), generator=gen))
     j = int(torch.randint(0, W - w + 1, (1,), generator=gen))
-    x, y = x[:, :, i:i + h, j:j + w], y[:, :, i:i + h, j:j + w]
+    x = F.interpolate(x[:, :, i:i + h, j:j + w].float(), size=out[::-1], mode="bilinear", align_corners=False)
+    y = F.interpolate(y[:, :, i:i + h, j:j + w].float(), size=out[::-1], mode="nearest")
     gain = torch.empty(B, 3, 1, 1).uniform_(0.7, 1.3, generator=gen)
     shift = torch.empty(B, 3, 1, 1).uniform_(-0.15, 0.15, generator=gen)
     rgb = ((x[:, :3] + 0.5) * gain + shift).clamp(0, 1) - 0.5
@@ -216,8 +220,8 @@ def loss_fn(logits: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
     return bce + dice.mean()
 
 
-def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 16, lr: float = 3e-3,
-          size: tuple[int, int] = (192, 144), per_clip: int = 12, seed: int = 0,
+def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 12, lr: float = 3e-3,
+          size: tuple[int, int] = (320, 240), per_clip: int = 12, seed: int = 0,
           max_minutes: float | None = None, log_every: int = 50) -> dict:
     """Train the segmenter on rendered clips and save the checkpoint atomically.
 
@@ -225,7 +229,7 @@ def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 16, lr: f
         data: folders holding clip folders (``video.mp4`` + ``truth.npz``, :mod:`pipeline.truthsets`).
         out: checkpoint path (``.pt``); a card ``<out>.json`` is written beside it.
         steps, batch, lr: AdamW steps, images per step, peak learning rate (cosine decay).
-        size: ``(W, H)`` px the clips are read at.
+        size: ``(W, H)`` px the clips are read at (crops of them are resized to 160 x 120, :func:`_augment`).
         per_clip: frames taken per clip.
         max_minutes: stop early after this much wall time.
     Returns:
@@ -282,7 +286,7 @@ def _save(net: UNet, out: Path) -> None:
         torch.save({"channels": list(CHANNELS), "state_dict": net.state_dict()}, tmp)
 
 
-def evaluate(data: list[Path], weights: Path | None = None, size: tuple[int, int] = (192, 144)) -> dict:
+def evaluate(data: list[Path], weights: Path | None = None, size: tuple[int, int] = (320, 240)) -> dict:
     """Foreground IoU of the segmenter (threshold 0.5) per clip of rendered sets, and its mean."""
     seg_net = Segmenter(weights)
     folders = sorted(c for d in data for c in Path(d).iterdir() if (c / "truth.npz").exists())
@@ -307,7 +311,7 @@ def main(argv: list[str] | None = None) -> int:
     t.add_argument("--data", type=Path, nargs="+", required=True)
     t.add_argument("--out", type=Path, default=DEFAULT_WEIGHTS)
     t.add_argument("--steps", type=int, default=3000)
-    t.add_argument("--batch", type=int, default=16)
+    t.add_argument("--batch", type=int, default=12)
     t.add_argument("--lr", type=float, default=3e-3)
     t.add_argument("--max-minutes", type=float, default=None)
     t.add_argument("--seed", type=int, default=0)

@@ -9,9 +9,10 @@ cd "$(dirname "$0")/.."
 REAL=${REAL:-../shared/data/real/video}
 OUT=${OUT:-outputs/realvideo}
 export MUJOCO_GL=${MUJOCO_GL:-egl} HF_HUB_OFFLINE=1
+LABELS=tests/fixtures/realvideo   # hand labels (issue 36): scored against, never fitted
 run() {  # name file [fps]
-  local name=$1 file=$2 fps=${3:-}
-  dynamics infer "$REAL/$file" ${fps:+--fps $fps} --out "$OUT/$name"
+  local name=$1 file=$2 fps=${3:-} id=${1%%_*}
+  dynamics infer "$REAL/$file" ${fps:+--fps $fps} --out "$OUT/$name" --labels "$LABELS/$id"
   mkdir -p "reports/realvideo/$name"
   cp "$OUT/$name/metrics.json" "$OUT/$name/scene.yaml" "$OUT/$name/contact_sheet.png" \
      "$OUT/$name/side_by_side.mp4" "reports/realvideo/$name/"

@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 REAL = Path(os.environ.get("REAL_ROOT", Path(__file__).resolve().parents[2] / "shared" / "data" / "real"))
+LABELS = Path(__file__).resolve().parents[1] / "tests" / "fixtures" / "realvideo"
 CLIPS = [  # (name, file relative to REAL, true fps or None)
     ("01_bouncing_green_ball", "video/01_bouncing_green_ball_1080p30.avi", None),
     ("02_ball_on_ramp", "video/02_tracker_BallOnRamp_30fps.mp4", None),
@@ -79,6 +80,9 @@ def run_clip(name: str, rel: str, fps: int | None, out: Path) -> dict:
     clip_out = out / name
     row: dict = {"clip": name, "file": rel, "fps": fps}
     cmd = ["dynamics", "infer", str(REAL / rel), "--out", str(clip_out)] + (["--fps", str(fps)] if fps else [])
+    labels = LABELS / name.split("_")[0]          # hand labels (issue 36): scored against, never fitted
+    if labels.is_dir():
+        cmd += ["--labels", str(labels)]
     t0 = time.time()
     p = subprocess.run(cmd, capture_output=True, text=True)
     row["seconds"] = round(time.time() - t0, 1)
@@ -89,6 +93,7 @@ def run_clip(name: str, rel: str, fps: int | None, out: Path) -> dict:
     row["best_of_k"] = m["best_of_k"]["full_iou"]
     row["written"] = m["best_of_k_cmaes"]["full_iou"]
     row["search_gain"] = m.get("search_gain")
+    row["against_labels"] = m.get("against_labels")
     W, H = m["window"]["width"], m["window"]["height"]
     sim_out = clip_out / "simulate"
     p = subprocess.run(["dynamics", "simulate", str(clip_out / "scene.yaml"), "--width", str(W), "--height", str(H),
@@ -103,15 +108,19 @@ def run_clip(name: str, rel: str, fps: int | None, out: Path) -> dict:
 
 def table(rows: list[dict]) -> str:
     """Markdown table of the summary rows."""
-    out = ["| clip | Best@K IoU | written IoU | written - Best@K | simulate | re-sim vs scored masks | s |",
-           "|---|---|---|---|---|---|---|"]
+    out = ["| clip | Best@K IoU | written IoU | written - Best@K | simulate | re-sim vs scored masks "
+           "| labelled frames | re-sim vs labels | observation vs labels | s |",
+           "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if "error" in r:
-            out.append(f"| {r['clip']} | – | – | – | main job failed: {r['error']} | – | {r['seconds']} |")
+            out.append(f"| {r['clip']} | – | – | – | main job failed: {r['error']} | – | – | – | – | {r['seconds']} |")
             continue
         d = r["written"] - r["best_of_k"]
+        a = r.get("against_labels") or {}
+        fmt = lambda v: "–" if v is None else f"{v:.3f}"  # noqa: E731
         out.append(f"| {r['clip']} | {r['best_of_k']:.4f} | {r['written']:.4f} | {d:+.4f} | {r['simulate']} | "
-                   f"{r.get('resim_iou', '–')} | {r['seconds']} |")
+                   f"{r.get('resim_iou', '–')} | {a.get('n_labelled', '–')} | {fmt(a.get('resim_vs_labels'))} | "
+                   f"{fmt(a.get('observation_vs_labels'))} | {r['seconds']} |")
     ok = [r for r in rows if "error" not in r]
     if ok:
         worse = sum(r["written"] < r["best_of_k"] for r in ok)

@@ -1,0 +1,82 @@
+"""The object segmenter (issue 36): checkpoints load or fail in one line, the targets mark
+exactly the contact between two objects, and the shipped weights find an object at rest
+throughout a rendered clip, which background subtraction cannot see."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from pipeline.segmenter import DEFAULT_WEIGHTS, UNet, Segmenter, SegmenterError, median_background, network_input, targets
+
+
+def test_targets_mark_foreground_and_contact_only_between_objects():
+    seg = np.full((1, 8, 10), -1, np.int8)
+    seg[0, 2:6, 1:4] = 0
+    seg[0, 2:6, 4:7] = 1          # touches object 0 along column 3|4
+    seg[0, 0, 9] = 2              # alone
+    y = targets(seg)
+    assert y.shape == (1, 2, 8, 10) and y.dtype == np.float32
+    np.testing.assert_array_equal(y[0, 0], seg[0] >= 0)
+    contact = y[0, 1] > 0
+    assert contact[2:6, 3:5].all()                       # both sides of the shared border
+    assert not contact[:, :3].any() and not contact[:, 5:].any()   # nowhere else, not the lone object
+
+
+def test_network_input_shape_and_motion_channel():
+    frames = np.zeros((3, 16, 24, 3), np.uint8)
+    frames[1, 4:8, 4:8] = 200
+    bg = median_background(frames)
+    x = network_input(frames, bg)
+    assert x.shape == (3, 4, 16, 24) and x.dtype == np.float32
+    assert x[1, 3, 5:7, 5:7].min() > 0.5 and x[0, 3].max() == 0.0
+
+
+def test_any_image_size_gives_probabilities_of_that_size(tmp_path):
+    path = tmp_path / "w.pt"
+    torch.save({"channels": [4, 8, 8, 8], "state_dict": UNet((4, 8, 8, 8)).state_dict()}, path)
+    net = Segmenter(path)
+    frames = np.random.default_rng(0).integers(0, 255, (2, 37, 53, 3), dtype=np.uint8)
+    fg, contact = net(frames, frames[0])
+    assert fg.shape == contact.shape == (2, 37, 53) and 0 <= fg.min() and fg.max() <= 1
+
+
+def test_bad_checkpoints_are_one_error(tmp_path):
+    with pytest.raises(SegmenterError, match="no segmenter checkpoint"):
+        Segmenter(tmp_path / "missing.pt")
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(b"not a checkpoint")
+    with pytest.raises(SegmenterError, match="bad.pt: not a segmenter checkpoint"):
+        Segmenter(bad)
+
+
+@pytest.mark.skipif(not DEFAULT_WEIGHTS.exists(), reason="no shipped segmenter weights")
+def test_shipped_weights_find_an_object_at_rest_throughout():
+    """A ball rolls past a box that never moves: the median background holds the box, so
+    background subtraction sees nothing there; the segmenter finds the whole box in every frame."""
+    from pipeline.metrics import observation_scores
+    from pipeline.observe import segment_objects, still_tracks
+    from pipeline.render import render_scene
+    from pipeline.scene import Scene
+    from pipeline.video import label_objects, pseudo_masks
+
+    scene = Scene.from_dict({"duration": 1.0, "fps": 30, "camera": {"height": 1.2, "pitch": 40.0, "fov": 45.0},
+                             "objects": [
+                                 {"shape": "box", "size": {"width": 0.2, "depth": 0.2, "height": 0.2}, "mass": 2.0,
+                                  "position": [0.25, -0.6, 0.1]},
+                                 {"shape": "sphere", "size": {"radius": 0.08}, "mass": 0.5,
+                                  "position": [-0.5, -0.8, 0.08], "linear_velocity": [0.8, 0.0, 0.0]}]})
+    _, fr = render_scene(scene, 192, 144)
+    median = label_objects(pseudo_masks(fr.rgb), max_objects=4)
+    seg = segment_objects(fr.rgb, fr.rgb, "segmenter", 4)
+    still = [True, False]
+    s_median = observation_scores(fr.seg, median, still)
+    s_net = observation_scores(fr.seg, seg, still)
+    assert s_median["still_iou"] < 0.2                      # background subtraction: the box is background
+    assert s_net["still_iou"] >= 0.7 and s_net["moving_iou"] >= 0.6, (s_net["per_object"])
+    assert len(still_tracks(seg, 4)) == 2
+    # the box at rest is part of the proposed scene (perception keeps segmenter tracks that do not move)
+    from pipeline.perception import propose
+    props = propose(seg, None, 30, 1.0, 4, still=True)
+    assert {len(sc.objects) for sc in props.scenes} == {2}
