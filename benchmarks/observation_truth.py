@@ -27,7 +27,8 @@ the window; on real labels < 2 % of the frame diagonal over the labelled frames)
 
 Usage::
 
-    MUJOCO_GL=egl python benchmarks/observation_truth.py            # generates missing sets first
+    MUJOCO_GL=egl python benchmarks/observation_truth.py --mask-method hybrid,segmenter,median
+                                                                    # generates missing sets first
     MUJOCO_GL=egl python benchmarks/observation_truth.py --only real --report /tmp/obs
 """
 
@@ -169,7 +170,7 @@ def markdown(report: dict) -> str:
                      f"{s['still_iou']} ({s['still_objects']}) | {s['still_found']} | {s['count_right']} | "
                      f"{s['id_switches']} | {s['clips_at_0.8']} | {s['seconds_per_clip']} |")
     for name, rows in report["sets"].items():
-        if not name.startswith("real"):
+        if "real" not in name or "(default)" not in name:
             continue
         lines += ["", f"## {name}: per clip", "", "| clip | matched IoU | objects (true/found) | still IoU |",
                   "|---|---|---|---|"]
@@ -182,47 +183,49 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sets", type=Path, default=ROOT / "data/truthsets", help="rendered sets' root (generated if missing)")
     ap.add_argument("--only", default="mujoco,pybullet,real", help="comma list of mujoco, pybullet, real")
-    ap.add_argument("--mask-method", default=None, help="override realvideo.mask_method (median, mog2, segmenter)")
+    ap.add_argument("--mask-method", default=None,
+                    help="comma list of realvideo.mask_method values to compare (median, mog2, segmenter, hybrid); "
+                         "default: the params' one")
     ap.add_argument("--no-generate", action="store_true", help="use the clips that are there")
     ap.add_argument("--limit", type=int, default=None, help="first N clips per rendered set (quick looks)")
     ap.add_argument("--params", default=None, help="params.yaml (default ./params.yaml)")
     ap.add_argument("--report", type=Path, default=ROOT / "reports/observation_truth", help="report path stem")
     args = ap.parse_args(argv)
     params = load_params(args.params)
-    if args.mask_method:
-        params.setdefault("realvideo", {})["mask_method"] = args.mask_method
+    default = params.get("realvideo", {}).get("mask_method", "median")
+    methods = args.mask_method.split(",") if args.mask_method else [default]
     only = set(args.only.split(","))
     sets: dict[str, list[dict]] = {}
-    for (engine, split) in SETS:
-        if engine not in only:
-            continue
-        folder = ensure_set(args.sets, engine, split, not args.no_generate)
-        if not folder.is_dir():
-            continue
-        clips = sorted(p for p in folder.iterdir() if (p / "truth.npz").exists())[: args.limit]
-        rows = []
-        for c in tqdm(clips, desc=f"{engine}/{split}"):
-            rows.append(rendered_clip(c, params))
-        sets[f"{engine} {split}"] = rows
-    if "real" in only:
-        from label_masks import FIXTURES, load_spec, spec_video_dir
-        for name, spec_file in (("real shared (6)", FIXTURES / "labels.yaml"),
-                                ("real dev (13)", FIXTURES / "labels_dev.yaml")):
-            if not spec_file.exists():
+    for method in methods:
+        params.setdefault("realvideo", {})["mask_method"] = method
+        tag = f"{method}{' (default)' if method == default else ''}: "
+        for (engine, split) in SETS:
+            if engine not in only:
                 continue
-            specs = load_spec(spec_file)
-            vdir = spec_video_dir(spec_file)
-            rows = []
-            for clip in tqdm(sorted(specs), desc=name):
-                spec = specs[clip]
-                if not all((FIXTURES / clip / f"{int(i):04d}.png").exists() for i in spec["frames"]):
-                    print(f"{clip}: label PNGs missing, skipped (python scripts/label_masks.py --spec {spec_file})")
+            folder = ensure_set(args.sets, engine, split, not args.no_generate)
+            if not folder.is_dir():
+                continue
+            clips = sorted(p for p in folder.iterdir() if (p / "truth.npz").exists())[: args.limit]
+            sets[f"{tag}{engine} {split}"] = [rendered_clip(c, params) for c in tqdm(clips, desc=f"{method} {engine}/{split}")]
+        if "real" in only:
+            from label_masks import FIXTURES, load_spec, spec_video_dir
+            for name, spec_file in (("real shared (6)", FIXTURES / "labels.yaml"),
+                                    ("real dev (13)", FIXTURES / "labels_dev.yaml")):
+                if not spec_file.exists():
                     continue
-                rows.append(real_clip(clip, spec, FIXTURES, vdir, params))
-            sets[name] = rows
+                specs = load_spec(spec_file)
+                vdir = spec_video_dir(spec_file)
+                rows = []
+                for clip in tqdm(sorted(specs), desc=f"{method} {name}"):
+                    spec = specs[clip]
+                    if not all((FIXTURES / clip / f"{int(i):04d}.png").exists() for i in spec["frames"]):
+                        print(f"{clip}: label PNGs missing, skipped (python scripts/label_masks.py --spec {spec_file})")
+                        continue
+                    rows.append(real_clip(clip, spec, FIXTURES, vdir, params))
+                sets[f"{tag}{name}"] = rows
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
     report = {"command": "python benchmarks/observation_truth.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-              "commit": commit, "method": f"mask_method={params.get('realvideo', {}).get('mask_method', 'median')}",
+              "commit": commit, "method": f"mask methods {', '.join(methods)}; default realvideo.mask_method={default}",
               "summary": {k: summarize(v) for k, v in sets.items()}, "sets": sets}
     args.report.parent.mkdir(parents=True, exist_ok=True)
     write_json(args.report.with_suffix(".json"), report, indent=1)

@@ -109,9 +109,12 @@ def choose_start(video, fps: float | None, scene_fps: int, duration: float) -> f
     return float(np.argmax(sums)) / scene_fps
 
 
-MASK_METHODS = ("median", "mog2", "segmenter")
+MASK_METHODS = ("median", "mog2", "segmenter", "hybrid")
 """``realvideo.mask_method``: background subtraction (``median``, ``mog2``:
-:func:`pipeline.video.pseudo_masks`) or the learned segmenter (:mod:`pipeline.segmenter`)."""
+:func:`pipeline.video.pseudo_masks`), the learned segmenter alone (``segmenter``,
+:mod:`pipeline.segmenter`) or the segmenter checked by motion (``hybrid``, :func:`hybrid_objects`)."""
+LEARNED = ("segmenter", "hybrid")
+"""Mask methods that see objects at rest (their tracks are kept whether they move or not)."""
 
 FG_THRESHOLD = 0.5
 """Segmenter foreground probability above which a pixel belongs to an object."""
@@ -138,17 +141,22 @@ def segment_objects(frames: np.ndarray, context: np.ndarray, method: str, max_ob
     """
     if method not in MASK_METHODS:
         raise ValueError(f"realvideo.mask_method: must be one of {', '.join(MASK_METHODS)}, got {method!r}")
-    if method != "segmenter":
+    if method not in LEARNED:
         masks = pseudo_masks(frames, method=method, background=context)
         return label_objects(masks, max_objects=max_objects)
-    from scipy import ndimage
-
+    if method == "hybrid":
+        return hybrid_objects(frames, context, max_objects)
     from pipeline.segmenter import median_background, shipped
     fg, contact = shipped()(frames, median_background(context))
-    fg = fg > FG_THRESHOLD
-    h, w = frames.shape[1:3]
+    return _segmenter_tracks(fg > FG_THRESHOLD, contact > 0.5, max_objects)
+
+
+def _segmenter_tracks(fg: np.ndarray, contact: np.ndarray, max_objects: int) -> np.ndarray:
+    """Tracks of segmenter foreground ``(T, H, W) bool`` split at its ``contact`` pixels (bool)."""
+    from scipy import ndimage
+    h, w = fg.shape[1:3]
     min_area = max(4, round(1e-3 * h * w))
-    core = fg & (contact < 0.5)
+    core = fg & ~contact
     core = np.stack([_keep_components(c, min_area) for c in core])
     seg = label_objects(core, max_objects=max_objects)
     out = seg.copy()
@@ -158,6 +166,73 @@ def segment_objects(frames: np.ndarray, context: np.ndarray, method: str, max_ob
         dist, (iy, ix) = ndimage.distance_transform_edt(seg[t] < 0, return_indices=True)
         grow = fg[t] & (seg[t] < 0) & (dist <= 3)
         out[t][grow] = seg[t][iy[grow], ix[grow]]
+    return out
+
+
+def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int) -> np.ndarray:
+    """Background subtraction first, completed by the segmenter (``mask_method: hybrid``).
+
+    Background subtraction (:func:`pipeline.video.pseudo_masks`, tracked and filtered as the
+    ``median`` method does: :func:`keep_objects`) is what holds on real video, but it marks only
+    what moves, as crescents where an object is slow. The segmenter (:mod:`pipeline.segmenter`)
+    gives whole silhouettes of objects moving or at rest, but on real video it also marks scenery
+    (rulers, holders, a keyboard). So:
+
+    * each moving track of background subtraction is kept; in each frame the segmenter's
+      tracks' masks that overlap its mask (by at least 30 % of the component) replace the mask when
+      they cover at least 60 % of it (the segmenter agrees: its silhouette is whole, and split
+      where two objects touch), else are added to it;
+    * a segmenter track that no kept track overlaps is added when it is compact (rotated box at
+      most 3:1, at least half full) and its median area is within 1/16..16 times the movers'
+      median (objects of one scene are of one size class: a ruler or a desk edge is not), or when
+      its centroid travels at least half its diameter (a mover background subtraction missed):
+      this is how **objects at rest** are found.
+
+    Movers first, then the added tracks (movers before objects at rest, larger first), at most
+    ``max_objects``.
+
+    Returns:
+        ``(T, H, W)`` int8 object ids, -1 background.
+    """
+    from pipeline.perception import find_tracks
+    from pipeline.segmenter import median_background, shipped
+    fg, contact = shipped()(frames, median_background(context))
+    fg = fg > FG_THRESHOLD
+    sg = _segmenter_tracks(fg, contact > 0.5, 16)
+    T = len(frames)
+    bs = label_objects(pseudo_masks(frames, background=context), max_objects=max_objects)
+    bs, _ = keep_objects(hold_resting(bs), None, max_objects)
+    out = np.full(sg.shape, -1, np.int8)
+    n = int(bs.max()) + 1
+    for t in range(T):
+        for k in range(n):
+            mk = bs[t] == k
+            if not mk.any():
+                continue
+            hit = np.zeros_like(mk)
+            for j in np.unique(sg[t][mk]):
+                cm = sg[t] == j
+                if j >= 0 and (cm & mk).sum() >= 0.3 * cm.sum():
+                    hit |= cm
+            mask = hit if (hit & mk).sum() >= 0.6 * mk.sum() else (hit | mk)
+            out[t][mask & (out[t] < 0)] = k
+    extra_move, extra_rest = [], []
+    tracks = find_tracks(sg, None, min_frames=max(3, int(0.15 * T)))
+    movers = [float(np.median((bs == k).sum(axis=(1, 2))[(bs == k).any(axis=(1, 2))])) for k in range(n)]
+    for tr in tracks:
+        m = sg == tr.label
+        if (m & (out >= 0)).sum() > 0.2 * m.sum():
+            continue
+        if tr.travel >= 0.5 * tr.diameter:
+            extra_move.append(tr)
+        elif tr.size[0] <= 3.0 * tr.size[1] and tr.fill >= 0.5:
+            ref = float(np.median(movers)) if movers else None
+            if ref is None or ref / 16 <= float(np.median(tr.area)) <= 16 * ref:
+                extra_rest.append(tr)
+    extra = sorted(extra_move, key=lambda t: -len(t.frames)) + sorted(extra_rest, key=lambda t: -float(np.median(t.area)))
+    for tr in extra[: max(0, max_objects - n)]:
+        out[(sg == tr.label) & (out < 0)] = n
+        n += 1
     return out
 
 
@@ -198,12 +273,12 @@ def keep_objects(seg: np.ndarray, flow: np.ndarray, max_objects: int, still: boo
 
 
 def still_tracks(seg: np.ndarray, max_objects: int) -> list:
-    """Tracks of segmenter masks that are objects, moving or at rest: seen in at least 30 % of the
-    frames (4 at least), the ``max_objects`` largest; ordered by first appearance, then left to
+    """Tracks of segmenter masks that are objects, moving or at rest: seen in at least 15 % of the
+    frames (3 at least: objects enter and leave), the ``max_objects`` largest; ordered by first appearance, then left to
     right (as :func:`pipeline.perception.object_tracks`)."""
     from pipeline.perception import find_tracks
     T = len(seg)
-    tracks = find_tracks(seg, None, min_frames=max(4, int(0.3 * T)))
+    tracks = find_tracks(seg, None, min_frames=max(3, int(0.15 * T)))
     tracks = sorted(tracks, key=lambda t: -float(np.sum(t.area)))[:max_objects]
     return sorted(tracks, key=lambda t: (int(t.frames[0]), float(t.centre[0, 0])))
 
@@ -290,7 +365,7 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     _, det_frames, det_ctx = window(dsize, full)
     det_seg = _masks(det_frames, det_ctx, mask_method, max_objects)
     det_flow = estimate_flow(det_frames, method="dis", preset="fast")
-    learned = mask_method == "segmenter"
+    learned = mask_method in LEARNED
     det_seg, tracks = keep_objects(det_seg if learned else hold_resting(det_seg), det_flow, max_objects, learned)
     scale = W0 / dsize[0]
     diameter = float(np.median([t.diameter for t in tracks])) if tracks else 0.05 * dsize[1]
@@ -348,7 +423,7 @@ def observe_frames(video, fps: float | None, frame_indices, size: tuple[int, int
     W, H = size or probe.original_size
     s = min(1.0, MAX_LONG_SIDE / max(W, H))
     work = (max(2, round(W * s / 2) * 2), max(2, round(H * s / 2) * 2))
-    if mask_method != "segmenter":
+    if mask_method not in LEARNED:
         out = pseudo_ground_truth(video, fps, frame_indices, work, max_objects=max_objects, keep=objects,
                                   method=mask_method, crop=(0, 0, *probe.original_size))
         return upscale(out, (W, H)) if (W, H) != work else out
@@ -361,7 +436,7 @@ def observe_frames(video, fps: float | None, frame_indices, size: tuple[int, int
         raise VideoError(f"{video}: frame_indices {bad} outside 0..{n - 1}")
     tracked = sorted(set(range(0, n, max(1, n // 200))) | set(wanted))
     fit = np.unique(np.linspace(0, n - 1, min(n, 150)).round().astype(int))
-    seg = segment_objects(clip.frames[tracked], clip.frames[fit], "segmenter", max_objects)
+    seg = segment_objects(clip.frames[tracked], clip.frames[fit], mask_method, max_objects)
     seg, _ = keep_objects(seg, None, max_objects, still=True)
     where = {t: k for k, t in enumerate(tracked)}
     out = seg[[where[i] for i in wanted]]

@@ -53,7 +53,7 @@ from pipeline.labels import load_labels, score_against_labels
 from pipeline.npz import NpzWriter
 from pipeline.metrics import flow_epe, sequence_iou
 from pipeline.mjcf import SimOptions
-from pipeline.observe import observe, original_frames, source_frames, upscale
+from pipeline.observe import LEARNED, observe, original_frames, source_frames, upscale
 from pipeline.params import ParamsError, load_params, path_of, section, typed_section
 from pipeline.render import render_scene
 from pipeline.sanity import PhysicsError, SanityConfig, check_simulation, resolve_overlaps
@@ -260,7 +260,7 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     if labels is not None:   # read (and checked) before the search, used only after it
         truth = load_labels(labels, read_video(video, fps=fps, max_frames=1).original_size)
     obs = observe(video, fps, start, scene_fps, duration, fcfg.method, fcfg.preset,
-                  rv.get("mask_method", "median"), max_objects)
+                  rv.get("mask_method", "hybrid"), max_objects)
     W, H = obs.size
     print(f"[infer] {video}: window {obs.start:.3f}-{obs.start + duration:.3f} s"
           f"{' (chosen automatically)' if obs.auto else ''}, {len(obs.frames)} frames at {scene_fps} fps, "
@@ -280,7 +280,7 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     proposals = None
     try:
         proposals = perception.propose(obs.seg, obs.flow, scene_fps, duration, max_objects,
-                                       still=obs.mask_method == "segmenter")
+                                       still=obs.mask_method in LEARNED)
         candidates += proposals.scenes
         sources += ["perception"] * len(proposals.scenes)
         labels += [f"perception: {l}" for l in proposals.labels]
