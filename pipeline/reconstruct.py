@@ -256,11 +256,11 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     else:
         model_note = "model not used (--no-model)"
 
-    truth = None
-    if labels is not None:   # read (and checked) before the search, used only after it
-        truth = load_labels(labels, read_video(video, fps=fps, max_frames=1).original_size)
+    truth, labels_path = None, labels
+    if labels_path is not None:   # read (and checked) before the search, used only after it
+        truth = load_labels(labels_path, read_video(video, fps=fps, max_frames=1).original_size)
     obs = observe(video, fps, start, scene_fps, duration, fcfg.method, fcfg.preset,
-                  rv.get("mask_method", "hybrid"), max_objects)
+                  rv.get("mask_method", "median"), max_objects)
     W, H = obs.size
     print(f"[infer] {video}: window {obs.start:.3f}-{obs.start + duration:.3f} s"
           f"{' (chosen automatically)' if obs.auto else ''}, {len(obs.frames)} frames at {scene_fps} fps, "
@@ -391,7 +391,7 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
             "seconds": round(time.time() - t0, 1),
         }
         if truth is not None:
-            metrics["against_labels"] = {"labels": str(labels), **score_against_labels(truth, obs, fr.seg)}
+            metrics["against_labels"] = {"labels": str(labels_path), **score_against_labels(truth, obs, fr.seg)}
         if tracks:   # observed tracks in the scene's world frame: input of `dynamics discrepancy OUT`
             table = infer_tracks.tracks_table(refined, trace.qpos, tracks, scene_fps, W, H, clip=Path(video).stem)
             infer_tracks.write_tracks(out / "tracks.csv", table)
@@ -410,7 +410,7 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
             shutil.rmtree(out, ignore_errors=True)
     if truth is not None:
         a = metrics["against_labels"]
-        print(f"[infer] against {labels} ({a['n_labelled']} labelled frames in the window): re-simulation "
+        print(f"[infer] against {labels_path} ({a['n_labelled']} labelled frames in the window): re-simulation "
               f"{a['resim_vs_labels']}, observation {a['observation_vs_labels']} (matched IoU)")
     print(f"[infer] wrote {final}: full IoU {m_ref['full_iou']:.3f} (pseudo GT), EPE {m_ref['epe']:.2f} px, "
           f"{len(refined.objects)} objects, best proposal: {labels[best]}, {metrics['seconds']} s")
