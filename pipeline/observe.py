@@ -25,9 +25,11 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy import ndimage
 
 from pipeline.flow import estimate_flow
-from pipeline.perception import object_tracks
+from pipeline.perception import find_tracks, object_tracks, still_tracks
+from pipeline.segmenter import median_background, shipped
 from pipeline.video import (Clip, VideoError, drop_ghosts, hold_resting, label_objects, merge_touching,
                             pseudo_ground_truth, pseudo_masks, read_video, resample)
 
@@ -146,14 +148,12 @@ def segment_objects(frames: np.ndarray, context: np.ndarray, method: str, max_ob
         return label_objects(masks, max_objects=max_objects)
     if method == "hybrid":
         return hybrid_objects(frames, context, max_objects)
-    from pipeline.segmenter import median_background, shipped
     fg, contact = shipped()(frames, median_background(context))
     return _segmenter_tracks(fg > FG_THRESHOLD, contact > 0.5, max_objects)
 
 
 def _segmenter_tracks(fg: np.ndarray, contact: np.ndarray, max_objects: int) -> np.ndarray:
     """Tracks of segmenter foreground ``(T, H, W) bool`` split at its ``contact`` pixels (bool)."""
-    from scipy import ndimage
     h, w = fg.shape[1:3]
     min_area = max(4, round(1e-3 * h * w))
     core = fg & ~contact
@@ -194,8 +194,6 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int) ->
     Returns:
         ``(T, H, W)`` int8 object ids, -1 background.
     """
-    from pipeline.perception import find_tracks
-    from pipeline.segmenter import median_background, shipped
     fg, contact = shipped()(frames, median_background(context))
     fg = fg > FG_THRESHOLD
     sg = _segmenter_tracks(fg, contact > 0.5, 16)
@@ -270,17 +268,6 @@ def keep_objects(seg: np.ndarray, flow: np.ndarray, max_objects: int, still: boo
     for new, t in enumerate(tracks):
         lut[t.label] = new
     return lut[seg.astype(np.int64)], tracks  # index -1 (background) -> lut[-1] = -1
-
-
-def still_tracks(seg: np.ndarray, max_objects: int) -> list:
-    """Tracks of segmenter masks that are objects, moving or at rest: seen in at least 15 % of the
-    frames (3 at least: objects enter and leave), the ``max_objects`` largest; ordered by first appearance, then left to
-    right (as :func:`pipeline.perception.object_tracks`)."""
-    from pipeline.perception import find_tracks
-    T = len(seg)
-    tracks = find_tracks(seg, None, min_frames=max(3, int(0.15 * T)))
-    tracks = sorted(tracks, key=lambda t: -float(np.sum(t.area)))[:max_objects]
-    return sorted(tracks, key=lambda t: (int(t.frames[0]), float(t.centre[0, 0])))
 
 
 def motion_crop(seg: np.ndarray, diameter: float, scale: float, orig_size: tuple[int, int]
@@ -406,7 +393,6 @@ def observe_frames(video, fps: float | None, frame_indices, size: tuple[int, int
         VideoError: unreadable video or a frame index out of range.
     """
     def objects(seg: np.ndarray) -> np.ndarray:
-        from pipeline.perception import find_tracks
         tracks = sorted((t for t in find_tracks(seg, None, min_frames=4) if t.travel >= 0.5 * t.diameter),
                         key=lambda t: -len(t.frames))
         if tracks:   # sizes relative to the track seen longest (a hand or a person passes briefly)

@@ -658,6 +658,16 @@ def object_tracks(seg: np.ndarray, flow: np.ndarray | None, max_objects: int = 4
     return sorted(tracks, key=lambda t: (int(t.frames[0]), float(t.centre[0, 0])))
 
 
+def still_tracks(seg: np.ndarray, max_objects: int) -> list:
+    """Tracks of segmenter masks that are objects, moving or at rest: seen in at least 15 % of the
+    frames (3 at least: objects enter and leave), the ``max_objects`` largest; ordered by first appearance, then left to
+    right (as :func:`pipeline.perception.object_tracks`)."""
+    T = len(seg)
+    tracks = find_tracks(seg, None, min_frames=max(3, int(0.15 * T)))
+    tracks = sorted(tracks, key=lambda t: -float(np.sum(t.area)))[:max_objects]
+    return sorted(tracks, key=lambda t: (int(t.frames[0]), float(t.centre[0, 0])))
+
+
 def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: float,
             max_objects: int = 4, still: bool = False) -> Proposals:
     """Scene-language proposals for a labelled clip (see module docstring).
@@ -669,7 +679,7 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
         duration: scene duration, s.
         max_objects: keep at most this many tracks (largest first).
         still: the masks come from the segmenter, which sees objects at rest too: every track
-            seen often enough is an object, moving or not (``pipeline.observe.still_tracks``);
+            seen often enough is an object, moving or not (:func:`still_tracks`);
             otherwise only tracks that move (:func:`object_tracks`: background-subtraction masks
             also hold shadows and flicker).
     Returns:
@@ -679,7 +689,6 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
     """
     T, H, W = np.shape(seg)
     if still:
-        from pipeline.observe import still_tracks
         tracks = still_tracks(seg, max_objects)
     else:
         tracks = object_tracks(seg, flow, max_objects)

@@ -39,6 +39,9 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from pipeline.atomic import atomic_path, write_json
+from pipeline.video import read_video
+
 DEFAULT_WEIGHTS = Path(__file__).resolve().parent / "weights" / "segmenter.pt"
 """The shipped checkpoint (package data)."""
 
@@ -171,7 +174,6 @@ def shipped(weights: str | Path | None = None) -> Segmenter:
 # ------------------------------------------------------------------------------ training
 def _load_set(folders: list[Path], size: tuple[int, int], per_clip: int, rng: np.random.Generator):
     """Frames, backgrounds and targets of rendered clips at ``size = (W, H)``."""
-    from pipeline.video import read_video
     xs, ys = [], []
     for folder in folders:
         truth = np.load(folder / "truth.npz")
@@ -235,7 +237,6 @@ def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 12, lr: f
     Returns:
         the card dict (data, steps done, seconds, final losses).
     """
-    from pipeline.atomic import atomic_path, write_json
     torch.manual_seed(seed)
     torch.set_num_threads(max(1, torch.get_num_threads()))
     rng = np.random.default_rng(seed)
@@ -280,7 +281,6 @@ def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 12, lr: f
 
 
 def _save(net: UNet, out: Path) -> None:
-    from pipeline.atomic import atomic_path
     out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(out, suffix=".pt") as tmp:
         torch.save({"channels": list(CHANNELS), "state_dict": net.state_dict()}, tmp)
@@ -290,7 +290,6 @@ def evaluate(data: list[Path], weights: Path | None = None, size: tuple[int, int
     """Foreground IoU of the segmenter (threshold 0.5) per clip of rendered sets, and its mean."""
     seg_net = Segmenter(weights)
     folders = sorted(c for d in data for c in Path(d).iterdir() if (c / "truth.npz").exists())
-    from pipeline.video import read_video
     ious = []
     for folder in folders:
         truth = np.load(folder / "truth.npz")

@@ -56,7 +56,8 @@ def test_shipped_weights_find_an_object_at_rest_throughout():
     """A ball rolls past a box that never moves: the median background holds the box, so
     background subtraction sees nothing there; the segmenter finds the whole box in every frame."""
     from pipeline.metrics import observation_scores
-    from pipeline.observe import segment_objects, still_tracks
+    from pipeline.observe import segment_objects
+    from pipeline.perception import still_tracks
     from pipeline.render import render_scene
     from pipeline.scene import Scene
     from pipeline.video import label_objects, pseudo_masks
