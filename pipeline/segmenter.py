@@ -172,15 +172,20 @@ def shipped(weights: str | Path | None = None) -> Segmenter:
 
 
 # ------------------------------------------------------------------------------ training
+def _read_clip(folder: Path, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """``(frames (T, H, W, 3) uint8, seg (T, H, W) int16)`` of a rendered clip folder at ``size = (W, H)``."""
+    truth = np.load(folder / "truth.npz")
+    frames = read_video(folder / "video.mp4", size=size, crop=(0, 0, *truth["seg"].shape[:0:-1])).frames
+    seg = np.stack([cv2.resize(s.astype(np.int16), size, interpolation=cv2.INTER_NEAREST)
+                    for s in truth["seg"][: len(frames)]])
+    return frames, seg
+
+
 def _load_set(folders: list[Path], size: tuple[int, int], per_clip: int, rng: np.random.Generator):
     """Frames, backgrounds and targets of rendered clips at ``size = (W, H)``."""
     xs, ys = [], []
     for folder in folders:
-        truth = np.load(folder / "truth.npz")
-        clip = read_video(folder / "video.mp4", size=size, crop=(0, 0, *truth["seg"].shape[:0:-1]))
-        frames = clip.frames
-        seg = np.stack([cv2.resize(s.astype(np.int16), size, interpolation=cv2.INTER_NEAREST)
-                        for s in truth["seg"][: len(frames)]])
+        frames, seg = _read_clip(folder, size)
         bg = median_background(frames)
         pick = rng.choice(len(frames), size=min(per_clip, len(frames)), replace=False)
         xs.append(network_input(frames[pick], bg).astype(np.float16))
@@ -292,11 +297,8 @@ def evaluate(data: list[Path], weights: Path | None = None, size: tuple[int, int
     folders = sorted(c for d in data for c in Path(d).iterdir() if (c / "truth.npz").exists())
     ious = []
     for folder in folders:
-        truth = np.load(folder / "truth.npz")
-        clip = read_video(folder / "video.mp4", size=size, crop=(0, 0, *truth["seg"].shape[:0:-1]))
-        seg = np.stack([cv2.resize(s.astype(np.int16), size, interpolation=cv2.INTER_NEAREST)
-                        for s in truth["seg"][: len(clip.frames)]])
-        fg, _ = seg_net(clip.frames, median_background(clip.frames))
+        frames, seg = _read_clip(folder, size)
+        fg, _ = seg_net(frames, median_background(frames))
         p, t = fg > 0.5, seg >= 0
         ious.append(float((p & t).sum() / max(1, (p | t).sum())))
     return {"clips": len(folders), "foreground_iou": round(float(np.mean(ious)), 4) if ious else None,

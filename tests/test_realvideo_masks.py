@@ -37,45 +37,45 @@ KNOWN_SHORT = {"02", "05"}      # see module docstring
 
 def test_fixtures_are_labels():
     total = 0
-    for clip, spec in SPECS.items():
+    for clip, spec, i, p, lab in _label_images(SPECS):
+        total += p.stat().st_size
+        assert 1 <= lab.max() <= len(spec["objects"])
+    assert total < 2_000_000
+
+
+def _label_images(specs: dict):
+    """``(clip, spec, frame, path, label image)`` of every labelled frame of ``specs``, after
+    checking that each clip has >= 5 frames and each image is a 2-D uint8 label image."""
+    import cv2
+    for clip, spec in specs.items():
         frames = sorted(int(i) for i in spec["frames"])
         assert len(frames) >= 5, clip
         for i in frames:
             p = FIXTURES / clip / f"{i:04d}.png"
-            total += p.stat().st_size
-            import cv2
             lab = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
-            assert lab.dtype == np.uint8 and lab.ndim == 2
-            assert 1 <= lab.max() <= len(spec["objects"])
-    assert total < 2_000_000
+            assert lab is not None and lab.dtype == np.uint8 and lab.ndim == 2, p
+            yield clip, spec, i, p, lab
 
 
 def test_dev_fixtures_are_labels():
     """Hand labels of the 13 development clips (``labels_dev.yaml``): present, uint8 label
     images with ids in 0..n_objects, and every object a frame lists has pixels there (frames
     listing none are all background: the object has left the view). No accuracy targets."""
-    import cv2
     specs = load_spec(DEV_SPEC)
     assert sorted(specs) == [f"dev{k:02d}" for k in range(1, 14)]
     total = 0
-    for clip, spec in specs.items():
+    for clip, spec, i, p, lab in _label_images(specs):
         n = len(spec["objects"])
-        frames = sorted(int(i) for i in spec["frames"])
-        assert len(frames) >= 5, clip
-        for i in frames:
-            p = FIXTURES / clip / f"{i:04d}.png"
-            total += p.stat().st_size
-            lab = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)
-            assert lab is not None and lab.dtype == np.uint8 and lab.ndim == 2, p
-            if "label_size" in spec:
-                assert lab.shape == tuple(spec["label_size"][::-1]), p
-            assert lab.max() <= n, p
-            listed = spec["frames"][i] or {}
-            for k, name in enumerate(spec["objects"], 1):
-                if listed.get(name):
-                    assert (lab == k).any(), (clip, i, name)
-                else:
-                    assert not (lab == k).any(), (clip, i, name)
+        total += p.stat().st_size
+        if "label_size" in spec:
+            assert lab.shape == tuple(spec["label_size"][::-1]), p
+        assert lab.max() <= n, p
+        listed = spec["frames"][i] or {}
+        for k, name in enumerate(spec["objects"], 1):
+            if listed.get(name):
+                assert (lab == k).any(), (clip, i, name)
+            else:
+                assert not (lab == k).any(), (clip, i, name)
     assert total < 3_000_000
 
 
