@@ -53,7 +53,7 @@ from pipeline.labels import load_labels, score_against_labels
 from pipeline.npz import NpzWriter
 from pipeline.metrics import flow_epe, sequence_iou
 from pipeline.mjcf import SimOptions
-from pipeline.observe import LEARNED, observe, original_frames, source_frames, upscale
+from pipeline.observe import LEARNED, MASK_METHODS, observe, original_frames, source_frames, upscale
 from pipeline.params import ParamsError, load_params, path_of, section, typed_section
 from pipeline.render import render_scene
 from pipeline.sanity import PhysicsError, SanityConfig, check_simulation, resolve_overlaps
@@ -433,11 +433,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="hand labels (folder of NNNN.png, 0 background, 1..n objects) or true masks (npz with seg) of "
                         "the video: also score the re-simulation and the observation against them (metrics.json "
                         "against_labels); never used by the search")
+    p.add_argument("--mask-method", default=None, choices=MASK_METHODS,
+                   help="how the observation's masks are made (default params realvideo.mask_method; "
+                        "docs/observation.md)")
     p.add_argument("--params", default=None, help="params.yaml (default ./params.yaml)")
 
 
 def main_cli(args: argparse.Namespace) -> int:
     params = load_params(args.params)
+    if args.mask_method is not None:
+        params.setdefault("realvideo", {})["mask_method"] = args.mask_method
     metrics = reconstruct(args.video, args.out, params, fps=args.fps, start=args.start,
                           model_dir=args.model, k=args.k, seed=args.seed, use_model=not args.no_model,
                           labels=args.labels)

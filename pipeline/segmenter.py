@@ -13,8 +13,8 @@ sides are multiples of 8 (inputs are padded).
 
 Input ``(4, H, W)`` float32: RGB / 255 - 0.5, and the largest RGB difference from the median
 background / 255 (``pipeline.video`` conventions). Output ``(2, H, W)`` logits: foreground (the
-pixel belongs to an object) and *contact* (the pixel lies within 1 px of a boundary between two
-different objects), the cue that splits touching objects.
+pixel belongs to an object) and *contact* (the pixel lies within a few px of a boundary between two
+different objects, :data:`CONTACT_PX`), the cue that splits touching objects.
 
 Usage::
 
@@ -100,19 +100,24 @@ def network_input(frames: np.ndarray, background: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(x.transpose(0, 3, 1, 2))
 
 
-def targets(seg: np.ndarray) -> np.ndarray:
+CONTACT_PX = 2
+"""Contact target: object pixels within this many px (chessboard distance) of another object."""
+
+
+def targets(seg: np.ndarray, contact_px: int = CONTACT_PX) -> np.ndarray:
     """``(T, 2, H, W)`` float32 training targets of ``(T, H, W)`` int labels: foreground, and
-    contact (within 1 px of a pixel of another object)."""
+    contact (within ``contact_px`` px of a pixel of another object)."""
     seg = np.asarray(seg)
     fg = seg >= 0
+    kernel = np.ones((2 * contact_px + 1, 2 * contact_px + 1), np.uint8)
     contact = np.zeros_like(fg)
     for t in range(len(seg)):
         s = seg[t].astype(np.int16)
         for k in np.unique(s[s >= 0]):
             own = (s == k).astype(np.uint8)
             other = ((s >= 0) & (s != k)).astype(np.uint8)
-            near_other = cv2.dilate(other, np.ones((3, 3), np.uint8)) > 0
-            near_own = cv2.dilate(own, np.ones((3, 3), np.uint8)) > 0
+            near_other = cv2.dilate(other, kernel) > 0
+            near_own = cv2.dilate(own, kernel) > 0
             contact[t] |= (own > 0) & near_other | (other > 0) & near_own
     return np.stack([fg, contact], axis=1).astype(np.float32)
 
@@ -229,7 +234,7 @@ def loss_fn(logits: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
 
 def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 12, lr: float = 3e-3,
           size: tuple[int, int] = (320, 240), per_clip: int = 12, seed: int = 0,
-          max_minutes: float | None = None, log_every: int = 50) -> dict:
+          max_minutes: float | None = None, log_every: int = 50, init: Path | None = None) -> dict:
     """Train the segmenter on rendered clips and save the checkpoint atomically.
 
     Args:
@@ -239,6 +244,7 @@ def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 12, lr: f
         size: ``(W, H)`` px the clips are read at (crops of them are resized to 160 x 120, :func:`_augment`).
         per_clip: frames taken per clip.
         max_minutes: stop early after this much wall time.
+        init: checkpoint to start from (fine-tuning), else random initialisation.
     Returns:
         the card dict (data, steps done, seconds, final losses).
     """
@@ -252,7 +258,7 @@ def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 12, lr: f
     X, Y = _load_set(folders, size, per_clip, rng)
     print(f"[segmenter] {len(X)} frames from {len(folders)} clips in {time.time() - t0:.0f} s", flush=True)
     X, Y = torch.from_numpy(X), torch.from_numpy(Y)
-    net = UNet()
+    net = Segmenter(init).net.train() if init is not None else UNet()
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
     gen = torch.Generator().manual_seed(seed)
     t1 = time.time()
@@ -280,7 +286,8 @@ def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 12, lr: f
     card = {"data": [str(d) for d in data], "clips": len(folders), "frames": int(len(X)), "size": list(size),
             "steps": done, "batch": batch, "lr": lr, "seconds": round(time.time() - t1, 1),
             "final_loss": round(float(np.mean(history[-100:])), 4) if history else None,
-            "parameters": int(sum(p.numel() for p in net.parameters())), "threads": torch.get_num_threads()}
+            "parameters": int(sum(p.numel() for p in net.parameters())), "threads": torch.get_num_threads(),
+            "per_clip": per_clip, "contact_px": CONTACT_PX, "init": str(init) if init is not None else None}
     write_json(out.with_suffix(".json"), card)
     return card
 
@@ -316,13 +323,15 @@ def main(argv: list[str] | None = None) -> int:
     t.add_argument("--lr", type=float, default=3e-3)
     t.add_argument("--max-minutes", type=float, default=None)
     t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--per-clip", type=int, default=12, help="frames taken per clip")
+    t.add_argument("--init", type=Path, default=None, help="checkpoint to fine-tune (default: from scratch)")
     e = sub.add_parser("eval", help="foreground IoU on rendered clips")
     e.add_argument("--data", type=Path, nargs="+", required=True)
     e.add_argument("--weights", type=Path, default=None)
     args = ap.parse_args(argv)
     if args.cmd == "train":
         card = train(args.data, args.out, steps=args.steps, batch=args.batch, lr=args.lr,
-                     max_minutes=args.max_minutes, seed=args.seed)
+                     max_minutes=args.max_minutes, seed=args.seed, per_clip=args.per_clip, init=args.init)
     else:
         card = evaluate(args.data, args.weights)
     print(json.dumps(card, indent=1))

@@ -412,7 +412,7 @@ def pseudo_masks(
 
 
 def label_objects(
-    masks: np.ndarray, max_objects: int = 4, gate: float = 0.25, max_gap: int = 3
+    masks: np.ndarray, max_objects: int = 4, gate: float = 0.25, max_gap: int = 3, split: bool = False
 ) -> np.ndarray:
     """Split foreground masks into objects with ids that stay the same over time.
 
@@ -433,6 +433,9 @@ def label_objects(
         max_objects: most objects to keep, 1–127.
         gate: largest jump of a track between frames, as a fraction of the image diagonal.
         max_gap: frames a track may go unseen and still be continued.
+        split: a component that covers 30 % or more of the last masks of two or more live
+            tracks (objects that came into contact) is split among them
+            (:func:`split_merged`), so touching objects keep their ids.
 
     Returns:
         ``(T, H, W)`` int8: object id per pixel, :data:`BACKGROUND` (-1) elsewhere.
@@ -458,6 +461,15 @@ def label_objects(
     for t in range(T):
         n, labels, stats, centres = cv2.connectedComponentsWithStats(
             masks[t].astype(np.uint8), connectivity=8)
+        if split and last_mask and n > 1:
+            live = [k for k in range(len(last_mask)) if t - last_frame[k] <= max_gap + 1]
+            labels, n = split_merged(labels, n, [last_mask[k] for k in live])
+            stats = np.zeros((n, 5), np.int64)
+            stats[:, cv2.CC_STAT_AREA] = np.bincount(labels.ravel(), minlength=n)
+            vs, us = np.indices(labels.shape)
+            area_n = np.maximum(stats[:, cv2.CC_STAT_AREA], 1)
+            centres = np.stack([np.bincount(labels.ravel(), us.ravel(), n) / area_n,
+                                np.bincount(labels.ravel(), vs.ravel(), n) / area_n], axis=1)
         comps = range(1, n)
         if not comps:
             continue
@@ -505,6 +517,56 @@ def label_objects(
 
 
 # -- helpers of pseudo_masks / label_objects, and pseudo ground truth of a whole clip --
+
+
+def split_merged(labels: np.ndarray, n: int, previous: list[np.ndarray], share: float = 0.3
+                 ) -> tuple[np.ndarray, int]:
+    """Split connected components that swallowed two or more earlier objects.
+
+    Rigid objects keep their image area from one frame to the next, while the boundary between
+    them moves with them, so a component owning two earlier objects ``a`` and ``b`` is cut along
+    the level set of ``dist_a - dist_b`` (Euclidean distance transforms of their earlier masks)
+    that gives ``a`` its share ``area_a / (area_a + area_b)`` of the pixels; one owning three or
+    more gives each pixel to the nearest earlier mask.
+
+    Args:
+        labels: ``(H, W)`` int32 component ids, 0 background, ``1..n-1`` components
+            (``cv2.connectedComponents``).
+        n: number of labels including the background.
+        previous: ``(H, W)`` bool masks of the objects in an earlier frame (None: skipped).
+        share: a component owns an earlier object when it covers at least this fraction of
+            the object's mask.
+    Returns:
+        ``(labels, n)``: a copy where each component owning two or more earlier objects is cut
+        into one part per object, the new parts numbered ``n, n+1, ...``; ``n`` updated.
+    """
+    out = labels.copy()
+    previous = [m for m in previous if m is not None and m.any()]
+    if len(previous) < 2:
+        return out, n
+    # (n_previous, n) px of each earlier mask inside each component
+    cover = np.stack([np.bincount(labels[m], minlength=n)[:n] for m in previous])
+    need = share * np.array([np.count_nonzero(m) for m in previous])
+    for i in np.flatnonzero((cover[:, 1:] >= need[:, None]).sum(axis=0) >= 2) + 1:
+        ci = labels == i
+        owners = [m for m, c, r in zip(previous, cover[:, i], need) if c >= r]
+        dist = np.stack([ndimage.distance_transform_edt(~m) for m in owners])
+        if len(owners) == 2:
+            vs, us = np.nonzero(ci)
+            d = dist[0][vs, us] - dist[1][vs, us]
+            areas = [np.count_nonzero(m) for m in owners]
+            k = int(round(len(d) * areas[0] / sum(areas)))
+            order = np.argsort(d, kind="stable")
+            who = np.zeros(ci.shape, np.int64)
+            who[vs[order[k:]], us[order[k:]]] = 1
+        else:
+            who = dist.argmin(axis=0)
+        for j in range(1, len(owners)):
+            part = ci & (who == j)
+            if part.any():
+                out[part] = n
+                n += 1
+    return out, n
 
 
 def hold_resting(seg: np.ndarray, border: int = 1) -> np.ndarray:

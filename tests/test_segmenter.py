@@ -16,12 +16,14 @@ def test_targets_mark_foreground_and_contact_only_between_objects():
     seg[0, 2:6, 1:4] = 0
     seg[0, 2:6, 4:7] = 1          # touches object 0 along column 3|4
     seg[0, 0, 9] = 2              # alone
-    y = targets(seg)
+    y = targets(seg, contact_px=1)
     assert y.shape == (1, 2, 8, 10) and y.dtype == np.float32
     np.testing.assert_array_equal(y[0, 0], seg[0] >= 0)
     contact = y[0, 1] > 0
     assert contact[2:6, 3:5].all()                       # both sides of the shared border
     assert not contact[:, :3].any() and not contact[:, 5:].any()   # nowhere else, not the lone object
+    wide = targets(seg, contact_px=2)[0, 1] > 0                    # a band of 2 px each side
+    assert wide[2:6, 2:6].all() and not wide[:, :2].any() and not wide[:, 6:].any()
 
 
 def test_network_input_shape_and_motion_channel():
@@ -81,3 +83,26 @@ def test_shipped_weights_find_an_object_at_rest_throughout():
     from pipeline.perception import propose
     props = propose(seg, None, 30, 1.0, 4, still=True)
     assert {len(sc.objects) for sc in props.scenes} == {2}
+
+
+@pytest.mark.skipif(not DEFAULT_WEIGHTS.exists(), reason="no shipped segmenter weights")
+def test_hybrid_finds_the_mover_first_and_the_object_at_rest():
+    """``mask_method: hybrid``: a ball rolls past a box that never moves. Both are found whole;
+    the mover (confirmed by background subtraction) gets id 0, the object at rest id 1."""
+    from pipeline.metrics import observation_scores
+    from pipeline.observe import hybrid_objects
+    from pipeline.render import render_scene
+    from pipeline.scene import Scene
+
+    scene = Scene.from_dict({"duration": 1.0, "fps": 30, "camera": {"height": 1.2, "pitch": 40.0, "fov": 45.0},
+                             "objects": [
+                                 {"shape": "box", "size": {"width": 0.2, "depth": 0.2, "height": 0.2}, "mass": 2.0,
+                                  "position": [0.25, -0.6, 0.1]},
+                                 {"shape": "sphere", "size": {"radius": 0.08}, "mass": 0.5,
+                                  "position": [-0.5, -0.8, 0.08], "linear_velocity": [0.8, 0.0, 0.0]}]})
+    _, fr = render_scene(scene, 192, 144)
+    seg = hybrid_objects(fr.rgb, fr.rgb, 4)
+    s = observation_scores(fr.seg, seg, [True, False])
+    assert s["n_pred"] == 2 and s["still_iou"] >= 0.7 and s["moving_iou"] >= 0.6, s["per_object"]
+    match = {o["true"]: o["pred"] for o in s["per_object"]}
+    assert match == {1: 0, 0: 1}                            # the ball (true 1) is object 0

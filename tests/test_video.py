@@ -145,6 +145,25 @@ def test_label_objects_keeps_ids_through_a_crossing():
         label_objects(masks, max_objects=0)
 
 
+def test_label_objects_split_keeps_touching_objects_apart():
+    # two squares slide together and stay in contact (one connected blob from frame 6 on):
+    # without split the blob is one track; with split each square keeps its id, every pixel
+    T, H, W = 12, 30, 80
+    masks = np.zeros((T, H, W), bool)
+    truth = np.full((T, H, W), -1, np.int8)
+    for t in range(T):
+        xa = min(10 + 4 * t, 34)                      # a stops at 34..44, b at 44..54
+        xb = max(60 - 4 * t, 44)
+        masks[t, 10:20, xa:xa + 10] = True
+        masks[t, 10:20, xb:xb + 10] = True
+        truth[t, 10:20, xa:xa + 10] = 0
+        truth[t, 10:20, xb:xb + 10] = 1
+    merged = label_objects(masks, max_objects=2)
+    assert (merged[-1][masks[-1]] == merged[-1][10, 35]).all()        # one id over both squares
+    seg = label_objects(masks, max_objects=2, split=True)
+    np.testing.assert_array_equal(seg, truth)
+
+
 def test_pseudo_masks_shadow_and_blur():
     # a dark disc with a soft grey shadow beside it, on a light textured floor: the mask
     # is the disc (edge at half contrast), not the shadow
