@@ -182,25 +182,25 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int) ->
     marks only what moves, as crescents where an object is slow and as a ghost where one rests
     for part of the clip, but it still sees small, blurred movers the segmenter misses. So:
 
-    * a segmenter track (:func:`pipeline.perception.find_tracks`, seen in 15 % of the frames)
-      counts only when it looks like a whole object in view: compact (rotated box at most 3:1, at
-      least half full) and inside the image (touching the border in at most half its frames:
-      tables, walls, rulers and shelves run out of the frame); it is a **mover** when its centroid travels a quarter of its diameter or a moving track of background
-      subtraction of its size class overlaps it (30 % of that track's pixels; the segmenter track's
-      median area at most :data:`SIZE_CLASS` times the other's, so a wall or a backdrop the
-      segmenter marks does not take over the ball that crosses it); in the frames where a
-      mover's segmenter mask is missing, the overlapping background-subtraction mask stands in;
-    * a moving track of background subtraction inside the image that lies mostly (80 %) outside
-      the segmenter tracks of its size class is a mover of its own (its masks as they are): a small or
-      blurred object the segmenter missed;
-    * a segmenter track that does not move is an **object at rest** when it is seen as a rigid
-      body at rest is (:func:`_at_rest`: in nearly every frame, with the same silhouette, and
-      confidently) and, when there are movers, of their size class (median area 1/16..16 times
+    * a segmenter track (:func:`pipeline.perception.find_tracks`, seen in 15 % of the frames) is a
+      **mover** when its centroid travels a quarter of its diameter or a moving track of
+      background subtraction of its size class overlaps it (30 % of that track's pixels; the
+      segmenter track's median area at most :data:`SIZE_CLASS` times the other's, so a wall or a
+      backdrop the segmenter marks does not take over the ball that crosses it); in the frames
+      where a mover's segmenter mask is missing, the overlapping background-subtraction mask
+      stands in;
+    * a moving track of background subtraction that lies mostly (80 %) outside the segmenter
+      tracks of its size class is a mover of its own (its masks as they are): a small or blurred
+      object the segmenter missed;
+    * any other segmenter track is an **object at rest** when it is seen as a rigid body at rest
+      is (:func:`_at_rest`: in nearly every frame, with the same silhouette, and confidently),
+      looks like a whole object in view (rotated box at most 3:1, at least half full, touching
+      the border in at most half its frames: tables, walls, rulers and shelves run out of the
+      frame) and, when there are movers, is of their size class (median area 1/16..16 times
       theirs);
     * movers first (the segmenter's that background subtraction confirms, the segmenter's
       others, then those of background subtraction alone, each seen longest first), then objects at rest (largest first), at most ``max_objects``, numbered
-      0, 1, ...: on real video most of what the segmenter marks at rest is scenery, so motion
-      is the stronger evidence.
+      0, 1, ...: motion is the stronger evidence.
 
     Args:
         frames: ``(T, H, W, 3)`` uint8 RGB; context: ``(N, H, W, 3)`` uint8 frames spread over
@@ -219,6 +219,7 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int) ->
     bs_area = [float(np.median(m.sum(axis=(1, 2))[m.any(axis=(1, 2))])) if m.any() else 0.0 for m in bs_masks]
     movers, stills, linked = [], [], set()
     overlap = np.zeros(n_bs)                      # bs px inside segmenter tracks of its size class
+
     def in_view(m: np.ndarray) -> bool:            # touches the border in at most half its frames
         seen = m.any(axis=(1, 2))
         border = m[:, 0, :].any(axis=1) | m[:, -1, :].any(axis=1) | m[:, :, 0].any(axis=1) | m[:, :, -1].any(axis=1)
@@ -226,8 +227,6 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int) ->
 
     for tr in find_tracks(sg, None, min_frames=max(3, int(0.15 * T))):
         m = sg == tr.label
-        if not (tr.size[0] <= 3.0 * max(tr.size[1], 1e-6) and tr.fill >= 0.5 and in_view(m)):
-            continue                              # not a whole object in view: scenery, a wall, a ruler
         size_ok = [float(np.median(tr.area)) <= SIZE_CLASS * a for a in bs_area]
         inside = [int((m & b).sum()) if ok else 0 for b, ok in zip(bs_masks, size_ok)]
         overlap += inside
@@ -235,11 +234,11 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int) ->
         if tr.travel >= 0.25 * tr.diameter or fill_in:
             movers.append((tr, m, fill_in))
             linked.update(fill_in)
-            continue
-        if _at_rest(m, fg, tr.frames, T):
+        elif _at_rest(m, fg, tr.frames, T) and tr.size[0] <= 3.0 * max(tr.size[1], 1e-6) and tr.fill >= 0.5 \
+                and in_view(m):
             stills.append((tr, m))
     unseen = [(None, m, []) for k, m in enumerate(bs_masks)   # movers only background subtraction saw
-              if k not in linked and m.any() and overlap[k] <= 0.2 * m.sum() and in_view(m)]
+              if k not in linked and m.any() and overlap[k] <= 0.2 * m.sum()]
     if movers or unseen:
         ref = float(np.median([np.median(m.sum(axis=(1, 2))[m.any(axis=(1, 2))]) for _, m, _ in movers + unseen]))
         stills = [(tr, m) for tr, m in stills if ref / 16 <= float(np.median(tr.area)) <= 16 * ref]

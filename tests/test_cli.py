@@ -56,3 +56,18 @@ def test_user_mistake_is_one_line_and_exit_2(tmp_path, case):
     assert "Traceback" not in proc.stderr
     assert proc.stderr.count("\n") == 1 and proc.stderr.endswith("\n"), proc.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_infer_mask_method_is_one_of_the_observation_methods(capsys):
+    import argparse
+
+    from pipeline.observe import MASK_METHODS
+    from pipeline.reconstruct import add_arguments
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    assert p.parse_args(["v.mp4", "--out", "o"]).mask_method is None          # params realvideo.mask_method
+    for m in MASK_METHODS:
+        assert p.parse_args(["v.mp4", "--out", "o", "--mask-method", m]).mask_method == m
+    with pytest.raises(SystemExit):
+        p.parse_args(["v.mp4", "--out", "o", "--mask-method", "grabcut"])
+    assert "invalid choice: 'grabcut'" in capsys.readouterr().err

@@ -106,3 +106,23 @@ def test_hybrid_finds_the_mover_first_and_the_object_at_rest():
     assert s["n_pred"] == 2 and s["still_iou"] >= 0.7 and s["moving_iou"] >= 0.6, s["per_object"]
     match = {o["true"]: o["pred"] for o in s["per_object"]}
     assert match == {1: 0, 0: 1}                            # the ball (true 1) is object 0
+
+
+def test_at_rest_needs_a_steady_confident_silhouette_seen_throughout():
+    """An object at rest (hybrid): seen in nearly every frame, the same silhouette, a sure
+    segmenter; scenery that flickers, is seen briefly or is marked unsure is not one."""
+    from pipeline.observe import _at_rest
+    T = 20
+    box = np.zeros((T, 30, 40), bool)
+    box[:, 10:20, 10:22] = True
+    fg = np.where(box, 0.97, 0.02).astype(np.float32)
+    frames = np.arange(T)
+    assert _at_rest(box, fg, frames, T)
+    assert not _at_rest(box, np.where(box, 0.7, 0.0).astype(np.float32), frames, T)     # unsure
+    assert not _at_rest(box[:8], fg[:8], frames[:8], T)                                 # seen briefly
+    flicker = box.copy()
+    flicker[::2, 10:20, 16:22] = False                                                  # half the mask comes and goes
+    assert not _at_rest(flicker, fg, frames, T)
+    occluded = box.copy()
+    occluded[5:7, 10:20, 10:16] = False                                                 # a mover passes in front twice
+    assert _at_rest(occluded, fg, frames, T)
