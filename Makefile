@@ -37,7 +37,12 @@ realvideo: setup
 demo: repro realvideo
 	@cat reports/table.md
 
-test: setup
+# pytest and hypothesis are the `test` extra (pyproject.toml), not runtime dependencies
+$(VENV)/.test-installed: $(VENV)/.installed
+	$(PY) -m pip install --quiet -e '.[test]'
+	touch $@
+
+test: setup $(VENV)/.test-installed
 	$(PY) -m pytest -q
 
 clean:

@@ -56,6 +56,7 @@ from pipeline.flow import FlowConfig  # noqa: E402
 from pipeline.metrics import observation_scores  # noqa: E402
 from pipeline.observe import observe, truth_in_window  # noqa: E402
 from pipeline.params import load_params, typed_section  # noqa: E402
+from pipeline.reconstruct import realvideo_config  # noqa: E402
 
 SETS = {("mujoco", "dev"): (0, 24), ("mujoco", "heldout"): (1, 12),
         ("pybullet", "dev"): (0, 24), ("pybullet", "heldout"): (1, 12)}
@@ -80,13 +81,12 @@ def ensure_set(root: Path, engine: str, split: str, generate: bool = True) -> Pa
 
 def rendered_clip(folder: Path, params: dict) -> dict:
     """Observe one rendered clip as ``dynamics infer`` does and score it against its truth."""
-    rv = params.get("realvideo", {})
+    rv = realvideo_config(params)
     fcfg = typed_section(params, "flow", FlowConfig, required=True)
     truth = np.load(folder / "truth.npz", allow_pickle=False)
     t0 = time.perf_counter()
-    obs = observe(folder / "video.mp4", float(truth["fps"]), None, int(rv.get("fps", 30)),
-                  float(rv.get("duration", 1.0)), fcfg.method, fcfg.preset, rv.get("mask_method", "median"),
-                  int(rv.get("max_objects", 4)))
+    obs = observe(folder / "video.mp4", float(truth["fps"]), None, rv.fps, rv.duration, fcfg.method, fcfg.preset,
+                  rv.mask_method, rv.max_objects)
     seconds = time.perf_counter() - t0
     seg, frames = truth_in_window(truth["seg"], obs)
     pos = truth["pos"][frames]                                              # (T, n, 3) m
@@ -120,9 +120,9 @@ def real_clip(name: str, spec: dict, fixtures: Path, video_dir: Path, params: di
     true = labels.astype(np.int16) - 1                                        # 0 background -> -1
     size = (labels.shape[2], labels.shape[1])
     t0 = time.perf_counter()
-    rv = params.get("realvideo", {})
+    rv = realvideo_config(params)
     pred = observe_frames(video_dir / spec["file"], spec.get("fps"), idx, size,
-                          max_objects=int(rv.get("max_objects", 4)), mask_method=rv.get("mask_method", "median"))
+                          max_objects=rv.max_objects, mask_method=rv.mask_method)
     seconds = time.perf_counter() - t0
     n = len(spec["objects"])
     diag = math.hypot(*size)
@@ -192,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--report", type=Path, default=ROOT / "reports/observation_truth", help="report path stem")
     args = ap.parse_args(argv)
     params = load_params(args.params)
-    default = params.get("realvideo", {}).get("mask_method", "median")
+    default = realvideo_config(params).mask_method
     methods = args.mask_method.split(",") if args.mask_method else [default]
     only = set(args.only.split(","))
     sets: dict[str, list[dict]] = {}

@@ -31,6 +31,7 @@ from pipeline.metrics import sequence_iou
 from pipeline.mjcf import SimOptions
 from pipeline.observe import observe
 from pipeline.params import load_params, typed_section
+from pipeline.reconstruct import realvideo_config
 from pipeline.render import render_scene
 from pipeline.scene import Decimals, load_scene
 
@@ -49,7 +50,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--report", type=Path, default=Path("reports/precision_realclips"), help="report path stem")
     args = ap.parse_args(argv)
     params = load_params(args.params)
-    rv = params.get("realvideo", {})
+    rv = realvideo_config(params)
     fcfg = typed_section(params, "flow", FlowConfig, required=True)
     sim = typed_section(params, "sim", SimOptions, required=True)
     rows = []
@@ -58,8 +59,8 @@ def main(argv: list[str] | None = None) -> int:
         if "error" in r or not (folder / "scene.yaml").exists():
             continue
         m = json.loads((folder / "metrics.json").read_text())
-        obs = observe(m["video"], r["fps"], None, int(rv.get("fps", 30)), float(rv.get("duration", 1.0)),
-                      fcfg.method, fcfg.preset, rv.get("mask_method", "median"), int(rv.get("max_objects", 4)))
+        obs = observe(m["video"], r["fps"], None, rv.fps, rv.duration, fcfg.method, fcfg.preset, rv.mask_method,
+                      rv.max_objects)
         scene = load_scene(folder / "scene.yaml")
         new = score(scene, obs.seg, sim)
         old = score(scene.rounded(Decimals()), obs.seg, sim)

@@ -11,7 +11,7 @@ sigma 0.05):
   fresh ``FrameRenderer`` (private GL context), close it, compute the fitness;
 * ``evaluator``: one :class:`pipeline.search.SceneEvaluator` (compile once, edit the model in
   place, reused renderer) and the fitness, in this process;
-* ``parallel_fitness2``: :class:`pipeline.search.parallel.ParallelFitness` with 2 worker
+* ``parallel_fitness2``: :class:`pipeline.search.parallel_eval.ParallelFitness` with 2 worker
   processes: the observation sent to each worker once, the candidates split in halves, only
   the fitness dicts come back (pool start-up not timed).
 
@@ -112,7 +112,7 @@ def same_scores(a: list[dict], b: list[dict]) -> bool:
 def measure(sizes, n: int, naive_n: int, pool_workers: int) -> list[dict]:
     """Every measurement of one configuration: naive, evaluator, ParallelFitness."""
     from pipeline.search import SceneEvaluator, SearchConfig, fitness
-    from pipeline.search.parallel import ParallelFitness
+    from pipeline.search.parallel_eval import ParallelFitness
 
     runs = []
     for label, scene in scenes().items():

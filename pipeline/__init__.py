@@ -3,7 +3,7 @@
 import os
 
 # Offscreen rendering through EGL (Mesa llvmpipe on CPU machines); must be set before
-# mujoco / dm_control are imported anywhere (DESIGN.md §3).
+# mujoco / dm_control are imported anywhere (docs/design.md §3).
 os.environ.setdefault("MUJOCO_GL", "egl")
 os.environ.setdefault("PYOPENGL_PLATFORM", os.environ["MUJOCO_GL"])
 # FFmpeg's own log lines ("moov atom not found", "error while decoding MB ...") would follow our
@@ -14,7 +14,7 @@ os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
 __version__ = "0.1.0"
 
 if os.environ.get("DVC_STAGE"):
-    # a stage script run by `dvc repro` ends when dvc dies (kill -9 of dvc), see pipeline.orphan
-    from pipeline.orphan import exit_with_parent
+    # a stage script run by `dvc repro` ends when dvc dies (kill -9 of dvc), see pipeline.stage_watchdog
+    from pipeline.stage_watchdog import exit_with_parent
 
     exit_with_parent()

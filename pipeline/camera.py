@@ -1,4 +1,4 @@
-"""Camera model: intrinsics, extrinsics and projection (DESIGN.md §2, §3).
+"""Camera model: intrinsics, extrinsics and projection (docs/design.md §2, §3).
 
 Conventions (checked against MuJoCo renders in tests/test_camera.py):
 

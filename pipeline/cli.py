@@ -2,7 +2,7 @@
 
     dynamics simulate SCENE.yaml --out DIR        run your own scene (trace, video, masks, events)
     dynamics infer VIDEO --out DIR [--fps F] [--start S]   the main job on any video
-    dynamics discrepancy TRAJECTORIES --out DIR   find -> name -> add -> show (DESIGN §8)
+    dynamics discrepancy TRAJECTORIES --out DIR   find -> name -> add -> show (docs/design.md §8)
     dynamics discrepancy-benchmark [--trials N]   naming accuracy on hidden-effect data
     dynamics view SHARD [--scene ID] [--save FILE.rrd]     rerun recording of a shard
     dynamics schema [--out FILE]                  JSON Schema of a scene file (for editors)
@@ -17,14 +17,22 @@ from __future__ import annotations
 import argparse
 import sys
 import warnings
+from pathlib import Path
 
 import mujoco
 
-from pipeline import discrepancy, reconstruct, traces, view
+from absl import logging as absl_logging
+
+from pipeline import discrepancy, reconstruct, shard_viewer
 from pipeline.atomic import write_text
 from pipeline.entry import USER_ERROR_STATUS, configure_logging, user_error_line
 from pipeline.errors import UserError
-from pipeline.scene import json_schema_text
+from pipeline.events import EventConfig
+from pipeline.mjcf import SimOptions
+from pipeline.params import ParamsError, load_params, typed_section
+from pipeline.sanity import PhysicsError, SanityConfig, resolve_overlaps
+from pipeline.scene import SceneError, json_schema_text, load_scene
+from pipeline.traces import OUTPUT_FILES, write_simulation
 from pipeline.video import VideoWarning
 
 _python_showwarning = warnings.showwarning
@@ -37,15 +45,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("simulate", help="simulate a scene YAML: trace.parquet, rgb.mp4, masks, events.json",
                        description="Simulate and render one scene of scene language v1.")
-    traces.add_simulate_arguments(p)
-    p.set_defaults(func=traces.simulate_cli)
+    add_simulate_arguments(p)
+    p.set_defaults(func=simulate_cli)
 
     p = sub.add_parser("infer", help="main job: video -> scene YAML, side-by-side mp4, metrics, .rrd",
                        description=reconstruct.__doc__.split("\n\n")[0])
     reconstruct.add_arguments(p)
     p.set_defaults(func=reconstruct.main_cli)
 
-    p = sub.add_parser("discrepancy", help="find, name and add missing physical effects (DESIGN §8)",
+    p = sub.add_parser("discrepancy", help="find, name and add missing physical effects (docs/design.md §8)",
                        description="Discrepancy workflow on measured trajectories (CSV/Parquet/Tracker txt).")
     discrepancy.add_arguments(p)
     p.set_defaults(func=discrepancy.main_cli)
@@ -56,15 +64,83 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=discrepancy.benchmark_cli)
 
     p = sub.add_parser("view", help="open or save a rerun recording of a shard",
-                       description=view.__doc__.split("\n\n")[0])
-    view.add_arguments(p)
-    p.set_defaults(func=view.main_cli)
+                       description=shard_viewer.__doc__.split("\n\n")[0])
+    shard_viewer.add_arguments(p)
+    p.set_defaults(func=shard_viewer.main_cli)
 
     p = sub.add_parser("schema", help="print or write the JSON Schema of a scene file (editors validate with it)",
                        description="JSON Schema of scene language v1 (docs/scene.schema.json is a copy).")
     p.add_argument("--out", metavar="FILE", help="write the schema here (atomically) instead of stdout")
     p.set_defaults(func=_schema_cli)
     return parser
+
+
+MIN_SIZE, MAX_SIZE = 2, 4096
+"""Render sizes ``dynamics simulate`` accepts, px (the mp4 encoder needs >= 2). Memory grows with
+the frame size, not with the clip's length: ~0.6 GB at 160 x 120 or 480 x 320 (mostly the
+imported libraries), ~2.6 GB at 4096 x 4096 (one frame per chunk; MuJoCo's offscreen buffers
+included)."""
+
+
+def add_simulate_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """Arguments of ``dynamics simulate``."""
+    parser.add_argument("scene", type=Path, help="scene language YAML file")
+    parser.add_argument("--out", type=Path, required=True, help="output folder")
+    parser.add_argument("--width", type=int, default=480, help="render width, px (default 480)")
+    parser.add_argument("--height", type=int, default=320, help="render height, px (default 320)")
+    parser.add_argument("--params", type=Path, default=None,
+                        help="params.yaml whose `sim`, `events` and `sanity` sections to use (default: built-in "
+                             "defaults, the same values as the project's params.yaml)")
+    parser.add_argument("--resolve-overlaps", action="store_true",
+                        help="separate objects that start interpenetrating (each other, the floor, static geometry) "
+                             "by moving them apart along the contact normal, and say so on stderr; without it "
+                             "such a scene is refused with the pair and the depth")
+    return parser
+
+
+def simulate_cli(args: argparse.Namespace) -> int:
+    """Run ``dynamics simulate``. Returns the exit status (2: invalid scene, nothing written)."""
+    def fail(msg: str) -> int:
+        print(msg, file=sys.stderr)
+        return 2
+
+    # MuJoCo's per-step "simulation is unstable" log lines (via absl): check_simulation reports
+    absl_logging.set_verbosity(absl_logging.ERROR)
+
+    for name, value in (("width", args.width), ("height", args.height)):
+        if not MIN_SIZE <= value <= MAX_SIZE:
+            return fail(f"--{name}: must be in {MIN_SIZE}..{MAX_SIZE} px, got {value}")
+    if Path(args.out).exists() and not Path(args.out).is_dir():
+        return fail(f"{args.out}: --out: must be a folder (or not exist yet), got an existing file")
+    for name in OUTPUT_FILES.values():
+        if (Path(args.out) / name).is_dir():
+            return fail(f"{Path(args.out) / name}: --out: must not hold a folder named {name}, got one")
+    try:
+        scene = load_scene(args.scene)
+        options, events, sanity = SimOptions(), EventConfig(), SanityConfig()
+        if args.params is not None:
+            p = load_params(args.params)
+            try:
+                options, events, sanity = (typed_section(p, key, cls, str(args.params)) for key, cls in
+                                           (("sim", SimOptions), ("events", EventConfig), ("sanity", SanityConfig)))
+            except ParamsError as exc:
+                return fail(str(exc))
+        # the offscreen buffer must hold the image (MuJoCo's default here is 640 px)
+        options = options.model_copy(update={"offscreen_size": max(options.offscreen_size, args.width, args.height)})
+        if args.resolve_overlaps:
+            scene, moves = resolve_overlaps(scene, options, sanity)
+            for move in moves:
+                print(f"warning: {args.scene}: --resolve-overlaps: {move}", file=sys.stderr)
+        paths = write_simulation(scene, args.out, args.width, args.height, options, events, sanity,
+                                 source=str(args.scene))
+    except (SceneError, PhysicsError) as exc:
+        msg = str(exc)
+        if msg.startswith("<scene>: "):  # raised while building the MJCF (effects)
+            msg = f"{args.scene}: {msg.removeprefix('<scene>: ')}"
+        return fail(msg)
+    for name, path in paths.items():
+        print(f"{name}: {path}")
+    return 0
 
 
 def _schema_cli(args: argparse.Namespace) -> int:

@@ -1,4 +1,4 @@
-"""Effect library: physical effects beyond the base model (DESIGN.md §8).
+"""Effect library: physical effects beyond the base model (docs/design.md §8).
 
 Adding an effect is one small class: a name, parameters with bounds and units, and how it
 edits the model, once on the MJCF tree (:meth:`Effect.apply`, used by ``pipeline.mjcf`` when a

@@ -13,7 +13,7 @@ geometry) is edited per variant:
   (:func:`set_camera`);
 * then the derived constants (:func:`refresh_constants`).
 
-DESIGN §10: in-place edits go wrong silently unless ``mujoco.mj_setConst`` runs after mass/size
+docs/design.md §10: in-place edits go wrong silently unless ``mujoco.mj_setConst`` runs after mass/size
 changes, ``geom_rbound`` / ``geom_aabb`` (and the body BVH) follow the sizes, and
 ``mj_camlight`` runs before rendering (``pipeline.render.FrameRenderer`` does).
 ``mj_setConst`` of MuJoCo 3.17 does not refresh ``mjModel.stat`` (mean mass, mean inertia,

@@ -1,4 +1,4 @@
-"""Motion events of a rollout: collisions, stops, entering and leaving the view (DESIGN.md §5).
+"""Motion events of a rollout: collisions, stops, entering and leaving the view (docs/design.md §5).
 
 Events are read from a :class:`pipeline.simulate.Trace` (contacts, velocities) and the
 per-frame visible pixel counts of each object (from the rendered segmentation). They become

@@ -1,6 +1,6 @@
 """Optical flow: estimators and the colour coding used to look at flow.
 
-Flow convention (DESIGN.md §3): forward flow from frame ``t`` to ``t + 1``, in pixels,
+Flow convention (docs/design.md §3): forward flow from frame ``t`` to ``t + 1``, in pixels,
 ``flow[..., 0] = u`` is the displacement along image x (columns, to the right) and
 ``flow[..., 1] = v`` along image y (rows, downwards).
 
@@ -42,14 +42,15 @@ class FlowConfig(BaseModel):
         method: ``dis`` | ``farneback`` | ``gt`` (simulator truth, copied from the render).
         preset: DIS preset, ``ultrafast`` | ``fast`` | ``medium`` (ignored by other methods).
         max_magnitude: flow magnitude (px) shown at full colour saturation by
-            :func:`flow_to_rgb`; ``None`` scales every call by its own maximum.
+            :func:`flow_to_rgb` (default 4 px, the model's inputs); ``None`` scales every call by
+            its own maximum.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     method: Literal["dis", "farneback", "gt"] = "dis"
     preset: Literal["ultrafast", "fast", "medium"] = "medium"
-    max_magnitude: float | None = Field(default=None, gt=0, allow_inf_nan=False)
+    max_magnitude: float | None = Field(default=4.0, gt=0, allow_inf_nan=False)
 
 
 # ---------------------------------------------------------------------------------------

@@ -1,7 +1,7 @@
 """Observed object tracks of a reconstructed video, in the scene's world frame.
 
 ``dynamics infer`` re-simulates a scene and scores it against masks; to ask the discrepancy
-workflow (DESIGN.md §8) *where the re-simulation leaves the observed motion, and which effect
+workflow (docs/design.md §8) *where the re-simulation leaves the observed motion, and which effect
 closes the gap*, the observed motion has to be a trajectory table in the world frame of the
 scene. A monocular track gives two coordinates per frame (the mask centroid ``(u, v)``, px);
 the third, the depth along the optical axis, is borrowed from the re-simulated object at the

@@ -1,4 +1,4 @@
-"""Metrics used in every report (DESIGN.md §7).
+"""Metrics used in every report (docs/design.md §7).
 
 * **Composition accuracy**: the predicted multiset of shapes equals the true multiset.
 * **Mask IoU**: objects are matched one-to-one by Hungarian assignment
@@ -139,7 +139,7 @@ def _match(iou: np.ndarray) -> list[tuple[int, int]]:
 
 
 def match_objects(true_seg: np.ndarray, pred_seg: np.ndarray) -> list[tuple[int, int]]:
-    """Match true to predicted objects one-to-one (DESIGN §7).
+    """Match true to predicted objects one-to-one (docs/design.md §7).
 
     Hungarian assignment (``scipy.optimize.linear_sum_assignment``) maximising the IoU
     averaged over the sequence. With unequal counts, ``min(n_true, n_pred)`` pairs are
@@ -211,7 +211,7 @@ def _counts_iou(counts: np.ndarray) -> np.ndarray:
 
 
 def sequence_iou(true_seg: np.ndarray, pred_seg: np.ndarray) -> dict[str, Any]:
-    """Mask IoU of a re-simulated clip against the observed one (DESIGN §7).
+    """Mask IoU of a re-simulated clip against the observed one (docs/design.md §7).
 
     Args:
         true_seg: ``(T, H, W)`` observed labels (int8, -1 background; bool = foreground only,
@@ -344,7 +344,7 @@ def match_by_position(true_scene: Scene, pred_scene: Scene) -> list[tuple[int, i
 
 def parameter_errors(true_scene: Scene, pred_scene: Scene, true_seg: np.ndarray | None = None,
                      pred_seg: np.ndarray | None = None) -> dict[str, Any]:
-    """Per-field absolute errors of a predicted scene after matching objects (DESIGN §7).
+    """Per-field absolute errors of a predicted scene after matching objects (docs/design.md §7).
 
     Objects are matched by :func:`match_objects` when both segmentations are given (pred
     labels are the predicted scene's object indices, as rendered), else by

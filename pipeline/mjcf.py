@@ -1,4 +1,4 @@
-"""Scene language -> MJCF with ``dm_control.mjcf`` (DESIGN.md §3).
+"""Scene language -> MJCF with ``dm_control.mjcf`` (docs/design.md §3).
 
 One body per object, each with a free joint and one geom, named ``<shape>_<index>``; a floor
 plane ``floor``; static geometry (``scene.static``) as world geoms ``static_<index>`` (no
@@ -100,7 +100,7 @@ class Appearance(BaseModel):
         light_dir: direction the directional light shines along (world frame, not normalised).
         light_diffuse, light_ambient, light_specular: the light's colours (``None``: MuJoCo's
             default, not written).
-        light_castshadow: the light casts shadows (~15x slower per RGB frame, DESIGN §10).
+        light_castshadow: the light casts shadows (~15x slower per RGB frame, docs/design.md §10).
         headlight_ambient, headlight_diffuse: the camera headlight's colours.
     """
 

@@ -68,7 +68,8 @@ class ComputeConfig(BaseModel):
         address: Ray only: null starts or joins a local Ray instance; ``auto`` joins the
             cluster this machine belongs to; ``ray://host:port`` (Ray client) or ``host:port``
             joins a given cluster. Ignored by ``local``.
-        workers: ``local``: processes (null: every available core); ``ray``: tasks in flight
+        workers: ``local``: processes (default 2, the default profile's; null: every available
+            core); ``ray``: tasks in flight
             at once (null: as many as the cluster schedules) and the CPUs of a local Ray
             instance this process starts (null: every available core).
     """
@@ -77,7 +78,7 @@ class ComputeConfig(BaseModel):
 
     backend: Literal["local", "ray"] = "local"
     address: str | None = None
-    workers: int | None = Field(default=None, ge=1, strict=True)
+    workers: int | None = Field(default=2, ge=1, strict=True)
 
     @field_validator("workers", mode="before")
     @classmethod
@@ -199,7 +200,7 @@ def parallel_map(fn: Callable[[T], R], items: Iterable[T], compute: ComputeConfi
             that writes files must write them temp-then-rename (Ray may run it again).
         items: the chunks of work.
         compute: a :class:`ComputeConfig`, or an int: that many local processes (default:
-            ``ComputeConfig()``, local on every core). Local with 1 worker (or a single item)
+            ``ComputeConfig()``, 2 local processes). Local with 1 worker (or a single item)
             runs everything in this process, no pool.
         pool: an open local pool to use instead (``compute`` is then ignored).
     Yields:
@@ -244,7 +245,7 @@ def ray_connect(compute: ComputeConfig):
     """Connect this process to Ray as ``compute`` says (once; a different address reconnects).
 
     ``address`` null: join the local instance ``ray start`` left (``RAY_ADDRESS`` or the latest
-    one on this machine), else start one with ``workers`` CPUs (default every core) and no
+    one on this machine), else start one with ``workers`` CPUs (null: every core) and no
     dashboard. Workers get :data:`WORKER_ENV` and this process's ``MUJOCO_GL``.
 
     Returns:

@@ -45,6 +45,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from pipeline import infer_tracks, perception, shards, viz
 from pipeline.atomic import publish_dir, remove_stale_temps, temp_dir_for
@@ -61,7 +62,7 @@ from pipeline.scene import Scene, SceneError
 from pipeline.search import EvaluatorPool, SearchConfig, best_of_k
 from pipeline.search.staged import REFERENCE_WIDTH, score_scene, staged_refine
 from pipeline.video import VideoError, read_video
-from pipeline.view import camera_dict, scene_objects
+from pipeline.shard_viewer import camera_dict, scene_objects
 
 
 MAX_WINDOW_FRAMES = 300
@@ -69,6 +70,44 @@ MAX_WINDOW_FRAMES = 300
 30). The search scores the whole window at once, so its frames, flow and masks stay in memory
 (~2.5 MB per frame at the working size with the side-by-side panels): the limit keeps a run
 under ~1 GB and is checked before the video is decoded (issue 35)."""
+
+
+class RealVideoConfig(BaseModel):
+    """Params section ``realvideo``: the main job ``dynamics infer VIDEO``.
+
+    The window (``fps`` frames per s of scene time, ``duration`` s), the observation
+    (``mask_method``, one of :data:`pipeline.observe.MASK_METHODS`; ``max_objects`` tracks), the
+    staged CMA-ES (``popsize`` and ``iterations`` per stage, ``restarts`` of the first stage,
+    ``workers`` scoring processes, fitness ``IoU - lambda_epe * EPE`` with EPE per px at 96 px
+    wide) and the figures (``panel_height``, ``sheet_height`` in px). The defaults are the
+    default profile's (a test checks that params.yaml agrees).
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    fps: int = Field(30, ge=1)
+    duration: float = Field(1.0, gt=0)
+    mask_method: str = "median"
+    max_objects: int = Field(4, ge=1)
+    popsize: int = Field(10, ge=2)
+    iterations: int = Field(8, ge=1)
+    restarts: int = Field(2, ge=1)
+    workers: int = Field(2, ge=1)
+    lambda_epe: float = Field(0.05, ge=0)
+    panel_height: int = Field(320, ge=16)
+    sheet_height: int = Field(180, ge=16)
+
+    @field_validator("mask_method")
+    @classmethod
+    def _known_method(cls, v: str) -> str:
+        if v not in MASK_METHODS:
+            raise ValueError(f"must be one of {', '.join(MASK_METHODS)}")
+        return v
+
+
+def realvideo_config(params: dict) -> RealVideoConfig:
+    """The ``realvideo`` section of parsed params, typed (one-line :class:`ParamsError`)."""
+    return typed_section(params, "realvideo", RealVideoConfig)
 
 
 def default_model_dir(params: dict) -> Path | None:
@@ -117,7 +156,7 @@ def model_samples(model_dir: Path, frames: np.ndarray, params: dict, k: int | No
     fcfg = typed_section(params, "flow", FlowConfig, required=True)
     small = np.stack([cv2.resize(f, (W, H), interpolation=cv2.INTER_AREA) for f in frames])
     flow = estimate_flow(small, method="dis" if fcfg.method == "gt" else fcfg.method, preset=fcfg.preset)
-    torch.set_num_threads(1)  # as in stages/infer.py: decoding K samples, 1 thread is as fast
+    torch.set_num_threads(1)  # as in stages/predict.py: decoding K samples, 1 thread is as fast
     net, tok = vlm.load_model(model_dir)
     codec, _ = vlm.load_codec(model_dir)
     mcfg = vlm.checkpoint_config(model_dir, vlm.ModelConfig.from_params(params))
@@ -229,21 +268,19 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     os.environ.setdefault("LP_NUM_THREADS", "0")
     t0 = time.time()
     out = Path(out)
-    rv = params.get("realvideo", {})
+    rv = realvideo_config(params)
     fcfg = typed_section(params, "flow", FlowConfig, required=True)
     scfg = typed_section(params, "search", SearchConfig, required=True)
-    scfg = scfg.model_copy(update={"popsize": int(rv.get("popsize", scfg.popsize)),
-                                   "iterations": int(rv.get("iterations", scfg.iterations)),
-                                   "lambda_epe": float(rv.get("lambda_epe", scfg.lambda_epe))})
+    scfg = scfg.model_copy(update={"popsize": rv.popsize, "iterations": rv.iterations, "lambda_epe": rv.lambda_epe})
     sim = typed_section(params, "sim", SimOptions, required=True)
     sanity = typed_section(params, "sanity", SanityConfig)
-    scene_fps, duration = int(rv.get("fps", 30)), float(rv.get("duration", 1.0))
+    scene_fps, duration = rv.fps, rv.duration
     frames = int(round(scene_fps * duration))
     if not 2 <= frames <= MAX_WINDOW_FRAMES:   # before any video is decoded
         raise ParamsError(f"{getattr(params, 'source', 'params.yaml')}: realvideo.duration * realvideo.fps: must give "
                           f"2..{MAX_WINDOW_FRAMES} frames (the main job holds the window's frames, flow and masks "
                           f"in memory, ~2.5 MB per frame), got {frames}")
-    max_objects = int(rv.get("max_objects", 4))
+    max_objects = rv.max_objects
 
     # the model folder is checked first (milliseconds), before decoding the video (seconds)
     model_note, mdir = None, None
@@ -260,7 +297,7 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     if labels_path is not None:   # read (and checked) before the search, used only after it
         truth = load_labels(labels_path, read_video(video, fps=fps, max_frames=1).original_size)
     obs = observe(video, fps, start, scene_fps, duration, fcfg.method, fcfg.preset,
-                  rv.get("mask_method", "median"), max_objects)
+                  rv.mask_method, max_objects)
     W, H = obs.size
     print(f"[infer] {video}: window {obs.start:.3f}-{obs.start + duration:.3f} s"
           f"{' (chosen automatically)' if obs.auto else ''}, {len(obs.frames)} frames at {scene_fps} fps, "
@@ -299,8 +336,8 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
         if best is None:
             raise VideoError(f"{video}: no proposal could be simulated ({scores[0].get('error')})")
         refined, history = staged_refine(candidates[best], obs.seg, obs.flow, scfg, sim, seed=seed,
-                                         restarts=int(rv.get("restarts", 2)), pool=pool,
-                                         workers=int(rv.get("workers", 1)))
+                                         restarts=rv.restarts, pool=pool,
+                                         workers=rv.workers)
         # what scene.yaml holds is what is scored: the better of the search's result and its
         # start, each as written (overlaps resolved, canonical text) and as `dynamics simulate` checks it
         chosen, refined, choice = choose_output([("cmaes", refined), ("best_of_k", candidates[best])],
@@ -349,7 +386,7 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
                                ("source_frames", source_frames(obs))):
                 npz.write(key, value)
         # for people: original frames at panel height, masks drawn over them
-        ph = int(rv.get("panel_height", 320))
+        ph = rv.panel_height
         orig = original_frames(obs, video, fps, height=ph)
         psize = (orig.shape[2], orig.shape[1])
         _, big = render_scene(refined, psize[0], psize[1], options=sim)
@@ -358,7 +395,7 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
         cols = [obs_overlay, pred_overlay, big.rgb]
         names = ["observed + pseudo-GT masks", "observed + re-simulated masks", "re-simulated"]
         viz.side_by_side_mp4(out / "side_by_side.mp4", cols, names, fps=scene_fps)
-        sheet_h = int(rv.get("sheet_height", 180))  # px per tile: six columns of 320 px tiles make a 6 MB PNG
+        sheet_h = rv.sheet_height  # px per tile: six columns of 320 px tiles make a 6 MB PNG
         small = [np.stack([cv2.resize(f, (max(2, round(f.shape[1] * sheet_h / f.shape[0])), sheet_h),
                                       interpolation=cv2.INTER_AREA) for f in c]) for c in cols]
         viz.contact_sheet(out / "contact_sheet.png", small, names,
@@ -424,7 +461,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--start", type=float, default=None,
                    help="start of the 1 s window, s (default: the window with the most object motion)")
     p.add_argument("--model", default=None, help="model folder (default: params paths.model if trained, else the shipped "
-                   "checkpoint models/dynamics-tiny); a local "
+                   "checkpoint pipeline/checkpoints/dynamics-tiny); a local "
                    "Qwen2.5-VL folder works when params model.pretrained points at it")
     p.add_argument("--no-model", action="store_true", help="perception proposals only")
     p.add_argument("-k", type=int, default=None, help="samples for Best@K (default params model.k)")

@@ -8,7 +8,7 @@ compilation on its first frame, a shared one nothing after its first use. Output
 to a fresh ``mujoco.Renderer`` per model (``tests/test_render.py``). Close renderers and
 private :class:`GLResources` explicitly (or use ``with``) or EGL errors print at exit.
 
-Ground-truth flow (DESIGN §3): for a pixel of object k at frame t with depth d, the world
+Ground-truth flow (docs/design.md §3): for a pixel of object k at frame t with depth d, the world
 point ``X = unproject(uv, d)`` moves rigidly with body k, ``X' = R_{t+1} R_t^T (X - p_t) +
 p_{t+1}``, and the flow is ``project(X') - uv`` (pixels, forward, (u, v) = (x, y)). The floor
 and background are static (flow 0) because the camera is fixed.

@@ -1,4 +1,4 @@
-"""Random scenes for the synthetic dataset, with the paper's filters (DESIGN.md §5, stage
+"""Random scenes for the synthetic dataset, with the paper's filters (docs/design.md §5, stage
 ``sample_configs``).
 
 A scene is drawn in two steps, so that the accepted scenes follow the configured

@@ -1,4 +1,4 @@
-"""Scene language v1: schema, validation and canonical YAML (DESIGN.md §2).
+"""Scene language v1: schema, validation and canonical YAML (docs/design.md §2).
 
 A scene is plain data. Everything downstream (MJCF, simulation, rendering, the model's
 target text, the search) takes a validated :class:`Scene`.
@@ -103,7 +103,7 @@ Vec3 = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
 class Camera(_Strict):
     """Camera block.
 
-    Paper form (DESIGN §2): ``{height, pitch, fov}``: camera at (0, -2, height) m looking along
+    Paper form (docs/design.md §2): ``{height, pitch, fov}``: camera at (0, -2, height) m looking along
     +y, pitched ``pitch`` degrees below the horizon, no yaw or roll. 6-DoF form (beyond the
     paper): ``{position, yaw, pitch, roll, fov}``. ``fov`` is the vertical field of view in
     degrees. Angles in degrees; ``yaw`` is measured from +y towards -x (counter-clockwise seen
@@ -256,7 +256,7 @@ StaticGeom = Annotated[Union[StaticBox, StaticPlane], Field(discriminator="shape
 
 
 class Effect(_Strict):
-    """A physical effect beyond the base model (DESIGN §8), e.g.
+    """A physical effect beyond the base model (docs/design.md §8), e.g.
     ``{effect: quadratic_drag, parameters: {density: 1.2}}``. Names and parameters are checked
     against the effect library (``pipeline.effects``) when the MJCF is built."""
 
@@ -265,7 +265,7 @@ class Effect(_Strict):
 
 
 class Scene(_Strict):
-    """One scene of scene language v1 (DESIGN §2).
+    """One scene of scene language v1 (docs/design.md §2).
 
     ``static`` (beyond the paper): fixed geometry (ramps, walls, table tops), compiled as
     world geoms ``static_<index>``; optional, and omitted from the canonical text when empty.
@@ -295,7 +295,7 @@ class Scene(_Strict):
 
     @property
     def object_names(self) -> list[str]:
-        """``<shape>_<index>`` names, index = position in ``objects`` (DESIGN §2)."""
+        """``<shape>_<index>`` names, index = position in ``objects`` (docs/design.md §2)."""
         return [f"{o.shape}_{i}" for i, o in enumerate(self.objects)]
 
     @property

@@ -1,4 +1,4 @@
-"""On-disk layout and atomic Parquet/Zarr/JSON IO (DESIGN.md §4).
+"""On-disk layout and atomic Parquet/Zarr/JSON IO (docs/design.md §4).
 
 Every stage writes ``<out_dir>/shard-00000.parquet`` (tables) or ``<out_dir>/shard-00000.zarr``
 (arrays) plus a ``meta.json`` describing what it holds. Output directories come from

@@ -1,4 +1,4 @@
-"""Rollouts and per-frame traces (DESIGN.md §3).
+"""Rollouts and per-frame traces (docs/design.md §3).
 
 A rollout starts from the MJCF keyframe ``init`` and records, at every video frame
 ``t_k = k / fps`` (k = 0 .. n_frames-1), each object's pose and world-frame velocity (the state

@@ -1,4 +1,4 @@
-"""Trace tables: a rollout as Parquet rows, and `dynamics simulate` (DESIGN.md §4, §6).
+"""Trace tables: a rollout as Parquet rows, and `dynamics simulate` (docs/design.md §4, §6).
 
 Two layouts of the same :class:`pipeline.simulate.Trace`:
 
@@ -11,7 +11,7 @@ Two layouts of the same :class:`pipeline.simulate.Trace`:
   (:func:`object_frame_table`): ``t, object, x, y, z, qw, qx, qy, qz, vx, vy, vz, wx, wy, wz``
   (s, m, unit quaternion, m/s, rad/s; world frame).
 
-``dynamics simulate SCENE.yaml --out DIR`` (:func:`write_simulation`) writes ``trace.parquet``,
+``dynamics simulate SCENE.yaml --out DIR`` (:func:`pipeline.cli.simulate_cli`, then :func:`write_simulation`) writes ``trace.parquet``,
 ``rgb.mp4``, ``masks.npz`` (``seg (T, H, W) int8``, -1 = background, and ``names``), a
 ``masks.mp4`` preview, and ``events.json``. A scene that fails validation prints the scene
 language's one-line error and exits with status 2, writing nothing. Frames are rendered and
@@ -21,27 +21,23 @@ written in chunks, so memory does not grow with the clip's length (issue 35:
 
 from __future__ import annotations
 
-import argparse
 import json
 import shutil
-import sys
 from pathlib import Path
 from typing import Any, Mapping
 
 import mujoco
 import numpy as np
 import pyarrow as pa
-from absl import logging as absl_logging
 
 from pipeline import sanity as checks, shards
 from pipeline.atomic import publish_dir, remove_stale_temps, temp_dir_for
 from pipeline.events import EventConfig, events_to_json, events_to_text, extract_events
 from pipeline.mjcf import SimOptions
 from pipeline.npz import NpzWriter
-from pipeline.params import ParamsError, load_params, typed_section
 from pipeline.render import FrameRenderer
-from pipeline.sanity import PhysicsError, SanityConfig, resolve_overlaps
-from pipeline.scene import Scene, SceneError, load_scene
+from pipeline.sanity import SanityConfig
+from pipeline.scene import Scene
 from pipeline.simulate import Contact, Trace
 from pipeline.viz import Mp4Writer, mask_colours
 
@@ -235,71 +231,3 @@ def render_streamed(model: mujoco.MjModel, qpos: np.ndarray, width: int, height:
                 preview_video.write([mask_colours(frames.seg)])
         npz.write("names", np.asarray(names))
     return visible
-
-
-MIN_SIZE, MAX_SIZE = 2, 4096
-"""Render sizes ``dynamics simulate`` accepts, px (the mp4 encoder needs >= 2). Memory grows with
-the frame size, not with the clip's length: ~0.6 GB at 160 x 120 or 480 x 320 (mostly the
-imported libraries), ~2.6 GB at 4096 x 4096 (one frame per chunk; MuJoCo's offscreen buffers
-included)."""
-
-
-def add_simulate_arguments(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    """Arguments of ``dynamics simulate``."""
-    parser.add_argument("scene", type=Path, help="scene language YAML file")
-    parser.add_argument("--out", type=Path, required=True, help="output folder")
-    parser.add_argument("--width", type=int, default=480, help="render width, px (default 480)")
-    parser.add_argument("--height", type=int, default=320, help="render height, px (default 320)")
-    parser.add_argument("--params", type=Path, default=None,
-                        help="params.yaml whose `sim`, `events` and `sanity` sections to use (default: built-in "
-                             "defaults, the same values as the project's params.yaml)")
-    parser.add_argument("--resolve-overlaps", action="store_true",
-                        help="separate objects that start interpenetrating (each other, the floor, static geometry) "
-                             "by moving them apart along the contact normal, and say so on stderr; without it "
-                             "such a scene is refused with the pair and the depth")
-    return parser
-
-
-def simulate_cli(args: argparse.Namespace) -> int:
-    """Run ``dynamics simulate``. Returns the exit status (2: invalid scene, nothing written)."""
-    def fail(msg: str) -> int:
-        print(msg, file=sys.stderr)
-        return 2
-
-    # MuJoCo's per-step "simulation is unstable" log lines (via absl): check_simulation reports
-    absl_logging.set_verbosity(absl_logging.ERROR)
-
-    for name, value in (("width", args.width), ("height", args.height)):
-        if not MIN_SIZE <= value <= MAX_SIZE:
-            return fail(f"--{name}: must be in {MIN_SIZE}..{MAX_SIZE} px, got {value}")
-    if Path(args.out).exists() and not Path(args.out).is_dir():
-        return fail(f"{args.out}: --out: must be a folder (or not exist yet), got an existing file")
-    for name in OUTPUT_FILES.values():
-        if (Path(args.out) / name).is_dir():
-            return fail(f"{Path(args.out) / name}: --out: must not hold a folder named {name}, got one")
-    try:
-        scene = load_scene(args.scene)
-        options, events, sanity = SimOptions(), EventConfig(), SanityConfig()
-        if args.params is not None:
-            p = load_params(args.params)
-            try:
-                options, events, sanity = (typed_section(p, key, cls, str(args.params)) for key, cls in
-                                           (("sim", SimOptions), ("events", EventConfig), ("sanity", SanityConfig)))
-            except ParamsError as exc:
-                return fail(str(exc))
-        # the offscreen buffer must hold the image (MuJoCo's default here is 640 px)
-        options = options.model_copy(update={"offscreen_size": max(options.offscreen_size, args.width, args.height)})
-        if args.resolve_overlaps:
-            scene, moves = resolve_overlaps(scene, options, sanity)
-            for move in moves:
-                print(f"warning: {args.scene}: --resolve-overlaps: {move}", file=sys.stderr)
-        paths = write_simulation(scene, args.out, args.width, args.height, options, events, sanity,
-                                 source=str(args.scene))
-    except (SceneError, PhysicsError) as exc:
-        msg = str(exc)
-        if msg.startswith("<scene>: "):  # raised while building the MJCF (effects)
-            msg = f"{args.scene}: {msg.removeprefix('<scene>: ')}"
-        return fail(msg)
-    for name, path in paths.items():
-        print(f"{name}: {path}")
-    return 0

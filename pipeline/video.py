@@ -1,8 +1,8 @@
 """Real videos: read a window, fix the frame rate, resize, and make pseudo ground-truth masks.
 
-DESIGN.md §9: a reader must accept an fps override (the 240 fps PhysTrack clips carry a
+docs/design.md §9: a reader must accept an fps override (the 240 fps PhysTrack clips carry a
 container rate of 29.97), crop/resize to the model resolution, and select a 1 s window.
-Masks of real clips come from background subtraction (DESIGN.md §7: *pseudo* ground
+Masks of real clips come from background subtraction (docs/design.md §7: *pseudo* ground
 truth; every report says so).
 
 Example::

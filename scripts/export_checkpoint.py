@@ -1,7 +1,7 @@
 """Export a trained checkpoint as the shipped default (fp16 weights, no optimizer state) with a
 model card, and measure it on the profile's test splits.
 
-    python scripts/export_checkpoint.py data/pretrain/model models/dynamics-tiny --params profiles/pretrain.yaml
+    python scripts/export_checkpoint.py data/pretrain/model pipeline/checkpoints/dynamics-tiny --params profiles/pretrain.yaml
 
 Writes DST/{config.json, model.safetensors (fp16), tokenizer files, codec.json, dynamics_model.json,
 composition_head.pt, train_curve.csv, train_curve.png, metrics.json, README.md}. The metrics are

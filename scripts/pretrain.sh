@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Rebuild the shipped checkpoint models/dynamics-tiny from scratch (issue 8): the `pretrain`
+# Rebuild the shipped checkpoint pipeline/checkpoints/dynamics-tiny from scratch (issue 8): the `pretrain`
 # profile (profiles/pretrain.yaml: 20,000 training scenes) through the same stage scripts as
 # `dvc repro`, then export. Resumable: a stage whose output is complete is skipped, training
 # continues from data/pretrain/model. Logs: data/pretrain/logs/. Hours on 2 CPU cores.
@@ -25,4 +25,4 @@ echo "$(date +%T) finetune"
 resume=""; [ -f data/pretrain/model/trainer_state.pt ] && resume="--resume"
 nice -n 5 $PY stages/finetune.py $resume --no-progress 2>&1 | tee -a data/pretrain/logs/finetune.log
 echo "$(date +%T) export"
-$PY scripts/export_checkpoint.py data/pretrain/model models/dynamics-tiny --params profiles/pretrain.yaml
+$PY scripts/export_checkpoint.py data/pretrain/model pipeline/checkpoints/dynamics-tiny --params profiles/pretrain.yaml

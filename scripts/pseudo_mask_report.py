@@ -37,7 +37,7 @@ def frame_scores(pred: np.ndarray, label: np.ndarray) -> tuple[float, float]:
 
     ``pred``: int ids, -1 background; ``label``: uint8, 0 background, 1..n objects. A frame
     where label and prediction are both empty is no evidence of a good mask: both scores are
-    NaN there (no free credit, DESIGN §7) and the clip means skip it; a prediction on an empty
+    NaN there (no free credit, docs/design.md §7) and the clip means skip it; a prediction on an empty
     label scores 0.
     """
     a, b = pred >= 0, label > 0

@@ -1,5 +1,5 @@
 """DVC stage `discrepancy`: find -> name -> add -> show on the measured trajectories
-(DESIGN.md §8), which it reads from ``paths.hidden`` without the truth beside them.
+(docs/design.md §8), which it reads from ``paths.hidden`` without the truth beside them.
 
 Writes ``paths.reports``/discrepancy.{md,json}, discrepancy_residuals.png,
 discrepancy_trajectories.png, and ``paths.discrepancy``: extended scenes

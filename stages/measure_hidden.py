@@ -1,4 +1,4 @@
-"""DVC stage `measure_hidden`: measured trajectories with a hidden effect (DESIGN.md §8).
+"""DVC stage `measure_hidden`: measured trajectories with a hidden effect (docs/design.md §8).
 
 One effect is drawn from the library (or none, ``measure_hidden.effect: random``) at a random
 strength; every clip is simulated with it and measured with noise. Writes ``paths.hidden``

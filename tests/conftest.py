@@ -10,7 +10,7 @@ os.environ.setdefault("TOKENIZERS_PARALLELISM", "false")
 
 
 def write_model_inputs(root, scenes: list[str], think: str) -> list[str]:
-    """The inputs of the tokenize / finetune / infer stages for six scenes, as finished stages
+    """The inputs of the tokenize / finetune / predict stages for six scenes, as finished stages
     leave them under ``root``: ``configs`` (splits train x3, val, test, test_comp), ``events``
     (the same think text for each), random ``flow`` (8 frames) and ``video`` (9 RGB frames) of
     32 x 48 px, two shards of three scenes, each folder with its meta.json.

@@ -1,4 +1,4 @@
-"""Discrepancy workflow (pipeline.discrepancy, DESIGN.md §8): readers and one-line errors, noise
+"""Discrepancy workflow (pipeline.discrepancy, docs/design.md §8): readers and one-line errors, noise
 estimate, motion phases, fast rollouts == the MuJoCo bridge, and the hidden-effect test: every
 effect of the library is named on fresh seeds, nothing is named without one, and the held-out
 gap shrinks by at least half.

@@ -6,7 +6,7 @@ rerun it. A new import cannot silently break reproducibility: this test fails fi
 Imports are read with :mod:`ast` (no code runs). A dep that is a folder (``pipeline/model``)
 covers every module under it. Exempt, because they change no output: ``pipeline/__init__.py``
 (environment defaults for rendering and logging: ``MUJOCO_GL``, FFmpeg's log level) and
-``pipeline/orphan.py`` (the watchdog that ends a stage script when dvc dies).
+``pipeline/stage_watchdog.py`` (the watchdog that ends a stage script when dvc dies).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import pytest
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
-EXEMPT = {"pipeline/__init__.py", "pipeline/orphan.py"}
+EXEMPT = {"pipeline/__init__.py", "pipeline/stage_watchdog.py"}
 
 
 def _module_file(name: str) -> Path | None:

@@ -51,7 +51,7 @@ def workspace(tmp_path_factory) -> tuple[Path, dict]:
     ws = tmp_path_factory.mktemp("e2e")
     for name in ("dvc.yaml", ".gitignore"):
         shutil.copy(ROOT / name, ws / name)
-    for name in ("stages", "pipeline", "models"):  # models/: the shipped checkpoint (model.init)
+    for name in ("stages", "pipeline"):  # pipeline/checkpoints: the shipped checkpoint (model.init: shipped)
         if (ROOT / name).exists():
             shutil.copytree(ROOT / name, ws / name, ignore=shutil.ignore_patterns("__pycache__"))
     params = _merge(yaml.safe_load((ROOT / "params.yaml").read_text()), TINY)
@@ -104,7 +104,7 @@ def test_second_repro_is_a_noop_and_params_invalidate_downstream_only(workspace)
     (ws / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     status = json.loads(_run([sys.executable, "-m", "dvc", "status", "--json"], ws, env).stdout)
     # stages that read model.reasoning directly (best_of_k/cmaes rerun later only if predictions change)
-    assert set(status) == {"tokenize", "finetune", "infer", "score"}, status
+    assert set(status) == {"tokenize", "finetune", "predict", "score"}, status
     params["model"]["reasoning"] = True
     (ws / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
 

@@ -99,7 +99,7 @@ def test_render_killed_midway_then_rerun_equals_an_uninterrupted_run(tmp_path):
 
 def test_stage_script_exits_when_dvc_dies(tmp_path):
     """``sh -c "python ..."`` with DVC_STAGE set (as dvc runs a stage): killing the process that
-    started the shell ends the script within seconds (pipeline.orphan), where it used to keep
+    started the shell ends the script within seconds (pipeline.stage_watchdog), where it used to keep
     running for minutes."""
     script = tmp_path / "stage.py"
     marker = tmp_path / "survived"
@@ -268,7 +268,7 @@ def _dvc_repo(tmp_path: Path) -> tuple[Path, dict]:
 def test_kill_dvc_during_a_stage_then_status_and_repro(tmp_path, stage, script, written):
     """In a fresh DVC repository of the project (12-scene profile): ``kill -9`` of ``dvc repro``
     once the stage has written (render: its first shard; finetune: its first checkpoint) ends
-    the stage script within seconds (pipeline.orphan; it used to keep writing for minutes) and
+    the stage script within seconds (pipeline.stage_watchdog; it used to keep writing for minutes) and
     leaves it unfinished (no meta.json / result.json); ``dvc status`` lists the stage as changed;
     the next ``dvc repro`` completes it (render: with the bytes of a direct run; finetune: all
     steps, a loadable checkpoint) and ``dvc status`` is clean."""

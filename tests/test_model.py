@@ -49,7 +49,7 @@ TINY = M.ModelConfig(
     n_frames=4, input="rgb", hidden_size=64, intermediate_size=128, num_layers=2, num_heads=4, num_kv_heads=2,
     vision_depth=2, vision_hidden_size=32, vision_intermediate_size=64, vision_num_heads=2, batch_size=2,
     lr=3e-3, min_lr=1e-3, warmup_steps=5, max_steps=40, eval_interval=20, eval_batches=1, eval_samples=2,
-    max_new_tokens=160, k=3, threads=1,
+    max_new_tokens=160, k=3, threads=1, init="scratch",
 )
 
 
@@ -328,8 +328,8 @@ def test_pretrained_folder_is_loaded_offline(trained, tmp_path):
 
 
 # ----------------------------------------------------------------------------- stages
-def test_stages_tokenize_finetune_infer(tmp_path, monkeypatch):
-    """The three DVC stage scripts on 6 synthetic scenes (data contracts of DESIGN §4/§5)."""
+def test_stages_tokenize_finetune_predict(tmp_path, monkeypatch):
+    """The three DVC stage scripts on 6 synthetic scenes (data contracts of docs/design.md §4/§5)."""
     import runpy
 
     import yaml
@@ -347,7 +347,7 @@ def test_stages_tokenize_finetune_infer(tmp_path, monkeypatch):
              ("configs", "events", "flow", "video", "tokenizer", "examples", "model", "predictions", "reports")}
     (tmp_path / "params.yaml").write_text(yaml.safe_dump({"seed": 1, "paths": paths, "model": model}))
     monkeypatch.setenv("DYNAMICS_PARAMS", str(tmp_path / "params.yaml"))
-    for script in ("tokenize_targets.py", "finetune.py", "infer.py"):
+    for script in ("tokenize_targets.py", "finetune.py", "predict.py"):
         monkeypatch.setattr("sys.argv", [script, "--no-progress"] if script == "finetune.py" else [script])
         runpy.run_path(str(stages / script), run_name="__main__")
 

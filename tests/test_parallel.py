@@ -49,7 +49,7 @@ def test_compute_errors_are_one_line(section, message):
 
 
 def test_compute_defaults_and_local_map_order():
-    assert compute_from_params({}) == ComputeConfig(backend="local", address=None, workers=None)
+    assert compute_from_params({}) == ComputeConfig(backend="local", address=None, workers=2)   # the default profile
     cfg = compute_from_params({"compute": {"backend": "ray", "address": "ray://head:10001", "workers": 4}})
     assert (cfg.backend, cfg.address, cfg.workers) == ("ray", "ray://head:10001", 4)
     assert list(parallel_map(abs, [-3, 2, -1], 1)) == [3, 2, 1]

@@ -94,3 +94,75 @@ def test_stage_names_an_unknown_key(tmp_path):
     proc = _stage(tmp_path, "compile_mjcf.py", params)
     assert proc.returncode == 2, proc.stderr
     assert proc.stderr == "error: params.yaml: sim.timestepp: must not be given (unknown key), got 0.002\n"
+
+
+def test_a_project_params_file_overrides_the_shipped_defaults_key_by_key(tmp_path, monkeypatch):
+    from pipeline.params import DEFAULTS_FILE, merge_params
+    defaults = yaml.safe_load(DEFAULTS_FILE.read_text())
+    assert merge_params({"a": {"b": 1, "c": [1, 2]}, "d": 0}, {"a": {"c": [3]}, "e": None}) == \
+        {"a": {"b": 1, "c": [3]}, "d": 0, "e": None}
+    monkeypatch.delenv("DYNAMICS_PARAMS", raising=False)
+    monkeypatch.chdir(tmp_path)                                    # no ./params.yaml: the defaults alone
+    p = load_params()
+    assert dict(p) == defaults and p.source == str(DEFAULTS_FILE) and p.root is None
+    (tmp_path / "params.yaml").write_text("search: {popsize: 12}\n")
+    p = load_params()                                              # ./params.yaml over the defaults
+    assert p["search"]["popsize"] == 12 and p.source == "params.yaml"
+    assert {k: v for k, v in p["search"].items() if k != "popsize"} == \
+        {k: v for k, v in defaults["search"].items() if k != "popsize"}
+    assert typed_section(p, "search", SearchConfig).popsize == 12
+    with pytest.raises(ParamsError, match=r"none.yaml: cannot read"):
+        load_params(tmp_path / "none.yaml")                        # a file that was named must exist
+
+
+def test_relative_paths_are_relative_to_the_params_file(tmp_path, monkeypatch):
+    from pipeline.params import path_of
+    project = tmp_path / "project"
+    project.mkdir()
+    (project / "params.yaml").write_text("paths: {model: runs/model}\n")
+    monkeypatch.delenv("DYNAMICS_PARAMS", raising=False)
+    monkeypatch.chdir(tmp_path)
+    assert path_of(load_params(project / "params.yaml"), "model") == project.resolve() / "runs/model"
+    monkeypatch.chdir(project)                                     # in its own folder: kept relative
+    assert path_of(load_params("params.yaml"), "model") == Path("runs/model")
+    (project / "abs.yaml").write_text(f"paths: {{model: {tmp_path / 'm'}}}\n")
+    assert path_of(load_params(project / "abs.yaml"), "model") == tmp_path / "m"
+
+
+def _config_classes() -> dict:
+    """params.yaml section -> the typed config that reads it (every section that has one)."""
+    from pipeline.codec import TokenConfig
+    from pipeline.discrepancy.config import DiscrepancyConfig
+    from pipeline.discrepancy.hidden import HiddenConfig
+    from pipeline.events import EventConfig
+    from pipeline.flow import FlowConfig
+    from pipeline.mjcf import SimOptions
+    from pipeline.model import ModelConfig
+    from pipeline.parallel import ComputeConfig
+    from pipeline.reconstruct import RealVideoConfig
+    from pipeline.sampler import SampleConfig
+    from pipeline.sanity import SanityConfig
+    return {"compute": ComputeConfig, "discrepancy": DiscrepancyConfig, "measure_hidden": HiddenConfig,
+            "events": EventConfig, "flow": FlowConfig, "realvideo": RealVideoConfig, "sample": SampleConfig,
+            "sanity": SanityConfig, "scene.decimals": Decimals, "search": SearchConfig, "sim": SimOptions,
+            "tokens": TokenConfig, "model": ModelConfig}
+
+
+def test_params_yaml_agrees_with_the_code_defaults():
+    """One default per setting: every key params.yaml gives equals the default of the typed
+    config that reads it (params.yaml is the default profile, written out); a profile
+    (profiles/*.yaml, dvc exp run -S) changes values, the code holds the defaults."""
+    params = yaml.safe_load((ROOT / "params.yaml").read_text())
+    classes = _config_classes()
+    typed_tops = {key.split(".")[0] for key in classes}
+    untyped = {"seed", "paths", "scene", "render"}           # no config class: read as plain values
+    assert set(params) <= typed_tops | untyped, set(params) - (typed_tops | untyped)   # a new section: add it above
+    disagree = []
+    for key, cls in classes.items():
+        given = params
+        for name in key.split("."):
+            given = given.get(name) or {}
+        typed, default = typed_section(params, key, cls), cls()
+        disagree += [f"{key}.{name}: params.yaml {getattr(typed, name)!r}, code {getattr(default, name)!r}"
+                     for name in given if getattr(typed, name) != getattr(default, name)]
+    assert not disagree, "\n".join(disagree)

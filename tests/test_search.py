@@ -185,7 +185,7 @@ def test_best_of_k_picks_the_truth():
     cands = [None, off, fewer, truth, fov, extra]
     scores, best = best_of_k(cands, obs_seg, obs_flow, SearchConfig())
     assert best == 3
-    # an extra object leaves the DESIGN §7 IoU at 1 but costs fitness (1/4 of the IoU term)
+    # an extra object leaves the docs/design.md §7 IoU at 1 but costs fitness (1/4 of the IoU term)
     assert scores[5]["full_iou"] == 1.0 and scores[5]["fitness"] < 0.8
     assert scores[0]["fitness"] == -math.inf and not scores[0]["valid"]
     assert scores[3]["full_iou"] == 1.0 and scores[3]["epe"] == 0.0
@@ -450,7 +450,7 @@ def test_evaluator_with_static_geometry():
 @pytest.fixture(scope="module")
 def parallel_fitness():
     """An observation of :func:`_scene` with flow and a 2-worker ParallelFitness on it."""
-    from pipeline.search.parallel import ParallelFitness
+    from pipeline.search.parallel_eval import ParallelFitness
 
     obs_seg, obs_flow = evaluate_scene(_scene(), W, H)
     with ParallelFitness(obs_seg, obs_flow, SearchConfig(), workers=2) as pf:
@@ -466,7 +466,7 @@ def _same_scores(a: list[dict], b: list[dict]) -> bool:
 
 def test_parallel_fitness_equals_in_process_fitness(parallel_fitness):
     """Workers score from the observation they got once: the same floats as scoring here."""
-    from pipeline.search.parallel import ParallelFitness
+    from pipeline.search.parallel_eval import ParallelFitness
 
     obs_seg, obs_flow, pf = parallel_fitness
     base = _scene()

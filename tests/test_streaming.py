@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline import shards, traces
+from pipeline import cli, shards, traces
 from pipeline.atomic import publish_dir
 from pipeline.mjcf import SimOptions, compile_model
 from pipeline.npz import NpzWriter
@@ -55,8 +55,8 @@ W, H = 50, 34
 
 
 def _simulate(argv) -> int:
-    parser = traces.add_simulate_arguments(argparse.ArgumentParser(prog="dynamics simulate"))
-    return traces.simulate_cli(parser.parse_args(argv))
+    parser = cli.add_simulate_arguments(argparse.ArgumentParser(prog="dynamics simulate"))
+    return cli.simulate_cli(parser.parse_args(argv))
 
 
 def _decode(path: Path) -> tuple[int, list[np.ndarray]]:

@@ -15,8 +15,9 @@ from numpy.testing import assert_allclose
 from pipeline.events import extract_events
 from pipeline.scene import Scene
 from pipeline.simulate import simulate
-from pipeline.traces import (OBJECT_FRAME_COLUMNS, TRACES_SCHEMA, add_simulate_arguments, object_frame_table,
-                             simulate_cli, trace_from_row, trace_to_row)
+from pipeline.cli import add_simulate_arguments, simulate_cli
+from pipeline.traces import (OBJECT_FRAME_COLUMNS, TRACES_SCHEMA, object_frame_table,
+                             trace_from_row, trace_to_row)
 
 SCENE = """\
 camera: {height: 1.0, pitch: 30.0, fov: 45.0}

@@ -78,7 +78,7 @@ def test_record_clip_rrd(tmp_path, clip):
     pos = np.zeros((T, 3, 3))
     pos[:, :, 2] = 0.1 + 0.01 * np.arange(T)[:, None]
     quat = np.tile([1.0, 0, 0, 0], (T, 3, 1))
-    # MuJoCo camera at (0, -2, 1.2) looking along +y, pitched 35 deg down (DESIGN §2)
+    # MuJoCo camera at (0, -2, 1.2) looking along +y, pitched 35 deg down (docs/design.md §2)
     p = np.radians(35)
     forward, up = np.array([0, np.cos(p), -np.sin(p)]), np.array([0, np.sin(p), np.cos(p)])
     r_mj = np.column_stack([[1, 0, 0], up, -forward])    # columns: camera x, y, z in world

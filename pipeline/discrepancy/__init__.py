@@ -1,4 +1,4 @@
-"""Discrepancy workflow: find -> name -> add -> show (DESIGN.md §8).
+"""Discrepancy workflow: find -> name -> add -> show (docs/design.md §8).
 
 Measured trajectories go in; out come the places where the base model (scene language v1,
 simulated by MuJoCo) disagrees with them, the missing physical effect(s) named from the

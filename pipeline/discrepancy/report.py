@@ -64,7 +64,7 @@ def report_dict(result: Result, files: Mapping[str, Any] | None = None) -> dict[
         })
     noise_floor = float(np.sqrt(np.mean([n.position ** 2 for n in result.noise])))
     return {
-        "workflow": "discrepancy (DESIGN.md §8)",
+        "workflow": "discrepancy (docs/design.md §8)",
         "inputs": sorted({c.source for c in result.clips}),
         "clips": clips,
         "noise_floor": noise_floor,
@@ -155,7 +155,7 @@ def report_markdown(rep: Mapping[str, Any]) -> str:
     residual segments and the method."""
     mm = 1e3
     lines = ["# Discrepancy report", "",
-             "Workflow of DESIGN.md §8: fit the base model (scene language v1 in MuJoCo) per clip, find where it "
+             "Workflow of docs/design.md §8: fit the base model (scene language v1 in MuJoCo) per clip, find where it "
              "disagrees with the measurements beyond their noise, name the missing effect(s) from the library, add "
              "them and show the gap shrink (held-out with >= 2 clips, forward in time with one).", "",
              f"Inputs: {', '.join(rep['inputs'])}", "",

@@ -269,7 +269,7 @@ class Result:
 
 def run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None = None,
                  options: SimOptions | None = None, gravity: float = 9.81, log=None) -> Result:
-    """Find, name and add missing effects (DESIGN §8).
+    """Find, name and add missing effects (docs/design.md §8).
 
     Runs with every BLAS on one thread (:func:`single_threaded_blas`) and, with >= 2 clips, a
     pool of ``cfg.workers`` processes (default: every available core) for the per-clip fits

@@ -1,4 +1,4 @@
-"""The vision-language model (DESIGN §5, issue 8), one module per seam.
+"""The vision-language model (docs/design.md §5, issue 8), one module per seam.
 
 * :mod:`~pipeline.model.config`: params section ``model`` (:class:`ModelConfig`);
 * :mod:`~pipeline.model.tokenizer`: the fixed word-level vocabulary (tags, scene tokens of
@@ -24,10 +24,9 @@ Example::
     scenes = [to_scene(t, codec)[0] for t in generate(model, tok, x, cfg, codec, k=4)]
 """
 
-from pathlib import Path
 
 from pipeline.model.batch import IGNORE_INDEX, collate, encode_target, prompt_ids
-from pipeline.model.config import SCRATCH, ModelConfig, ModelError
+from pipeline.model.config import SCRATCH, SHIPPED, SHIPPED_CHECKPOINT, ModelConfig, ModelError
 from pipeline.model.network import (CompositionHead, build_model, check_checkpoint, checkpoint_config, load_model,
                                     n_parameters)
 from pipeline.model.sampling import (CODEC_FILE, compiled_grammar, generate, generate_many, load_codec,
@@ -40,8 +39,5 @@ from pipeline.model.training import (CURVE_FILE, CURVE_PNG, batch_indices, estim
 from pipeline.model.vision import (IMAGE_MEAN, IMAGE_STD, fit_to_grid, frame_indices, model_input,
                                    n_video_tokens, read_inputs, video_patches)
 
-SHIPPED_CHECKPOINT = Path(__file__).resolve().parents[2] / "models" / "dynamics-tiny"
-"""The checkpoint committed with the project (see its README.md model card): the default of
-``dynamics infer`` and the ``model.init`` of the small profile's finetune stage."""
 
 __all__ = [n for n in dir() if not n.startswith("_")]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -16,6 +17,11 @@ class ModelError(UserError, ValueError):
 
 SCRATCH = "scratch"
 """``model.init`` value that trains from random weights."""
+SHIPPED = "shipped"
+"""``model.init`` value that starts from :data:`SHIPPED_CHECKPOINT`, wherever the package is installed."""
+SHIPPED_CHECKPOINT = Path(__file__).resolve().parents[1] / "checkpoints" / "dynamics-tiny"
+"""The checkpoint that ships inside the package (package data; see its README.md model card): the
+default of ``dynamics infer`` and the ``model.init: shipped`` of the small profile's finetune stage."""
 
 
 class ModelConfig(BaseModel):
@@ -56,20 +62,20 @@ class ModelConfig(BaseModel):
     temporal_patch_size: int = Field(2, ge=1)
     window_size: int = Field(32, ge=1)
     # training
-    init: str = SCRATCH
+    init: str = SHIPPED
     batch_size: int = Field(8, ge=1)
-    lr: float = Field(1e-3, gt=0)
-    min_lr: float = Field(1e-4, ge=0)
-    warmup_steps: int = Field(50, ge=0)
+    lr: float = Field(2e-4, gt=0)
+    min_lr: float = Field(2e-5, ge=0)
+    warmup_steps: int = Field(20, ge=0)
     weight_decay: float = Field(0.1, ge=0)
     grad_clip: float = Field(1.0, ge=0)
-    max_steps: int = Field(2000, ge=1)
-    max_minutes: float | None = Field(None, gt=0)
+    max_steps: int = Field(200, ge=1)
+    max_minutes: float | None = Field(30.0, gt=0)
     aux_weight: float = Field(0.5, ge=0)
     precision: Literal["bf16", "fp32"] = "bf16"
     threads: int = Field(2, ge=1)
     eval_interval: int = Field(100, ge=1)
-    eval_batches: int = Field(4, ge=1)
+    eval_batches: int = Field(2, ge=1)
     eval_samples: int = Field(16, ge=0)
     seed: int = 0
     # sampling
@@ -117,6 +123,14 @@ class ModelConfig(BaseModel):
         """
         defaults = {"seed": params["seed"]} if "seed" in params else None
         return typed_section(params, "model", cls, source, defaults=defaults, error=ModelError, unknown="unknown key")
+
+    @property
+    def init_dir(self) -> Path | None:
+        """The checkpoint folder ``init`` names: :data:`SHIPPED_CHECKPOINT` for ``shipped``, None for
+        ``scratch``, else the path as given (relative to the working folder)."""
+        if self.init == SCRATCH:
+            return None
+        return SHIPPED_CHECKPOINT if self.init == SHIPPED else Path(self.init)
 
     @property
     def head_dim(self) -> int:

@@ -20,7 +20,7 @@ from tqdm.auto import tqdm
 
 from pipeline.codec import SceneCodec, composition_of, split_completion
 from pipeline.model.batch import collate
-from pipeline.model.config import SCRATCH, ModelConfig, ModelError
+from pipeline.model.config import ModelConfig, ModelError
 from pipeline.model.network import (AUX_HEAD_FILE, CompositionHead, VisionTap, build_model, composition_targets,
                                     load_model, n_parameters)
 from pipeline.model.sampling import generate_many, load_codec, save_codec, to_scene
@@ -193,15 +193,15 @@ def train(
         step, seconds, curve = int(state["step"]), float(state["seconds"]), read_curve(out_dir)
         codec, think_words = load_codec(out_dir)
     else:
-        if cfg.init != SCRATCH:
-            model, tokenizer = load_model(cfg.init)
-            init_codec, init_words = load_codec(cfg.init)
+        if cfg.init_dir is not None:
+            model, tokenizer = load_model(cfg.init_dir)
+            init_codec, init_words = load_codec(cfg.init_dir)
             if codec is not None and init_codec.to_dict() != codec.to_dict():
                 raise ModelError(f"model.init: {cfg.init}: its codec.json differs from params (tokens/sample "
                                  f"ranges); use model.init: scratch or the same ranges")
             codec, think_words = init_codec, init_words
-            if (Path(cfg.init) / AUX_HEAD_FILE).exists():
-                head = torch.load(Path(cfg.init) / AUX_HEAD_FILE, map_location="cpu", weights_only=False)
+            if (cfg.init_dir / AUX_HEAD_FILE).exists():
+                head = torch.load(cfg.init_dir / AUX_HEAD_FILE, map_location="cpu", weights_only=False)
         else:
             if tokenizer is None:
                 raise ModelError("train: no tokenizer given (build one with build_tokenizer)")

@@ -1,7 +1,7 @@
 """What the vision tower sees: frame selection, flow/RGB input, Qwen2-VL patch layout.
 
 The video patches are laid out exactly as transformers' Qwen2-VL video processor does it
-(without torchvision, which it needs and which does not install here; DESIGN §10).
+(without torchvision, which it needs and which does not install here; docs/design.md §10).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Test-time refinement: re-simulate candidate scenes, score them against the video, refine.
 
-Paper (ΔYNAMICS, DESIGN.md preamble): Best@K sampling, then CMA-ES (popsize 128, 100
+Paper (ΔYNAMICS, docs/design.md preamble): Best@K sampling, then CMA-ES (popsize 128, 100
 iterations) on the fitness *IoU − EPE* with the object types fixed. Here:
 
 * :class:`SceneEvaluator` compiles the MJCF **once per scene structure** (same shapes in the
@@ -15,7 +15,7 @@ iterations) on the fitness *IoU − EPE* with the object types fixed. Here:
 * :func:`cmaes_refine`: CMA-ES (``cma`` library) over a normalised vector of the free fields
   (:class:`SearchConfig`), object types fixed.
 
-DESIGN §10 warns that mask fitness does not identify metric state (camera, depth and size
+docs/design.md §10 warns that mask fitness does not identify metric state (camera, depth and size
 trade off) nor mass and friction: those stay fixed by default, and reports keep
 reconstruction (IoU, EPE) and parameter recovery apart.
 
@@ -41,7 +41,7 @@ from pipeline.engine import structure_key
 from pipeline.search.evaluator import EvaluatorPool, SceneEvaluator, evaluate_scene
 from pipeline.search.fitness import _check_obs, _invalid_score, best_of_k, fitness
 from pipeline.search.observations import Observations, at_clip_timing, parse_sample, samples_by_scene
-from pipeline.search.parallel import ParallelEvaluator
+from pipeline.search.parallel_eval import ParallelEvaluator
 from pipeline.search.plot import plot_history
 from pipeline.search.space import SearchSpace, floor_height
 

@@ -41,7 +41,7 @@ def cmaes_refine(scene: Scene, obs_seg: np.ndarray, obs_flow: np.ndarray | None,
         scorer: scores the start and each generation instead of this process's evaluator:
             ``scorer(scenes, cfg, priors) -> [fitness dict, ...]`` in order, as
             :func:`fitness` of each scene's clip against this observation with ``prior``
-            (e.g. a :class:`pipeline.search.parallel.ParallelFitness` opened on ``obs_seg``,
+            (e.g. a :class:`pipeline.search.parallel_eval.ParallelFitness` opened on ``obs_seg``,
             ``obs_flow``: the generation over worker processes). With a scorer that equals
             :func:`fitness` the result is the same as without (``pool`` is then unused).
     Returns:

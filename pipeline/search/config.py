@@ -64,7 +64,7 @@ class SearchConfig(BaseModel):
         prior_weight: weight of the mean squared normalised distance to the starting scene
             (the model's prediction), a prior against drifting where masks do not constrain.
         free: field groups searched (see :data:`FREE_FIELDS`); mass, friction and damping are
-            not identified by masks (DESIGN §10) and stay fixed by default.
+            not identified by masks (docs/design.md §10) and stay fixed by default.
         ranges: the search box (:class:`SearchRanges`).
         penalize_extra: in the fitness, predicted objects that match no observed object count
             as IoU 0 (see :func:`fitness`).

@@ -23,12 +23,12 @@ def fitness(pred_seg: np.ndarray, pred_flow: np.ndarray | None, obs_seg: np.ndar
     background: rendered ground truth, or pseudo masks split into objects by
     ``pipeline.video.label_objects``); with ``cfg.penalize_extra`` it is averaged over
     ``max(n_true, n_pred)`` objects instead of the true ones, so a predicted object that
-    matches nothing costs as much as a missed one (the DESIGN §7 metric ignores extra objects,
+    matches nothing costs as much as a missed one (the docs/design.md §7 metric ignores extra objects,
     which would let Best@K prefer candidates that add objects). For a bool foreground-only
     ``obs_seg`` it is the foreground IoU (object identities unknown). EPE is in px at the
     rendered resolution over pixels where either clip is foreground
     (:func:`pipeline.metrics.flow_epe`). The returned ``initial_iou`` / ``full_iou`` are the
-    DESIGN §7 metrics, without the extra-object penalty.
+    docs/design.md §7 metrics, without the extra-object penalty.
 
     Args:
         pred_seg: ``(T, H, W)`` int8 re-simulated labels.

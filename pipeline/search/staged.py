@@ -26,7 +26,7 @@ from pipeline.search.cmaes import cmaes_refine
 from pipeline.search.config import SearchConfig, SearchRanges
 from pipeline.search.evaluator import EvaluatorPool
 from pipeline.search.fitness import best_of_k
-from pipeline.search.parallel import ParallelFitness
+from pipeline.search.parallel_eval import ParallelFitness
 
 STAGES: tuple[tuple[str, ...], ...] = (
     ("camera", "position", "yaw"),
@@ -77,7 +77,7 @@ def staged_refine(scene: Scene, obs_seg: np.ndarray, obs_flow: np.ndarray | None
         pool: evaluators to reuse (same render size).
         callback: called with each history entry.
         workers: processes scoring each CMA-ES generation; above 1, one
-            :class:`pipeline.search.parallel.ParallelFitness` (the observation sent to each
+            :class:`pipeline.search.parallel_eval.ParallelFitness` (the observation sent to each
             worker once) serves every stage and restart, with the same result as 1.
     Returns:
         ``(best_scene, history)``: history entries as :func:`cmaes_refine`'s, with ``stage``

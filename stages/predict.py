@@ -1,4 +1,4 @@
-"""DVC stage `infer`: K sampled scene descriptions per test video.
+"""DVC stage `predict`: K sampled scene descriptions per test video.
 
 Reads ``paths.model`` (checkpoint with its codec.json), ``paths.examples`` (which scenes are
 test / test_comp) and the model's input frames (``paths.flow`` and/or ``paths.video``, as
@@ -42,7 +42,7 @@ def main() -> None:
         frames = read_inputs(path_of(p, "flow"), path_of(p, "video"), cfg,
                              [r["scene_id"] for r in scenes]) if scenes else {}
         rows = []
-        for r in tqdm(scenes, desc=f"infer shard {i}", unit="scene"):
+        for r in tqdm(scenes, desc=f"predict shard {i}", unit="scene"):
             seed = cfg.seed + zlib.crc32(r["scene_id"].encode())  # per scene, independent of order
             for j, toks in enumerate(generate(model, tokenizer, frames[r["scene_id"]], cfg, codec, k=cfg.k, seed=seed)):
                 scene, error = to_scene(toks, codec)
