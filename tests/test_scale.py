@@ -158,12 +158,12 @@ def test_centre_inside_known_answers():
 def test_any_mujoco_fatal_error_is_one_line(tmp_path, capsys, monkeypatch):
     """Whatever MuJoCo aborts on (here: its arena memory, as the 47 boxes did in mj_forward)
     becomes one line naming the file, exit 2, never a traceback."""
-    from pipeline import traces
+    from pipeline import cli
 
     def boom(*args, **kwargs):
         raise mujoco.FatalError("mj_stackAlloc: out of memory, stack overflow\nmax = 123")
 
-    monkeypatch.setattr(traces, "write_simulation", boom)
+    monkeypatch.setattr(cli, "write_simulation", boom)   # what `dynamics simulate` calls
     rc, err, out = _simulate(tmp_path, capsys, (ROOT.parent / "shared" / "repro" / "scene_valid_seed0.yaml")
                              if (ROOT.parent / "shared" / "repro").exists() else COINCIDENT.format(
                                  a="sphere", b="sphere", sa=SIZES["sphere"], sb=SIZES["sphere"], x=1.1))
