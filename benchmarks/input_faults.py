@@ -5,7 +5,7 @@ Trajectories: for ``--seeds`` seeds x 7 hidden effects (none and the six of the 
 is (must be accepted: false alarms) and in 8 wrong-unit variants (must be refused in one line):
 positions in mm, cm, mm with x, y (and z) taken from each track's start; times in ms, us, ns;
 a 60 s pause in the middle of every track. Also reports the largest typical acceleration
-(:func:`pipeline.discrepancy.readers._typical_acceleration`) among the accepted tracks.
+(:func:`pipeline.discrepancy.readers.typical_acceleration`) among the accepted tracks.
 
 Videos: every file of ``../shared/repro/video`` and a synthetic MJPG avi, cut at 10 %, 20 %,
 ..., 90 % of their bytes, and with 10 % of the bytes overwritten by noise at the same places,
@@ -60,7 +60,7 @@ def wrong_units(cols: dict, kind: str) -> dict:
 
 def trajectories(seeds: int) -> None:
     from pipeline import discrepancy as D
-    from pipeline.discrepancy.readers import _typical_acceleration
+    from pipeline.discrepancy.readers import typical_acceleration
     from pipeline.mjcf import SimOptions
 
     opts = SimOptions(textured=False)
@@ -74,7 +74,7 @@ def trajectories(seeds: int) -> None:
             try:
                 for clip in D.clips_from_columns(cols, "hidden"):
                     for tr in clip.tracks:
-                        worst = max(worst, float(np.linalg.norm(_typical_acceleration(tr.t, tr.pos))))
+                        worst = max(worst, float(np.linalg.norm(typical_acceleration(tr.t, tr.pos))))
             except D.DiscrepancyInputError as exc:
                 false_alarms.append(f"seed {seed} {effect}: {exc}")
             for kind in VARIANTS:

@@ -20,13 +20,14 @@ import pytest
 
 from pipeline import discrepancy as D
 from pipeline import effects as fx
-from pipeline.discrepancy.benchmark import _bench_summary, _trial_job, interval_coverage
+from pipeline.discrepancy.benchmark import _bench_summary, _trial_job
 from pipeline.cli import main as dynamics_main
-from pipeline.discrepancy.clip_model import _clip_scene, simulate_clips
-from pipeline.discrepancy.profile import (_fmt_interval, _parabola_min, _profile_candidate, _profile_points,
-                                          _refit_from_data)
-from pipeline.discrepancy.readers import _typical_acceleration
-from pipeline.discrepancy.trajectories import _truncate
+from pipeline.discrepancy.clip_model import clip_scene, simulate_clips
+from pipeline.discrepancy.intervals import format_interval, interval_coverage
+from pipeline.discrepancy.profile import (_profile_points, parabola_min, profile_candidate,
+                                          refit_from_data)
+from pipeline.discrepancy.readers import typical_acceleration
+from pipeline.discrepancy.trajectories import truncate_clip
 from pipeline.mjcf import SimOptions, compile_model
 from pipeline.simulate import rollout, sample_qpos
 
@@ -163,7 +164,7 @@ def test_plausible_tracks_near_the_limits_pass(tmp_path):
     (tmp_path / "high.txt").write_text("t\ty\tx\n" + "\n".join(f"{k / 30}\t{20.0}\t{0.01 * k}" for k in range(8)))
     (clip,) = D.read_trajectories(tmp_path / "high.txt")
     # measured typical acceleration of the noisy 240 Hz fall: g to 1 m/s^2 (the check's margin is 2 g)
-    np.testing.assert_allclose(_typical_acceleration(np.array([r[2] for r in noisy]),
+    np.testing.assert_allclose(typical_acceleration(np.array([r[2] for r in noisy]),
                                                        np.array([r[3:] for r in noisy], float))[2], -9.81, atol=1.0)
 
 
@@ -206,7 +207,7 @@ def test_fast_rollout_equals_the_mujoco_bridge():
         nuis[:, 12] = 1e-6
         model = D.ClipModel(clip, tuple(effects), OPTS, threads=2)
         fast = model.simulate(nuis, effects)
-        scene = _clip_scene(clip, nuis, effects, model.qref)
+        scene = clip_scene(clip, nuis, effects, model.qref)
         slow = rollout(compile_model(scene, OPTS), 1, len(clip.times), 50, record_contacts=False)
         np.testing.assert_allclose(fast[..., :3], slow.qpos[..., :3], atol=1e-9)
 
@@ -370,7 +371,7 @@ def test_single_clip_forward_gap_foam_ball():
 
     Measured at the params timestep 1/600 s: drag named, density 1.097 [0.663, 1.294] (truth
     1.2), forward gap 15.21 -> 4.53 mm (noise 2.88 mm, 76.6 % of the part above it). Before
-    the damping scale of a spinless free flight was fixed (:func:`_nuisance_scales`) the base
+    the damping scale of a spinless free flight was fixed (:func:`nuisance_scales`) the base
     fit stalled at 20 mm RMSE and restitution (no contact here) was named. On the first
     0.3 s the base model's free linear damping and the drag are nearly collinear: fitted
     together, drag came out 0.36 (truth 1.2) and the forecast shrank 37 %; the forward fit
@@ -450,7 +451,7 @@ NESTED_REL, NESTED_ABS = 1e-6, 1e-6
 
 def test_adding_a_nested_effect_never_worsens_the_fit():
     """Nested models: for every candidate with ``nested = True`` the workflow's candidate fit
-    (:func:`_profile_candidate` -> :func:`_joint_fit`, best of the profile start and the base
+    (:func:`profile_candidate` -> :func:`_joint_fit`, best of the profile start and the base
     optimum with the effect at its null value, converged to ``ftol`` 1e-5) has
     ``chi2(base + effect) <= chi2(base) (1 + 1e-6) + 1e-6``, on 4 datasets (2 without an effect,
     2 with one).
@@ -474,7 +475,7 @@ def test_adding_a_nested_effect_never_worsens_the_fit():
             screen = ws.fit_each(idx, [D.initial_nuisance(c) for c in ws.clips], {})
             assert base.status > 0 and base.converged, base.optimizer()
             for name in nested:
-                joint, _, _ = _profile_candidate(ws, idx, base, name, screen)
+                joint, _, _ = profile_candidate(ws, idx, base, name, screen)
                 assert joint.rss <= base.rss * (1 + NESTED_REL) + NESTED_ABS, (seed, effect, name, joint.rss, base.rss)
                 assert joint.status >= 0 and name in joint.effects
 
@@ -506,7 +507,7 @@ def test_profile_interval_open_when_unidentifiable():
     assert lo is None or hi is None, (lo, hi, how)
     assert lo not in (0.0, 50.0) and hi not in (0.0, 50.0)
     assert "open" in how
-    assert "open)" in _fmt_interval([0.41, None]) and _fmt_interval([0.41, None]) == "[0.41, open)"
+    assert "open)" in format_interval([0.41, None]) and format_interval([0.41, None]) == "[0.41, open)"
 
 
 # ----------------------------------------------------------------------------- speed (issue 10, item 4)
@@ -562,7 +563,7 @@ def test_clips_rolled_out_together_equal_each_alone():
     clip in the batch (stepped on to the longest one's length and cut) included."""
     cols, _ = D.generate_hidden(11, D.HiddenConfig(n_clips=3, duration=0.6, fps=50), OPTS, effect="quadratic_drag")
     clips = D.clips_from_columns(cols, "hidden")
-    clips[1] = _truncate(clips[1], 0.3)   # a shorter clip in the same call
+    clips[1] = truncate_clip(clips[1], 0.3)   # a shorter clip in the same call
     eff = {"quadratic_drag": {"density": 2.0}}
     models = [D.ClipModel(c, tuple(eff), OPTS, threads=2) for c in clips]
     variants = []
@@ -755,7 +756,7 @@ def test_heldout_coefficient_from_per_clip_profiles_equals_the_other_clips_joint
         xs = sorted(per_clip)
         chi = np.array([per_clip[x] for x in xs])
         for c in idx:
-            from_profiles = _parabola_min(xs, np.delete(chi, c, axis=1).sum(1))
+            from_profiles = parabola_min(xs, np.delete(chi, c, axis=1).sum(1))
             rest = [k for k in idx if k != c]
             loo = ws.fit(rest, [final.nuisance[k] for k in rest], final.effects, converge=True)
             joint_value = loo.effects["quadratic_drag"]["density"]
@@ -848,14 +849,14 @@ def test_second_chance_decides_on_the_first_clips_as_on_all():
     bounds the gain with every clip refitted from the data (chi-square >= 0), and the same
     pass/fail decision against ``screen_gain``; effects it does not decide early report the
     full gain exactly."""
-    from pipeline.discrepancy.screen import _second_chance_point
+    from pipeline.discrepancy.screen import second_chance_point
     from pipeline.discrepancy.workflow import _second_chance
     ws, idx, base = _base_workspace(2001, "none")
     need = ws.cfg.screen_gain
     with D.single_threaded_blas():
         screen = ws.fit_each(idx, [D.initial_nuisance(c) for c in ws.clips], {})
         cands = D.screen_candidates(ws, idx, base, list(ws.cfg.candidates))
-        points = {e: _second_chance_point(e, v["best"]) for e, v in cands.items()}
+        points = {e: second_chance_point(e, v["best"]) for e, v in cands.items()}
         staged = _second_chance(ws, idx, screen, base, points, need)
         full = ws.fit_many([(idx, [D.initial_nuisance(c) for c in ws.clips], {e: p}) for e, p in points.items()])
     assert any(clips < len(idx) for _, clips in staged.values())        # some decided early
@@ -901,13 +902,13 @@ def test_parabola_vertex_with_a_coordinate_profiled_twice():
     import warnings
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        assert _parabola_min([0.0, 1.0, 1.0, 3.0], np.array([5.0, 1.0, 1.0, 4.0])) == 1.0
+        assert parabola_min([0.0, 1.0, 1.0, 3.0], np.array([5.0, 1.0, 1.0, 4.0])) == 1.0
         x = np.array([0.0, 1.0, 2.5, 4.0])
-        assert _parabola_min(list(x), 2.0 * (x - 1.7) ** 2 + 3.0) == pytest.approx(1.7)
+        assert parabola_min(list(x), 2.0 * (x - 1.7) ** 2 + 3.0) == pytest.approx(1.7)
 
 
 def test_profile_takes_its_point_at_the_joint_fit():
-    """With the screen's point (:func:`_profile_candidate`): the screen's grid points, the
+    """With the screen's point (:func:`profile_candidate`): the screen's grid points, the
     joint fit from the best of them, then every clip fitted from the data at the joint fit's
     density as a profile point (the fits naming the effect takes: cached, no new fit), and
     grid points outwards until the lowest point is bracketed. On 3 clips of hidden drag the
@@ -920,14 +921,14 @@ def test_profile_takes_its_point_at_the_joint_fit():
     with D.single_threaded_blas():
         screen = ws.fit_each(idx, [D.initial_nuisance(c) for c in ws.clips], {})
         best = D.screen_candidates(ws, idx, base, ["quadratic_drag"])["quadratic_drag"]["best"]
-        joint, _, prof = _profile_candidate(ws, idx, base, "quadratic_drag", screen, best)
+        joint, _, prof = profile_candidate(ws, idx, base, "quadratic_drag", screen, best)
         rho = joint.effects["quadratic_drag"]["density"]
         assert abs(rho - true_density) <= 0.05 * true_density, (rho, true_density)
         assert rho in prof.s, (rho, prof.s)
         low = prof.s[int(np.argmin(prof.total()))]
         assert min(prof.s) < low < max(prof.s), (low, prof.s)
         n_fits = len(ws._fits)
-        named = _refit_from_data(ws, idx, joint)
+        named = refit_from_data(ws, idx, joint)
         assert len(ws._fits) == n_fits   # the profile's fits at the joint fit, reused
         k = prof.s.index(rho)
         assert all(named.chi2[c] <= min(joint.chi2[c], prof.chi2[k][c]) for c in idx)
@@ -949,7 +950,7 @@ def test_selection_heldout_of_wind_from_the_newton_step():
         base = ws.fit_each(idx, [D.initial_nuisance(c) for c in ws.clips], {}, converge=True)
         screen = ws.fit_each(idx, [D.initial_nuisance(c) for c in ws.clips], {})
         best = D.screen_candidates(ws, idx, base, ["wind"])["wind"]["best"]
-        joint, ho, _ = _profile_candidate(ws, idx, base, "wind", screen, best)
+        joint, ho, _ = profile_candidate(ws, idx, base, "wind", screen, best)
     sigma = float(np.sqrt(np.mean([z.position ** 2 for z in ws.noise])))
     true = np.array([truth["parameters"]["wind_x"], truth["parameters"]["wind_y"]])
     assert joint.clip_info and np.linalg.norm(true) > 2.0

@@ -50,10 +50,10 @@ Modules, in import order (each imports only those above it): ``config`` (setting
 and their checks), ``noise``, ``clip_model`` (the base model in MuJoCo, residuals), ``fit``
 (least squares), ``find`` (motion phases, residual segments), ``workspace`` (compiled models,
 worker pool, held-out scores), ``screen`` (cheap candidate screens), ``profile`` (profiles,
-joint fits, held-out scores, profile-likelihood intervals), ``forward`` (the single-clip
-forward gap), ``workflow`` (forward selection, :class:`Result`), ``hidden`` (hidden-effect
-data), ``plots``, ``report``, ``benchmark`` and ``cli``. This package re-exports the public
-API below.
+joint fits, held-out scores), ``intervals`` (profile-likelihood intervals, their coverage),
+``forward`` (the single-clip forward gap), ``workflow`` (forward selection, :class:`Result`),
+``hidden`` (hidden-effect data), ``plots``, ``report``, ``benchmark`` and ``cli``. This
+package re-exports the public API below.
 """
 
 from pipeline.discrepancy.benchmark import benchmark_markdown, run_benchmark, run_trial
@@ -65,9 +65,10 @@ from pipeline.discrepancy.fit import (Fit, clip_information, fit_clips, free_mas
                                       single_threaded_blas)
 from pipeline.discrepancy.forward import forward_gap
 from pipeline.discrepancy.hidden import HIDDEN_KINDS, HiddenConfig, draw_effect, generate_hidden
+from pipeline.discrepancy.intervals import profile_intervals
 from pipeline.discrepancy.noise import Noise, estimate_noise
 from pipeline.discrepancy.plots import plot_residuals, plot_trajectories, record
-from pipeline.discrepancy.profile import Profile, profile_intervals
+from pipeline.discrepancy.profile import Profile
 from pipeline.discrepancy.readers import (clips_from_columns, clips_from_infer_dir, parse_objects, read_trajectories,
                                           read_trajectory_file)
 from pipeline.discrepancy.report import extended_scenes, report_dict, report_markdown, write_report

@@ -12,6 +12,7 @@ import numpy as np
 from pipeline import effects as fx
 from pipeline.discrepancy.config import DiscrepancyConfig
 from pipeline.discrepancy.hidden import HiddenConfig, generate_hidden
+from pipeline.discrepancy.intervals import interval_coverage
 from pipeline.discrepancy.readers import clips_from_columns
 from pipeline.discrepancy.report import table_lines
 from pipeline.discrepancy.workflow import run_workflow
@@ -131,34 +132,6 @@ def _bench_summary(rs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
             "excess_shrink_at_least_50pct": sum(r["excess_shrink"] >= 0.5 for r in rs) / n,
             "median_excess_shrink": float(np.median([r["excess_shrink"] for r in rs])),
             "gap_within_1p5_noise": sum(r["gap_after"] <= 1.5 * r["noise"] for r in rs) / n}
-
-
-def interval_coverage(rs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
-    """How often the reported intervals hold the simulated truth, over the trials ``rs`` whose
-    named set is exactly right: every fitted coefficient of the named effect that the truth
-    gives a value for counts once (a wind or a tilt twice), an open side holds everything on
-    its side.
-
-    Returns:
-        ``{"ci_coverage": {"profile": {"held", "coefficients", "fraction"},
-        "gauss_newton": {...}}}`` (``fraction`` ``None`` where nothing was counted). A
-        calibrated 95 % interval holds the truth in ~95 % of coefficients.
-    """
-    out = {}
-    for kind, column in (("profile", "named_ci"), ("gauss_newton", "named_ci_gauss_newton")):
-        held = total = 0
-        for r in rs:
-            if not (r.get("correct") and r.get("named")) or column not in r:
-                continue
-            truths = r.get("truth_parameters") or {}
-            for p, ci in ((r[column] or {}).get(r["truth"]) or {}).items():
-                if truths.get(p) is None or ci is None:
-                    continue
-                lo, hi = ci
-                total += 1
-                held += (lo is None or lo <= truths[p]) and (hi is None or truths[p] <= hi)
-        out[kind] = {"held": held, "coefficients": total, "fraction": held / total if total else None}
-    return {"ci_coverage": out}
 
 
 def _per_effect(rs: Sequence[Mapping[str, Any]], names: Sequence[str]) -> dict[str, dict[str, Any]]:

@@ -27,13 +27,41 @@ NUISANCE = ("px", "py", "pz", "vx", "vy", "vz", "rx", "ry", "rz", "wx", "wy", "w
 perturbation (rotation vector, rad, body frame, relative to the reference orientation),
 linear velocity (m/s, world), angular velocity (rad/s, world), ``material.damping``
 (freejoint damping, N s/m) and ``material.sliding_friction``."""
-_P, _V, _R, _W, _D, _F = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), 12, 13
+# Indices into one object's row of the ``(n, 14)`` parameter array (order of :data:`NUISANCE`).
+NUISANCE_POSITION = slice(0, 3)
+"""Initial position ``px, py, pz`` (m, world)."""
+NUISANCE_VELOCITY = slice(3, 6)
+"""Initial linear velocity ``vx, vy, vz`` (m/s, world)."""
+NUISANCE_ROTATION = slice(6, 9)
+"""Orientation perturbation ``rx, ry, rz`` (rotation vector, rad, body frame, relative to the
+reference orientation)."""
+NUISANCE_ANGULAR_VELOCITY = slice(9, 12)
+"""Initial angular velocity ``wx, wy, wz`` (rad/s, world)."""
+NUISANCE_DAMPING = 12
+"""``material.damping`` (freejoint damping, N s/m; a scalar column)."""
+NUISANCE_FRICTION = 13
+"""``material.sliding_friction`` (dimensionless Coulomb coefficient; a scalar column)."""
 
 
-def _clip_scene(clip: Clip, nuis: np.ndarray | None = None, effects: Mapping[str, Mapping[str, float]] | None = None,
-                qref: np.ndarray | None = None) -> Scene:
-    """Scene of a clip: its objects with the initial state and material of ``nuis (n, 14)``
-    (placeholders if ``None``) and the given effects."""
+def clip_scene(clip: Clip, nuis: np.ndarray | None = None, effects: Mapping[str, Mapping[str, float]] | None = None,
+               qref: np.ndarray | None = None) -> Scene:
+    """Scene of a clip: its objects with the initial state and material of ``nuis`` and the
+    given effects.
+
+    Args:
+        clip: the clip (objects, duration, frame rate).
+        nuis: ``(n, 14)`` float per-object parameters (:data:`NUISANCE`; SI units), or ``None``
+            for placeholders (objects stacked at rest above the floor).
+        effects: ``{effect: {parameter: value}}`` written to the scene's ``effects:`` block.
+        qref: ``(n, 4)`` reference orientations (w, x, y, z) that ``nuis``' rotation vectors
+            perturb; required where ``nuis`` is given.
+
+    Returns:
+        The validated :class:`Scene` (duration capped at 60 s, fps at 10000).
+
+    Raises:
+        pipeline.scene.SceneError: where the values do not make a valid scene.
+    """
     objs = []
     for i, tr in enumerate(clip.tracks):
         if nuis is None:
@@ -41,10 +69,10 @@ def _clip_scene(clip: Clip, nuis: np.ndarray | None = None, effects: Mapping[str
             q, v, w, damping, friction = (1.0, 0.0, 0.0, 0.0), [0.0] * 3, [0.0] * 3, 0.0, 0.5
         else:
             x = nuis[i]
-            pos = x[_P].tolist()
-            q = tuple(quat_mul(qref[i], rotvec_to_quat(x[_R])).tolist())
-            v, w = x[_V].tolist(), x[_W].tolist()
-            damping, friction = float(x[_D]), float(x[_F])
+            pos = x[NUISANCE_POSITION].tolist()
+            q = tuple(quat_mul(qref[i], rotvec_to_quat(x[NUISANCE_ROTATION])).tolist())
+            v, w = x[NUISANCE_VELOCITY].tolist(), x[NUISANCE_ANGULAR_VELOCITY].tolist()
+            damping, friction = float(x[NUISANCE_DAMPING]), float(x[NUISANCE_FRICTION])
         objs.append({**tr.spec.scene_dict(), "position": pos, "orientation": q,
                      "linear_velocity": v, "angular_velocity": w,
                      "material": {"sliding_friction": friction, "rolling_friction": 0.0, "damping": damping}})
@@ -85,7 +113,7 @@ class ClipModel:
                  threads: int = 1):
         self.clip = clip
         self.effects = tuple(effects)
-        scene = _clip_scene(clip).replace(gravity=gravity)
+        scene = clip_scene(clip).replace(gravity=gravity)
         self.model, self.base, self.geoms = engine.compile_for_fit(scene, self.effects, options)
         self.threads = max(1, int(threads))
         self.datas = [mujoco.MjData(self.model) for _ in range(self.threads)]
@@ -102,22 +130,23 @@ class ClipModel:
 
     def _configure(self, m: mujoco.MjModel, nuis: np.ndarray, effect_values: Mapping[str, Mapping[str, float]]) -> None:
         engine.configure_model(m, self.base, self.geoms, effect_values)
-        m.geom_friction[self.geoms, 0] = nuis[:, _F]
-        m.dof_damping[: 6 * self.n] = np.repeat(nuis[:, _D], 6)
+        m.geom_friction[self.geoms, 0] = nuis[:, NUISANCE_FRICTION]
+        m.dof_damping[: 6 * self.n] = np.repeat(nuis[:, NUISANCE_DAMPING], 6)
 
     def orientations(self, nuis: np.ndarray) -> np.ndarray:
         """``(..., n, 4)`` initial quaternions (w, x, y, z) of per-object parameters
-        ``nuis (..., n, 14)``: the reference orientation rotated by the perturbation ``x[_R]``
-        (one rotation call for any batch of variants)."""
-        return quat_mul(self.qref, rotvec_to_quat(nuis[..., _R]))
+        ``nuis (..., n, 14)``: the reference orientation rotated by the perturbation
+        ``x[NUISANCE_ROTATION]`` (one rotation call for any batch of variants)."""
+        return quat_mul(self.qref, rotvec_to_quat(nuis[..., NUISANCE_ROTATION]))
 
     def initial(self, nuis: np.ndarray, quats: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """MuJoCo ``qpos (7n,)``, ``qvel (6n,)`` of per-object parameters ``nuis (n, 14)``
         (angular velocity converted to the body frame by ``pipeline.mjcf.initial_state``);
         ``quats (n, 4)``: their :meth:`orientations` where already computed."""
         quats = self.orientations(nuis) if quats is None else quats
-        objs = [SimpleNamespace(position=x[_P], orientation=quats[i],
-                                linear_velocity=x[_V], angular_velocity=x[_W]) for i, x in enumerate(nuis)]
+        objs = [SimpleNamespace(position=x[NUISANCE_POSITION], orientation=quats[i],
+                                linear_velocity=x[NUISANCE_VELOCITY], angular_velocity=x[NUISANCE_ANGULAR_VELOCITY])
+                for i, x in enumerate(nuis)]
         return initial_state(SimpleNamespace(objects=objs))
 
     def prepare(self, nuis_list: Sequence[np.ndarray],

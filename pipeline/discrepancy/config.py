@@ -16,11 +16,14 @@ DISCREPANCY_DECIMALS = Decimals(position=4, orientation=4, velocity=3, damping=6
 """Decimals of the written extended scenes (finer than the model target: they are fits)."""
 
 
-class _Strict(BaseModel):
+class StrictModel(BaseModel):
+    """Base of the discrepancy settings models: unknown keys are refused (pydantic
+    ``ValidationError``) and instances are frozen (immutable, hashable)."""
+
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
-class DefaultObject(_Strict):
+class DefaultObject(StrictModel):
     """Object assumed when the input gives no size/mass (flagged in the report)."""
 
     radius: float = Field(0.02, gt=0, description="m, sphere/cylinder radius")
@@ -30,7 +33,7 @@ class DefaultObject(_Strict):
     mass: float = Field(0.05, gt=0, description="kg")
 
 
-class DiscrepancyConfig(_Strict):
+class DiscrepancyConfig(StrictModel):
     """Workflow settings (params section ``discrepancy``).
 
     Attributes:
@@ -70,7 +73,7 @@ class DiscrepancyConfig(_Strict):
         screen_gain: a candidate gets its full fits only when the linearised screen
             (:func:`screen_candidates`) predicts a chi-square gain of at least this much, or,
             failing that, the clips refitted from the data at one strength of it
-            (:func:`_second_chance_point`) gain that much (0: every candidate is fitted).
+            (:func:`second_chance_point`) gain that much (0: every candidate is fitted).
         race: fit the candidates that pass the screen in the order of their predicted gain
             and stop as soon as an eligible one fits every clip to the noise floor
             (``noise_floor_chi2``) while the screen predicts every untried one to gain less

@@ -12,7 +12,7 @@ from scipy import ndimage
 from scipy.stats import chi2
 
 from pipeline.discrepancy.config import DiscrepancyConfig
-from pipeline.discrepancy.noise import Noise, _local_quadratic
+from pipeline.discrepancy.noise import Noise, local_quadratic
 from pipeline.discrepancy.trajectories import Clip, Track
 from pipeline.rotation import quat_conj, quat_mul, quat_to_mat, quat_to_rotvec
 
@@ -22,7 +22,7 @@ PHASES = ("flight", "contact", "sliding", "rolling", "rest")
 
 def _velocities(tr: Track) -> np.ndarray:
     """``(T, 3)`` m/s velocity from local quadratic fits (ends: nearest window)."""
-    centres, _, slope = _local_quadratic(tr.t, tr.pos)
+    centres, _, slope = local_quadratic(tr.t, tr.pos)
     if not len(centres):
         return np.gradient(tr.pos, tr.t, axis=0)
     v = np.empty_like(tr.pos)

@@ -15,8 +15,9 @@ from threadpoolctl import threadpool_limits
 
 from pipeline import effects as fx
 from pipeline import geometry
-from pipeline.discrepancy.clip_model import (_D, _F, _P, _R, _V, _W, NUISANCE, ClipModel, Weights, clip_residuals,
-                                             clip_residuals_many, simulate_clips)
+from pipeline.discrepancy.clip_model import (NUISANCE, NUISANCE_ANGULAR_VELOCITY, NUISANCE_DAMPING, NUISANCE_FRICTION,
+                                             NUISANCE_POSITION, NUISANCE_ROTATION, NUISANCE_VELOCITY, ClipModel,
+                                             Weights, clip_residuals, clip_residuals_many, simulate_clips)
 from pipeline.discrepancy.config import DiscrepancyConfig
 from pipeline.discrepancy.trajectories import Clip, Track
 from pipeline.rotation import quat_conj, quat_mul, quat_to_mat, quat_to_rotvec
@@ -35,7 +36,7 @@ def single_threaded_blas() -> threadpool_limits:
     return threadpool_limits(limits=1, user_api="blas")
 
 
-def _nuisance_scales(clip: Clip, mask: np.ndarray) -> np.ndarray:
+def nuisance_scales(clip: Clip, mask: np.ndarray) -> np.ndarray:
     """``(n, 14)`` typical magnitudes of the per-object parameters (normalisation); ``mask``
     the clip's free parameters (:func:`free_mask`).
 
@@ -45,20 +46,34 @@ def _nuisance_scales(clip: Clip, mask: np.ndarray) -> np.ndarray:
     object's spin at 0 (free flight, orientation unmeasured) only ``b/m`` acts: scaling by
     ``I`` there (a 0.4 g, 15 mm ball: I/m = 9e-5 m^2) put the drag-like damping 1e6 scale
     units away, beyond the trust region's reach, and the base fit stalled at 20 mm RMSE on a
-    foam-ball drop."""
+    foam-ball drop.
+
+    Args:
+        clip: the clip (object shapes, sizes, masses).
+        mask: ``(n, 14)`` bool free parameters (:func:`free_mask`).
+
+    Returns:
+        ``(n, 14)`` float64 scales in each parameter's units (:data:`NUISANCE`): 0.01 m,
+        0.1 m/s, 0.1 rad, 1 rad/s, ``0.01 * rate`` N s/m and 0.1 (friction).
+    """
     out = []
     for i, tr in enumerate(clip.tracks):
         inertia = geometry.min_inertia(tr.spec.shape, tr.spec.size, tr.spec.mass)
-        rate = min(tr.spec.mass, inertia) if mask[i, _W].any() else tr.spec.mass
+        rate = min(tr.spec.mass, inertia) if mask[i, NUISANCE_ANGULAR_VELOCITY].any() else tr.spec.mass
         s = np.array([0.01] * 3 + [0.1] * 3 + [0.1] * 3 + [1.0] * 3 + [0.01 * rate, 0.1])
         out.append(s)
     return np.array(out)
 
 
-def _nuisance_bounds(clip: Clip) -> tuple[np.ndarray, np.ndarray]:
+def nuisance_bounds(clip: Clip) -> tuple[np.ndarray, np.ndarray]:
     """Bounds of the per-object parameters: only damping (>= 0) and friction ([0.01, 3]: a
     zero coefficient switches MuJoCo to condim 1) are bounded; far artificial bounds on the
-    others would distort scipy's reflective trust region (Coleman-Li scaling)."""
+    others would distort scipy's reflective trust region (Coleman-Li scaling).
+
+    Returns:
+        ``(lower, upper)``: two ``(n, 14)`` float64 arrays (``n`` objects of ``clip``;
+        ``±inf`` where unbounded), in the parameters' units (:data:`NUISANCE`).
+    """
     inf = math.inf
     lo = [[-inf] * 12 + [0.0, 0.01] for _ in clip.tracks]
     hi = [[inf] * 12 + [inf, 3.0] for _ in clip.tracks]
@@ -87,18 +102,18 @@ def free_mask(clip: Clip, effects: Sequence[str], cfg: DiscrepancyConfig) -> np.
     masks = []
     for tr in clip.tracks:
         m = np.ones(len(NUISANCE), bool)
-        m[_P] = tr.axes
-        m[_V] = tr.axes
+        m[NUISANCE_POSITION] = tr.axes
+        m[NUISANCE_VELOCITY] = tr.axes
         contact = _near_floor(tr, cfg.contact_tolerance) or len(clip.tracks) > 1
         if not contact:
-            m[_F] = False
+            m[NUISANCE_FRICTION] = False
         if cfg.hold_damping:
-            m[_D] = False
+            m[NUISANCE_DAMPING] = False
         if tr.quat is None:
             if not contact or tr.spec.shape == "sphere":
-                m[_R] = False
+                m[NUISANCE_ROTATION] = False
             if not contact:  # spin unobserved: held at 0 (so magnus_lift cannot act either)
-                m[_W] = False
+                m[NUISANCE_ANGULAR_VELOCITY] = False
         masks.append(m)
     return np.array(masks)
 
@@ -115,18 +130,18 @@ def initial_nuisance(clip: Clip) -> np.ndarray:
         tt = tr.t[:k] - tr.t[0]
         A = np.stack([np.ones(k), tt, tt * tt], 1)
         coef = np.linalg.lstsq(A, tr.pos[:k], rcond=None)[0]
-        x[_P] = np.where(tr.axes, coef[0], 0.0)
-        x[_V] = np.where(tr.axes, coef[1], 0.0)
+        x[NUISANCE_POSITION] = np.where(tr.axes, coef[0], 0.0)
+        x[NUISANCE_VELOCITY] = np.where(tr.axes, coef[1], 0.0)
         if tr.quat is not None:  # slope of the accumulated world-frame rotation increments
             inc = quat_to_rotvec(quat_mul(tr.quat[1:k], quat_conj(tr.quat[:k - 1])))
             rv = np.concatenate([np.zeros((1, 3)), np.cumsum(inc, 0)])
-            x[_W] = np.linalg.lstsq(tt[:, None], rv, rcond=None)[0][0]
+            x[NUISANCE_ANGULAR_VELOCITY] = np.linalg.lstsq(tt[:, None], rv, rcond=None)[0][0]
         if tr.axes[2]:  # starting on the floor: no vertical velocity, not below its support
             R = quat_to_mat(tr.quat[0]) if tr.quat is not None else np.eye(3)
             hc = float(tr.spec.support_height(R))
             if x[2] - hc < 0.005:
                 x[2], x[5] = max(x[2], hc), 0.0
-        x[_F] = 0.5
+        x[NUISANCE_FRICTION] = 0.5
         out.append(x)
     return np.array(out)
 
@@ -207,7 +222,10 @@ class Fit:
         return n * math.log(max(self.rss, 1e-300) / n) + self.k * math.log(n)
 
 
-def _theta_keys(effects: Sequence[str]) -> list[tuple[str, str]]:
+def coefficient_keys(effects: Sequence[str]) -> list[tuple[str, str]]:
+    """The fitted coefficients of ``effects`` (effect names): ``[(effect, parameter)]`` for every
+    parameter with ``ParamSpec.fit``, in registry order (the order of a fit's ``theta``);
+    names not in ``pipeline.effects.REGISTRY`` are ignored."""
     return [(e, p) for e in fx.REGISTRY if e in effects for p, s in fx.REGISTRY[e].parameters.items() if s.fit]
 
 
@@ -219,10 +237,20 @@ def _effect_values(start: Mapping[str, Mapping[str, float]], keys: Sequence[tupl
     return vals
 
 
-def _bounded_effect_values(start: Mapping[str, Mapping[str, float]], keys: Sequence[tuple[str, str]],
-                           theta: np.ndarray) -> dict[str, dict[str, float]]:
+def bounded_effect_values(start: Mapping[str, Mapping[str, float]], keys: Sequence[tuple[str, str]],
+                          theta: np.ndarray) -> dict[str, dict[str, float]]:
     """``start`` with the coefficients ``keys`` set to ``theta``, each clipped to its search
-    bounds (``ParamSpec.low``/``high``): e.g. a leave-one-out Newton step."""
+    bounds (``ParamSpec.low``/``high``): e.g. a leave-one-out Newton step.
+
+    Args:
+        start: ``{effect: {parameter: value}}`` (copied, not changed).
+        keys: ``(effect, parameter)`` per coefficient (:func:`coefficient_keys`); each effect
+            must be in ``start`` (``KeyError`` otherwise).
+        theta: ``(len(keys),)`` float coefficient values in the parameters' own units.
+
+    Returns:
+        A new ``{effect: {parameter: value}}`` with plain floats.
+    """
     specs = [fx.REGISTRY[e].parameters[p] for e, p in keys]
     return _effect_values(start, keys, np.clip(theta, [s.low for s in specs], [s.high for s in specs]))
 
@@ -240,7 +268,7 @@ def fit_clips(clips: Sequence[Clip], models: Sequence[ClipModel], weights: Seque
     rollout per free parameter of each clip plus one rollout of every clip per coefficient;
     all clips' rollouts of one evaluation (or one Jacobian) go to MuJoCo in one batched call
     (:func:`simulate_clips`, on the models' ``threads``).
-    Parameters are normalised by their scale (:func:`_nuisance_scales`, ``ParamSpec.scale``).
+    Parameters are normalised by their scale (:func:`nuisance_scales`, ``ParamSpec.scale``).
 
     Args:
         clips, models, weights: per clip, aligned.
@@ -260,13 +288,15 @@ def fit_clips(clips: Sequence[Clip], models: Sequence[ClipModel], weights: Seque
         :class:`Fit`.
     """
     effects = list(start_effects)
-    keys = [k for k in _theta_keys(effects) if k not in set(fixed)] if fit_effects else []
+    keys = [k for k in coefficient_keys(effects) if k not in set(fixed)] if fit_effects else []
     masks = [free_mask(c, effects, cfg) for c in clips]
-    scales = [_nuisance_scales(c, m) for c, m in zip(clips, masks)]
-    bounds = [_nuisance_bounds(c) for c in clips]
+    scales = [nuisance_scales(c, m) for c, m in zip(clips, masks)]
+    bounds = [nuisance_bounds(c) for c in clips]
     starts = [np.clip(s.copy(), b[0], b[1]) for s, b in zip(start_nuisance, bounds)]
     for s0, sc, m in zip(starts, scales, masks):  # off the damping bound: trf stalls on an active bound
-        s0[:, _D] = np.where(m[:, _D], np.maximum(s0[:, _D], 1e-3 * sc[:, _D]), s0[:, _D])
+        s0[:, NUISANCE_DAMPING] = np.where(m[:, NUISANCE_DAMPING],
+                                           np.maximum(s0[:, NUISANCE_DAMPING], 1e-3 * sc[:, NUISANCE_DAMPING]),
+                                           s0[:, NUISANCE_DAMPING])
     n_theta = len(keys)
     th_spec = [fx.REGISTRY[e].parameters[p] for e, p in keys]
     th_scale = np.array([s.scale for s in th_spec])

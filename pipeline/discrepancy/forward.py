@@ -8,10 +8,10 @@ from typing import Any, Sequence
 import numpy as np
 
 from pipeline import effects as fx
-from pipeline.discrepancy.clip_model import _D
+from pipeline.discrepancy.clip_model import NUISANCE_DAMPING
 from pipeline.discrepancy.fit import initial_nuisance
-from pipeline.discrepancy.profile import _profile_candidate, _refit_from_data
-from pipeline.discrepancy.trajectories import Clip, _truncate
+from pipeline.discrepancy.profile import profile_candidate, refit_from_data
+from pipeline.discrepancy.trajectories import Clip, truncate_clip
 from pipeline.discrepancy.workspace import Workspace
 
 
@@ -31,11 +31,11 @@ def _late_sq(clip: Clip, qpos: np.ndarray, t_split: float) -> tuple[float, int]:
 def forward_gap(ws: "Workspace", c: int, effects: Sequence[str], log=None) -> dict[str, Any] | None:
     """Forward gap of clip ``c``: fit on its first part, forecast the rest.
 
-    The clip is cut at ``cfg.forward_split`` of its duration (:func:`_truncate`). On the first
+    The clip is cut at ``cfg.forward_split`` of its duration (:func:`truncate_clip`). On the first
     part the base model is fitted (:meth:`Workspace.fit_each`, per-clip continuation from the
     data), then each of ``effects`` is added in the order named, with its coefficients
-    fitted on the first part alone (:func:`_profile_candidate` from the effect's grid, then
-    :func:`_refit_from_data`), so nothing of the later part enters. The prediction simulates
+    fitted on the first part alone (:func:`profile_candidate` from the effect's grid, then
+    :func:`refit_from_data`), so nothing of the later part enters. The prediction simulates
     the *whole* clip from the fitted initial state with the fitted parameters (one
     :class:`ClipModel` rollout of the full clip); the samples after the split are a true
     forecast (the same as simulating from the model's own state at the split) and only they
@@ -57,7 +57,7 @@ def forward_gap(ws: "Workspace", c: int, effects: Sequence[str], log=None) -> di
     clip = ws.clips[c]
     duration = float(clip.times[-1])
     t_split = ws.cfg.forward_split * duration
-    first = _truncate(clip, t_split)
+    first = truncate_clip(clip, t_split)
     if first is None or not np.any(clip.times > t_split + 1e-9):
         return None
     part = Workspace([first], ws.cfg, ws.options, ws.gravity)
@@ -67,8 +67,8 @@ def forward_gap(ws: "Workspace", c: int, effects: Sequence[str], log=None) -> di
     held: Workspace | None = None   # the same first part with every damping held at 0
     variants: list[dict[str, Any]] = []
     for e in effects:
-        joint, _, _ = _profile_candidate(part, [0], current, e)
-        cand = _refit_from_data(part, [0], joint)
+        joint, _, _ = profile_candidate(part, [0], current, e)
+        cand = refit_from_data(part, [0], joint)
         if fx.REGISTRY[e].replaces_damping and not ws.cfg.hold_damping:
             # The effect instead of the base model's linear damping: on a short first part the
             # two are nearly collinear (quadratic vs linear in speed), so fitted together the
@@ -78,10 +78,10 @@ def forward_gap(ws: "Workspace", c: int, effects: Sequence[str], log=None) -> di
                 held = Workspace([first], ws.cfg.model_copy(update={"hold_damping": True}), ws.options, ws.gravity)
                 held.noise, held.weights = part.noise, part.weights
             start = current.nuisance[0].copy()
-            start[:, _D] = 0.0
+            start[:, NUISANCE_DAMPING] = 0.0
             cur_held = held.fit([0], [start], current.effects, converge=True)
-            j2, _, _ = _profile_candidate(held, [0], cur_held, e)
-            alt = _refit_from_data(held, [0], j2)
+            j2, _, _ = profile_candidate(held, [0], cur_held, e)
+            alt = refit_from_data(held, [0], j2)
             use = alt.bic < cand.bic
             variants.append({"effect": e, "damping": "held at 0" if use else "fitted",
                              "bic_fitted": round(float(cand.bic), 3), "bic_held": round(float(alt.bic), 3)})

@@ -11,7 +11,7 @@ import numpy as np
 from pydantic import Field
 
 from pipeline import effects as fx
-from pipeline.discrepancy.config import DISCREPANCY_DECIMALS, _Strict
+from pipeline.discrepancy.config import DISCREPANCY_DECIMALS, StrictModel
 from pipeline.discrepancy.trajectories import QUAT_COLUMNS, SPEC_COLUMNS, TABLE_COLUMNS
 from pipeline.mjcf import SimOptions, compile_model
 from pipeline.rotation import quat_mul, rotvec_to_quat
@@ -25,7 +25,7 @@ and rolls; a heavier sphere pushed along the floor, sliding and spinning about t
 a sphere rolling with some spin about the vertical."""
 
 
-class HiddenConfig(_Strict):
+class HiddenConfig(StrictModel):
     """Hidden-effect data (params section ``measure_hidden``).
 
     Attributes:

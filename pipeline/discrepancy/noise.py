@@ -11,7 +11,7 @@ from pipeline.discrepancy.trajectories import Clip
 from pipeline.rotation import quat_conj, quat_mul, quat_to_rotvec
 
 
-def _local_quadratic(t: np.ndarray, y: np.ndarray, half: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def local_quadratic(t: np.ndarray, y: np.ndarray, half: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Centre-sample residuals of quadratic fits over sliding windows of ``2 half + 1`` samples.
 
     Args:
@@ -77,7 +77,7 @@ def estimate_noise(clip: Clip, floor_position: float = 1e-5, floor_angle: float 
     """
     pos_res, ang_res = [], []
     for tr in clip.tracks:
-        _, res, _ = _local_quadratic(tr.t, tr.pos[:, tr.axes])
+        _, res, _ = local_quadratic(tr.t, tr.pos[:, tr.axes])
         pos_res.append(res.ravel())
         if tr.quat is not None and len(tr.t) >= 3:
             inc = quat_to_rotvec(quat_mul(quat_conj(tr.quat[:-1]), tr.quat[1:]))

@@ -14,7 +14,9 @@ from pipeline.atomic import write_bytes
 from pipeline.viz import record_clip
 
 
-def _safe_name(name: str) -> str:
+def safe_file_name(name: str) -> str:
+    """``name`` usable as a file name or recording path part: every character but letters,
+    digits and ``-_.`` replaced by ``_`` (``"clip"`` for an empty name)."""
     return "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in name) or "clip"
 
 
@@ -111,12 +113,13 @@ def record(result: Result, path: str | Path) -> Path:
                 pad = T - len(p)
                 pp = np.concatenate([p, np.repeat(p[-1:], pad, 0)]) + offset
                 qq = np.concatenate([q, np.repeat(q[-1:], pad, 0)])
-                objs.append({"name": f"{_safe_name(clip.name)}/{tr.object}/{kind}", "shape": tr.spec.shape,
+                objs.append({"name": f"{safe_file_name(clip.name)}/{tr.object}/{kind}", "shape": tr.spec.shape,
                              "size": tr.spec.size})
                 pos.append(pp)
                 quat.append(qq)
             for kind, q in (("base", result.base_qpos[c]), ("extended", result.final_qpos[c])):
                 e = np.linalg.norm((q[idx, i, :3] - tr.pos)[:, tr.axes], axis=1)
-                scalars[f"{_safe_name(clip.name)}/{tr.object}/{kind}"] = np.concatenate([e, np.full(T - len(e), np.nan)])
+                scalars[f"{safe_file_name(clip.name)}/{tr.object}/{kind}"] = np.concatenate(
+                    [e, np.full(T - len(e), np.nan)])
     return record_clip(path, positions=np.stack(pos, 1), quaternions=np.stack(quat, 1), objects=objs,
                        scalars=scalars, fps=float(result.clips[0].fps), app_id="dynamics_discrepancy")

@@ -1,19 +1,18 @@
 """Name: a candidate effect's profile over its strength (every clip refitted from the data at
-each point), its joint fit, its leave-one-clip-out scores, and the profile-likelihood
-confidence intervals of the named effects' coefficients."""
+each point), its joint fit and its leave-one-clip-out scores (:func:`profile_candidate`).
+The confidence intervals of the named effects' coefficients are in
+:mod:`pipeline.discrepancy.intervals`."""
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
-from scipy.stats import chi2 as chi2_dist
 
 from pipeline import effects as fx
 from pipeline.discrepancy.clip_model import clip_residuals
-from pipeline.discrepancy.fit import Fit, _bounded_effect_values, _theta_keys, initial_nuisance, newton_leave_one_out
+from pipeline.discrepancy.fit import Fit, bounded_effect_values, coefficient_keys, initial_nuisance, newton_leave_one_out
 from pipeline.discrepancy.screen import screen_candidates
 from pipeline.discrepancy.workspace import HeldOut, Workspace
 
@@ -33,7 +32,7 @@ class Profile:
 
     at_joint: Fit | None = None
     """Several coefficients: every clip fitted from the data at the joint fit's coefficients
-    (off the profile's axis; :func:`_profile_candidate`), else ``None``."""
+    (off the profile's axis; :func:`profile_candidate`), else ``None``."""
     null_s: float = 0.0
     """The null point's coordinate (the effect at its null value, :func:`_profile_axis`)."""
     has_null: bool = True
@@ -82,9 +81,21 @@ def _fit_rows(prof: "Profile", p: int) -> Fit:
     return Fit({}, list(prof.nuis[p]), list(prof.chi2[p]), list(prof.sq[p]), [0] * n, [0] * n, 0)
 
 
-def _parabola_min(s: Sequence[float], y: np.ndarray) -> float:
+def parabola_min(s: Sequence[float], y: np.ndarray) -> float:
     """Coordinate of the minimum of ``y(s)``: the vertex of the parabola through the best
-    point and its neighbours (sorted by ``s``), or the best point at an edge."""
+    point and its neighbours (sorted by ``s``), or the best point at an edge.
+
+    Args:
+        s: ``(P,)`` coordinates (any order; a coordinate may repeat).
+        y: ``(P,)`` values at ``s`` (e.g. summed chi-square).
+
+    Returns:
+        The coordinate, within the best point's neighbours (the best point itself where the
+        parabola does not open upwards).
+
+    Raises:
+        ValueError: ``s`` empty.
+    """
     order = np.argsort(s)
     ss, yy = np.asarray(s)[order], np.asarray(y)[order]
     b = int(np.argmin(yy))
@@ -113,10 +124,18 @@ def _vanishes(ws: "Workspace", c: int, current: Fit, name: str, params: Mapping[
     return bool(np.allclose(a, b, rtol=0, atol=1e-9))
 
 
-def _refit_from_data(ws: "Workspace", idx: Sequence[int], fit: Fit) -> Fit:
+def refit_from_data(ws: "Workspace", idx: Sequence[int], fit: Fit) -> Fit:
     """``fit`` with each clip's parameters replaced by a per-clip continuation fit from the data
     (effects held) where that is better, so that a model and its extensions are compared at
-    equally good optima (otherwise re-fitting alone can pass for an effect)."""
+    equally good optima (otherwise re-fitting alone can pass for an effect).
+
+    Args:
+        ws: the workspace of the clips. idx: the clips of ``fit``, in its order.
+        fit: the fit (effects held at its values).
+
+    Returns:
+        A new :class:`Fit` (``fit`` is not changed); per clip the lower chi-square of the two.
+    """
     again = ws.fit_each(idx, [initial_nuisance(ws.clips[c]) for c in idx], fit.effects)
     out = Fit({k: dict(v) for k, v in fit.effects.items()}, list(fit.nuisance), list(fit.chi2), list(fit.sq_pos),
               list(fit.n_res), list(fit.n_pos), fit.k, list(fit.theta_keys), dict(fit.ci), fit.nfev)
@@ -182,14 +201,14 @@ def _newton_eligible(idx: Sequence[int], name: str, others: Mapping[str, Any]) -
     """Whether the held-out coefficients of candidate ``name`` come from one Newton step
     (:func:`_newton_heldout`): several clips, several fitted coefficients and no other fitted
     effect (the joint fit then keeps its per-clip information, :func:`_joint_fit`)."""
-    return len(idx) > 1 and len(_theta_keys([name])) > 1 and not _theta_keys(list(others))
+    return len(idx) > 1 and len(coefficient_keys([name])) > 1 and not coefficient_keys(list(others))
 
 
 def _profile_points(ws: "Workspace", idx: Sequence[int], current: Fit, name: str, baseline: Fit,
                     direction: Mapping[str, float] | None = None, lazy_null: bool = False,
                     seeds_only: bool = False, bracket_first: bool = False
                     ) -> tuple[Profile, Callable[[float], dict], bool]:
-    """The profile of effect ``name`` over its strength (:func:`_profile_candidate`, step 1):
+    """The profile of effect ``name`` over its strength (:func:`profile_candidate`, step 1):
     every clip fitted from the data at each point of :func:`_profile_axis`.
 
     The first point is the null point (``baseline``, the current model fitted like the
@@ -203,7 +222,7 @@ def _profile_points(ws: "Workspace", idx: Sequence[int], current: Fit, name: str
     want: 2 points, not 4; on the 8-clip wind set of ``benchmarks/discrepancy_speed.py`` 3,
     not 4), and no more where the screen is off (its linearisation underestimates strong
     drag: 3 kg/m^3 for a true 6.95, then 20 beside 8). Last, the vertex of the parabola
-    through the lowest point and its neighbours (:func:`_parabola_min`) where it is new.
+    through the lowest point and its neighbours (:func:`parabola_min`) where it is new.
 
     Where the effect does not vanish at its null point (wind at 0 m/s still brings air
     drag) that point is fitted in the same pool map as the screen's points (the same fits as
@@ -214,7 +233,7 @@ def _profile_points(ws: "Workspace", idx: Sequence[int], current: Fit, name: str
     ``benchmarks/discrepancy_speed.py`` (5.6 s). ``profile.has_null`` says whether it was
     profiled (it is then the first point); :func:`_add_null` profiles it later. With
     ``seeds_only`` (and a screen) only the screen's point and the next one up (the last two
-    at the top of the axis): :func:`_profile_candidate` adds its point at the joint fit and
+    at the top of the axis): :func:`profile_candidate` adds its point at the joint fit and
     brackets after the joint fit; with ``bracket_first`` too (several coefficients, whose
     point at the joint fit is off the axis) the screen's point and both neighbours, then the
     bracket search, and no vertex (hidden wind trial 1031: from the screen's 5 m/s and 8
@@ -278,17 +297,17 @@ def _profile_points(ws: "Workspace", idx: Sequence[int], current: Fit, name: str
         if seeds_only and not bracket_first:
             # the vertex only where the profiled points already bracket the lowest one: a
             # joint-fit start nearer the optimum (a joint fit that still stalls is run again
-            # from the profile after the bracket search, :func:`_profile_candidate`)
+            # from the profile after the bracket search, :func:`profile_candidate`)
             order = np.argsort(prof.s)
             if 0 < int(np.argmin(prof.total()[order])) < len(order) - 1:
-                star = _parabola_min(prof.s, prof.total())
+                star = parabola_min(prof.s, prof.total())
                 if all(abs(star - v) > 1e-9 for v in prof.s):
                     evaluate(star)
             return prof, to_params, at_current
         _bracket(prof, s_pts, to_params, fits_at)
         if seeds_only:   # bracketed, no vertex: the joint fit follows
             return prof, to_params, at_current
-    star = _parabola_min(prof.s, prof.total())
+    star = parabola_min(prof.s, prof.total())
     if all(abs(star - v) > 1e-9 for v in prof.s):
         evaluate(star)
     return prof, to_params, at_current
@@ -327,9 +346,9 @@ def _add_null(ws: "Workspace", idx: Sequence[int], prof: Profile, to_params: Cal
         prof.has_null = True
 
 
-def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: str,
-                       baseline: Fit | None = None, direction: Mapping[str, float] | None = None
-                       ) -> tuple[Fit, HeldOut, Profile]:
+def profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: str,
+                      baseline: Fit | None = None, direction: Mapping[str, float] | None = None
+                      ) -> tuple[Fit, HeldOut, Profile]:
     """Fit the current model plus effect ``name`` and score it out of sample.
 
     1. Profile: at each point of :func:`_profile_axis` (the first is where the effect
@@ -371,7 +390,7 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
     theta = np.array([joint.effects[name][k] for k in keys])
     if seeded:
         # Every clip fitted from the data at the joint fit's coefficients (the fits that
-        # :func:`_refit_from_data` takes, cached: naming the effect reuses them) instead of
+        # :func:`refit_from_data` takes, cached: naming the effect reuses them) instead of
         # the parabola's vertex of the profile: a profile point at the optimum, where the
         # vertex was a prediction of it. One coefficient: a point on the axis, then the grid
         # outwards until the lowest point is bracketed (:func:`_bracket`); on the 8-clip drag
@@ -399,7 +418,7 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
                 # (Not where the lowest point is the one at the joint fit's own value: clips
                 # fitted one by one from the data often end lower than a joint fit of many,
                 # 56 chi2 on the 8-clip drag set, at the same coefficient.)
-                star = _parabola_min(prof.s, total)
+                star = parabola_min(prof.s, total)
                 if all(abs(star - v) > 1e-9 for v in prof.s):
                     prof.add(star, to_params(star), fits_at([star])[0])
                 b = int(np.argmin(prof.total()))
@@ -451,7 +470,7 @@ def _profile_candidate(ws: "Workspace", idx: Sequence[int], current: Fit, name: 
     refit: list[tuple[int, int, dict]] = []
     for c in range(n):
         others_total = prof.total(without=c)
-        v = _parabola_min(prof.s, others_total)
+        v = parabola_min(prof.s, others_total)
         if n > 1:  # where the other clips do not call for another value: the prior, or none
             tol = others_total.min() + CHI2_1_95 * s2
             if prior is not None and others_total[prior] <= tol:
@@ -484,7 +503,7 @@ def _newton_heldout(ws: "Workspace", idx: Sequence[int], joint: Fit, name: str, 
     Gauss-Newton step with their information (:func:`newton_leave_one_out`, clipped to the
     search bounds), or the effect's null value where the other clips' quadratic profile
     rises by at most the 95 % chi-square(1) quantile times ``s2`` from their minimum to the
-    null (they do not call for the effect; the profile rule of :func:`_profile_candidate`);
+    null (they do not call for the effect; the profile rule of :func:`profile_candidate`);
     then clip ``c`` refitted there from its joint-fit parameters (screening budget
     ``cfg.max_nfev_warm``), which only its own parameters see. The same step gives the shown
     gap's held-out coefficients (:func:`_heldout_from_information` in the workflow)."""
@@ -499,7 +518,7 @@ def _newton_heldout(ws: "Workspace", idx: Sequence[int], joint: Fit, name: str, 
         if float(d @ info["H"][np.arange(n) != c].sum(0) @ d) <= CHI2_1_95 * s2:
             thetas.append({**{k: dict(v) for k, v in joint.effects.items()}, name: dict(null)})
         else:
-            thetas.append(_bounded_effect_values(joint.effects, keys, th))
+            thetas.append(bounded_effect_values(joint.effects, keys, th))
     parts = ws.refit_each(list(idx), list(joint.nuisance), thetas, max_nfev=ws.cfg.max_nfev_warm)
     return HeldOut([f.chi2[0] for f in parts], [f.sq_pos[0] for f in parts], list(joint.n_res),
                    list(joint.n_pos), thetas)
@@ -541,7 +560,7 @@ def _joint_fit(ws: "Workspace", idx: Sequence[int], current: Fit, name: str,
     for f, start in zip(fits, ("profile", "base optimum")):
         f.start = start
     if null is not None:
-        n_theta = len(_theta_keys([name]))
+        n_theta = len(coefficient_keys([name]))
         if vanishes:
             chi2, sq = list(current.chi2), list(current.sq_pos)
         else:   # the same point scored in the extended model (one rollout per clip)
@@ -550,315 +569,10 @@ def _joint_fit(ws: "Workspace", idx: Sequence[int], current: Fit, name: str,
             chi2, sq = [float(r @ r) for r, _ in scored], [float(d @ d) for _, d in scored]
         fits.append(Fit({k: dict(v) for k, v in eff.items()}, list(current.nuisance), chi2, sq,
                         list(current.n_res), list(current.n_pos), current.k + n_theta,
-                        _theta_keys(list(eff)), nfev=0 if vanishes else len(idx), status=current.status,
+                        coefficient_keys(list(eff)), nfev=0 if vanishes else len(idx), status=current.status,
                         iterations=0, converged=current.converged,
                         start="base optimum (effect at its null value, not moved)"))
     best = min(fits, key=lambda g: g.rss)
     best.nfev = sum(g.nfev for g in fits)
     best.iterations = sum(g.iterations for g in fits)
     return best
-
-
-PROFILE_ACCEPT_GN = 0.25
-"""The predicted end of an interval (the parabola through the profile's centre points, else
-the Gauss-Newton end) is accepted when the profile's rise there is within this fraction of
-the threshold (the profile is quadratic enough)."""
-PROFILE_PROBE = 2.0
-"""Several coefficients (joint-fit profile points): the first point on each side lies this
-many Gauss-Newton half-widths from the centre, where a quadratic profile has risen by this
-squared times the threshold (4x), beyond the joint refits' scatter."""
-PROFILE_GROW = 3.0
-"""Outward step factor when the profile has not yet risen to the threshold."""
-PROFILE_BISECT = 3
-"""Most interpolation steps (Illinois regula falsi on the square root of the rise) to locate
-a crossing (stops earlier when the rise is within :data:`PROFILE_TOL` of the threshold). Three:
-the refits' own scatter sets the precision (on 8 clips of drag data, points 0.001 kg/m^3
-apart differ by up to ~20 in chi-square, several times the threshold), not more steps."""
-PROFILE_TOL = 0.1
-"""A crossing is located when the profile's rise is within this fraction of the threshold
-(10 % of the threshold in chi-square moves a quadratic profile's end by about 5 % of the
-half-width)."""
-
-
-def profile_intervals(ws: "Workspace", idx: Sequence[int], fit: Fit, log=None,
-                      clip_profile: dict[float, list[float]] | None = None
-                      ) -> tuple[dict[str, dict[str, list[float | None]]], dict[str, dict[str, str]], Fit | None]:
-    """Profile-likelihood intervals of the fitted coefficients of ``fit`` (a converged joint fit
-    with Gauss-Newton intervals ``fit.ci_gn``).
-
-    The threshold is ``Δχ² = q s²``: ``q`` the chi-square(1) quantile at ``cfg.ci_level``
-    (3.84 for 95 %), ``s² = χ²/dof`` of the fit (the residual variance factor; 1 when the
-    noise model is right). A profile point fixes the coefficient, refits every other parameter
-    (all clips' parameters and the other coefficients) to the tolerance from the fit's
-    optimum, and its rise is ``χ²(point) − χ²(minimum)`` (with one coefficient the clips
-    separate and are refitted one by one: small, well-conditioned fits). The minimum is the
-    profile's own: the joint fit's value ``v`` and ``v ± h`` (``h`` the Gauss-Newton
-    half-width) are profiled, and the vertex of the parabola through them too (at most ``h``
-    beyond them); the lowest is the centre and its χ² the reference. (A joint fit of many clips stalls short of its
-    optimum by a few χ² units, comparable with the threshold; measured with the joint fit as
-    the reference, a 3-clip drag interval came out [7.505, 7.814] around 7.785 while the
-    profile at 7.708 was already 4.4 below it.) With several coefficients (every point a joint
-    fit) the centre is ``v`` and the reference the joint fit's own χ² (a refit there with the
-    coefficient held gained 0.04 χ² on the 8-clip wind set of
-    ``benchmarks/discrepancy_speed.py``; a stalled joint fit only widens the ends), unless a
-    profile point comes out lower; each side's first point (step 1) of every coefficient in
-    one pool map. Each side of each coefficient, from the centre:
-
-    1. the predicted end is checked with one profile point: where the parabola through the
-       centre and its two neighbouring profile points (:func:`_curvature`) rises by the
-       threshold (``quadratic``), else the Gauss-Newton end (``gauss-newton``); a rise within
-       :data:`PROFILE_ACCEPT_GN` of the threshold accepts it. (The Gauss-Newton half-width
-       comes from the joint fit's Jacobian; with the clips refitted one by one the profile
-       can be several times narrower, and then every end took several regula-falsi points.)
-       With several coefficients the point lies :data:`PROFILE_PROBE` Gauss-Newton
-       half-widths out instead, and where the profile has risen past the threshold there the
-       end is where the parabola with its vertex at the centre through it crosses
-       (``quadratic (profile at 2 Gauss-Newton half-widths)``): the joint refits scatter by
-       a few chi-square units, as much as the threshold, so points at the threshold cannot
-       locate it (on the 8-clip wind set of ``benchmarks/discrepancy_speed.py`` the search
-       of step 2 took 20 joint fits, 119 s of the workflow's 278, and made wind_x's interval
-       a sixth of the Gauss-Newton width).
-    2. else the crossing is bracketed (outwards by :data:`PROFILE_GROW` up to the search
-       bound) and located by Illinois regula falsi on the square root of the rise (exact for a
-       quadratic profile; at most :data:`PROFILE_BISECT` steps) (``profile``);
-    3. where the profile has not risen by the threshold at the search bound, the data cannot
-       bound the coefficient on that side: it is ``None`` (open), never the bound (``open``).
-
-    ``clip_profile``: where given and ``fit`` has one coefficient, filled with every profiled
-    value ``{x: [chi2 of each clip of idx]}`` (each clip's own converged refit at ``x``: the
-    per-clip profiles, from which :func:`_converged_heldout` takes the leave-one-clip-out
-    coefficient). (Several coefficients: a least-squares quadratic through every clip's own
-    refits at a stencil of values was tried for the intervals and the held-out coefficients;
-    on 3 wind clips its residuals were 10 chi-square RMS, above the threshold of 6.3: the
-    refits' basin scatter, see the known limit in ``docs/discrepancy.md``.)
-
-    Returns:
-        ``(ci, method, better)``: ``{effect: {parameter: [low|None, high|None]}}``,
-        ``{effect: {parameter: "low method / high method"}}``, and the lowest-χ² profile point
-        as a :class:`Fit` (all clips' parameters and every coefficient, ``k`` and
-        ``theta_keys`` of ``fit``) where it is lower than ``fit`` by more than ``cfg.ftol``
-        relative, else ``None``.
-    """
-    cfg = ws.cfg
-    dof = max(fit.n - fit.k, 1)
-    s2 = fit.rss / dof
-    thr = float(chi2_dist.ppf(cfg.ci_level, 1)) * s2
-    ci: dict[str, dict[str, list[float | None]]] = {}
-    method: dict[str, dict[str, str]] = {}
-    better: Fit | None = None
-    joint = len(fit.theta_keys) > 1   # other coefficients free: every point a joint fit
-    caches: dict[tuple[str, str], dict[float, float]] = {key: {} for key in fit.theta_keys}
-
-    def half_width(e: str, p: str) -> float:
-        """The Gauss-Newton half-width of ``e.p`` (mean of its finite sides), else 0.1 scale."""
-        v0 = float(fit.effects[e][p])
-        gn = (fit.ci_gn.get(e) or {}).get(p) or [None, None]
-        h = [abs(g - v0) for g in gn if g is not None and np.isfinite(g) and abs(g - v0) > 0]
-        return float(np.mean(h)) if h else 0.1 * fx.REGISTRY[e].parameters[p].scale
-
-    def run(points: Sequence[tuple[str, str, float]], origin: Fit) -> None:
-        """Profile the points ``(effect, parameter, value)`` not yet profiled, each from
-        ``origin`` (with one coefficient every clip at every point in one pool map; with
-        several, one joint fit per point, all in one pool map)."""
-        nonlocal better
-        new = list(dict.fromkeys((e, p, float(x)) for e, p, x in points if float(x) not in caches[(e, p)]))
-        if not new:
-            return
-        # every point starts from one origin: the fit, or its refit at its own value where
-        # that is lower (warm-starting from the nearest profiled point walked the clips
-        # into other basins: on the DVC stage a point at the interval's end came out
-        # lowest, lift 1.075 for a true 0.978)
-        effs = [{k: {**dict(d), **({p: x} if k == e else {})} for k, d in origin.effects.items()}
-                for e, p, x in new]
-        if not joint:   # nothing else shared: the clips separate
-            parts = ws.refit_each(list(idx) * len(new), list(origin.nuisance) * len(new),
-                                  [eff for eff in effs for _ in idx], converge=True)
-            n = len(idx)
-            fits = []
-            for j, ((e, p, _), eff) in enumerate(zip(new, effs)):
-                part = parts[j * n:(j + 1) * n]
-                fits.append(Fit(eff, [f.nuisance[0] for f in part], [f.chi2[0] for f in part],
-                                [f.sq_pos[0] for f in part], [f.n_res[0] for f in part],
-                                [f.n_pos[0] for f in part], fit.k, list(fit.theta_keys)))
-                if clip_profile is not None:
-                    clip_profile[float(eff[e][p])] = [f.chi2[0] for f in part]
-        else:
-            fits = ws.fit_joint_many([dict(idx=idx, starts=origin.nuisance, effects=eff, converge=True,
-                                           fixed=[(e, p)]) for (e, p, _), eff in zip(new, effs)])
-            for point in fits:
-                point.k, point.theta_keys = fit.k, list(fit.theta_keys)
-        for (e, p, x), point in zip(new, fits):
-            caches[(e, p)][x] = point.rss
-            if point.rss < (better or fit).rss - cfg.ftol * fit.rss:
-                point.start = f"profile minimum ({e}.{p})"
-                better = point
-        if better is not None and joint:
-            # a lower point found on one coefficient's profile bounds every other
-            # coefficient's profile at its values (the profile minimises over the rest)
-            for key, cache in caches.items():
-                x = float(better.effects[key[0]][key[1]])
-                cache[x] = min(cache.get(x, math.inf), better.rss)
-
-    if joint:
-        # Several coefficients: a first point on each side of each coefficient at
-        # PROFILE_PROBE Gauss-Newton half-widths, all in one pool map. The centre is the
-        # converged joint fit itself (the profile at v0 is at most its chi-square): refitting
-        # it with one coefficient held gained 0.04 chi-square on the 8-clip wind set of
-        # ``benchmarks/discrepancy_speed.py`` (for 2 of its 6 joint fits, 6 s of the workflow's
-        # 74); a joint fit that stalled short would only widen the ends (its chi-square is the
-        # reference), and a lower probe point becomes the reference (``better``).
-        first = []
-        for e, p in fit.theta_keys:
-            spec, v0, h = fx.REGISTRY[e].parameters[p], float(fit.effects[e][p]), half_width(e, p)
-            caches[(e, p)][v0] = fit.rss
-            first += [(e, p, x) for x in (v0 - PROFILE_PROBE * h, v0 + PROFILE_PROBE * h)
-                      if spec.low <= x <= spec.high]
-        run(first, fit)
-
-    for e, p in fit.theta_keys:
-        spec = fx.REGISTRY[e].parameters[p]
-        v0 = float(fit.effects[e][p])
-        gn = (fit.ci_gn.get(e) or {}).get(p) or [None, None]
-        cache = caches[(e, p)]
-        origin = fit
-
-        def totals(xs: Sequence[float]) -> list[float]:
-            """The profile at each of ``xs`` (those not yet profiled, :func:`run`)."""
-            run([(e, p, x) for x in xs], origin)
-            return [cache[float(x)] for x in xs]
-
-        def total(x: float) -> float:
-            return totals([x])[0]
-
-        # the profile's own minimum (centre) and its chi-square (reference)
-        h = half_width(e, p)
-        total(v0)   # one coefficient: the origin of the other points, the fit refitted at its own value
-        if better is not None and (joint or better.effects[e][p] == v0):
-            origin = better   # (one coefficient: this point, not an earlier coefficient's)
-        if not joint:   # one coefficient (cheap per-clip points): the parabola through v0 +- h
-            pts = [x for x in (v0 - h, v0, v0 + h) if spec.low <= x <= spec.high]
-            totals(pts)
-            curv = _curvature(cache)
-            if curv is not None:   # the parabola's vertex, at most one step h beyond the points
-                xm = float(np.clip(curv[1], min(pts) - h, max(pts) + h))
-                if spec.low <= xm <= spec.high:
-                    total(xm)
-        v = min(cache, key=cache.get)
-        ref = cache[v]
-        curv = _curvature(cache) if not joint else None
-
-        def side(sign: float, bound: float, g: float | None):
-            """One side's search (a generator: yields each point whose rise it needs, is sent
-            the rise, returns ``(end, how)``), so that both sides' points are profiled
-            together (one pool map) without changing which points are profiled."""
-            room = sign * (bound - v)
-            if room <= 1e-9 * spec.scale:        # at the search bound: nothing beyond it to test
-                return None, "open (at the search bound)"
-            if curv is not None:   # where the parabola through the centre points crosses
-                step, label = math.sqrt(thr / curv[0]), "quadratic (profile-checked)"
-            elif g is not None and np.isfinite(g) and abs(g - v0) > 0:
-                step, label = abs(g - v0), "gauss-newton (profile-checked)"
-            else:
-                step, label = spec.scale, ""
-            if joint:
-                # Several coefficients: the point at PROFILE_PROBE Gauss-Newton half-widths
-                # (profiled with the centres); where the profile has risen past the threshold
-                # there, the end is where the parabola with its vertex at the centre through that
-                # point crosses it (the joint refits scatter by a few chi-square units, like the
-                # threshold; at ~4x the threshold the scatter moves the end by ~10 %). Where a
-                # lower point moved the centre off v0, a profiled point on this side at least
-                # one half-width from it serves (the farthest), else a new one.
-                near = [x for x in cache if sign * (x - v) >= h]
-                x = max(near, key=lambda x: sign * (x - v)) if near else v + sign * min(PROFILE_PROBE * h, room)
-                r = yield x
-                if abs(x - v) > 0 and r >= thr and abs(x - bound) > 1e-12:
-                    return float(v + sign * abs(x - v) * math.sqrt(thr / r)), \
-                        f"quadratic (profile at {PROFILE_PROBE:g} Gauss-Newton half-widths)"
-                label = ""
-            else:
-                x = v + sign * min(step, room)
-                r = yield x
-            if abs(x - bound) > 1e-12 and abs(r - thr) <= PROFILE_ACCEPT_GN * thr and label:
-                return float(x), label
-            inner, r_in = v, 0.0
-            while r < thr and abs(x - bound) > 1e-12:
-                inner, r_in = x, r
-                x = v + sign * min(PROFILE_GROW * abs(x - v), room)
-                r = yield x
-            if r < thr:                           # never rose by the threshold before the bound
-                return None, f"open (profile rise {r:.3g} < {thr:.3g} at the search bound {bound:g})"
-            outer, r_out = x, r
-            # Illinois regula falsi on g = sqrt(rise) - sqrt(threshold) (linear for a quadratic
-            # profile); the end kept twice in a row has its g halved, so a steep far end (a
-            # bound of another parameter becoming active) cannot stall it.
-            g_in, g_out, kept = math.sqrt(r_in) - math.sqrt(thr), math.sqrt(r_out) - math.sqrt(thr), 0
-            for _ in range(PROFILE_BISECT):
-                xm = inner + (outer - inner) * (-g_in) / (g_out - g_in) if g_out > g_in else 0.5 * (inner + outer)
-                rm = yield xm
-                gm = math.sqrt(rm) - math.sqrt(thr)
-                if abs(rm - thr) <= PROFILE_TOL * thr:
-                    inner = outer = xm
-                    break
-                if gm < 0:
-                    inner, g_in = xm, gm
-                    kept = kept + 1 if kept > 0 else 1
-                    if kept >= 2:
-                        g_out *= 0.5
-                else:
-                    outer, g_out = xm, gm
-                    kept = kept - 1 if kept < 0 else -1
-                    if kept <= -2:
-                        g_in *= 0.5
-            t = (-g_in) / (g_out - g_in) if g_out > g_in else 0.5
-            return float(inner + min(max(t, 0.0), 1.0) * (outer - inner)), "profile"
-
-        # both sides in lockstep: their next points profiled together
-        searches = [side(-1.0, spec.low, gn[0]), side(1.0, spec.high, gn[1])]
-        found: list[tuple[float | None, str]] = [(None, ""), (None, "")]
-        asks: dict[int, float] = {}
-        for i, gen in enumerate(searches):
-            try:
-                asks[i] = next(gen)
-            except StopIteration as stop:
-                found[i] = stop.value
-        while asks:
-            rises = [max(t - ref, 0.0) for t in totals(list(asks.values()))]
-            nxt: dict[int, float] = {}
-            for (i, _), r in zip(asks.items(), rises):
-                try:
-                    nxt[i] = searches[i].send(r)
-                except StopIteration as stop:
-                    found[i] = stop.value
-            asks = nxt
-        ends, how = [f[0] for f in found], [f[1] for f in found]
-        ci.setdefault(e, {})[p] = ends
-        method.setdefault(e, {})[p] = " / ".join(how)
-        if log:
-            log(f"interval {e}.{p} = {v:.4g}: {_fmt_interval(ends)} (joint fit {v0:.4g}, Gauss-Newton "
-                f"{_fmt_interval(gn)}; {len(cache)} profile fits; {method[e][p]})")
-    return ci, method, better
-
-
-def _curvature(cache: Mapping[float, float]) -> tuple[float, float] | None:
-    """``(A, vertex)`` of the parabola ``A (x - vertex)^2 + c`` through the lowest profile
-    point and its two neighbours in ``x`` (``cache``: ``{x: chi2}``); ``None`` with fewer
-    than 3 points or where the parabola does not open upwards."""
-    xs = np.array(sorted(cache))
-    if len(xs) < 3:
-        return None
-    ys = np.array([cache[x] for x in xs])
-    b = int(np.clip(np.argmin(ys), 1, len(xs) - 2))
-    A, B, _ = np.polyfit(xs[b - 1:b + 2] - xs[b], ys[b - 1:b + 2], 2)
-    if not A > 0:
-        return None
-    return float(A), float(xs[b] - B / (2 * A))
-
-
-def _fmt_interval(ci: Sequence[float | None] | None, nd: int = 4) -> str:
-    """``[lo, hi]`` with an open side shown as ``(open`` / ``open)``."""
-    if not ci:
-        return "fixed"
-    lo, hi = ci
-    left = "(open" if lo is None else f"[{lo:.{nd}g}"
-    right = "open)" if hi is None else f"{hi:.{nd}g}]"
-    return f"{left}, {right}"

@@ -50,7 +50,7 @@ ACCELERATION_WINDOW = 0.1
 """s, window of the local parabola fits of the acceleration check (at least 5 samples)."""
 
 
-def _typical_acceleration(t: np.ndarray, pos: np.ndarray) -> np.ndarray:
+def typical_acceleration(t: np.ndarray, pos: np.ndarray) -> np.ndarray:
     """Median over windows of the fitted acceleration of one track.
 
     Args:
@@ -85,7 +85,7 @@ def _check_plausible(path: Path, c: str, o: str, tt: np.ndarray, pos: np.ndarray
         raise _err(path, "t", f"clip {c!r}, object {o!r}: gaps must be <= {MAX_GAP_FACTOR:g}x the median "
                               f"spacing ({med:.4g} s), got {step[k]:.4g} s from {tt[k]:g} to {tt[k + 1]:g} "
                               f"at row {rows[k + 1]} (split the clip)")
-    acc = _typical_acceleration(tt, pos)
+    acc = typical_acceleration(tt, pos)
     g = GRAVITY_CHECK
     if np.linalg.norm(acc) > MAX_MEDIAN_ACCELERATION_G * g:
         a = max(file_col, key=lambda i: abs(acc[i]))

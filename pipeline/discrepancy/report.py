@@ -13,10 +13,10 @@ import yaml
 from tabulate import tabulate
 
 from pipeline.atomic import write_json, write_text
-from pipeline.discrepancy.clip_model import _clip_scene
+from pipeline.discrepancy.clip_model import clip_scene
 from pipeline.discrepancy.config import DISCREPANCY_DECIMALS
-from pipeline.discrepancy.plots import _safe_name, plot_residuals, plot_trajectories, record
-from pipeline.discrepancy.profile import _fmt_interval
+from pipeline.discrepancy.intervals import format_interval
+from pipeline.discrepancy.plots import plot_residuals, plot_trajectories, record, safe_file_name
 from pipeline.discrepancy.workflow import Result
 from pipeline.scene import Decimals, Scene
 
@@ -28,7 +28,7 @@ def extended_scenes(result: Result) -> dict[str, Scene]:
     for c, clip in enumerate(result.clips):
         qref = np.array([tr.quat[0] if tr.quat is not None else np.array([1.0, 0, 0, 0]) for tr in clip.tracks])
         effects = {n["effect"]: n["parameters"] for n in result.named}
-        out[clip.name] = _clip_scene(clip, result.final.nuisance[c], effects, qref)
+        out[clip.name] = clip_scene(clip, result.final.nuisance[c], effects, qref)
     return out
 
 
@@ -164,7 +164,7 @@ def report_markdown(rep: Mapping[str, Any]) -> str:
              "## Named effects", ""]
     if rep["named"]:
         lines += table_lines(["effect", "mechanism", "parameter", "value", "95 % CI", "unit"],
-                        [[n['effect'], n['mechanism'], p, f"{v:.4g}", _fmt_interval(n["ci"].get(p)),
+                        [[n['effect'], n['mechanism'], p, f"{v:.4g}", format_interval(n["ci"].get(p)),
                           n['units'].get(p, '')] for n in rep["named"] for p, v in n["parameters"].items()])
     else:
         lines.append("None: no candidate cleared the noise floor (BIC and held-out gates).")
@@ -263,7 +263,7 @@ def write_report(result: Result, report_dir: str | Path, artifacts_dir: str | Pa
     scenes = extended_scenes(result)
     paths = []
     for name, scene in scenes.items():
-        p = art / "scenes" / f"{_safe_name(name)}.yaml"
+        p = art / "scenes" / f"{safe_file_name(name)}.yaml"
         write_text(p, scene.to_yaml(decimals or DISCREPANCY_DECIMALS))
         paths.append(str(p))
     files["extended_scenes"] = str(art / "scenes")

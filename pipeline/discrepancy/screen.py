@@ -10,7 +10,7 @@ import numpy as np
 
 from pipeline import effects as fx
 from pipeline.discrepancy.clip_model import Weights, clip_residuals_many
-from pipeline.discrepancy.fit import Fit, _nuisance_bounds, _nuisance_scales, free_mask
+from pipeline.discrepancy.fit import Fit, free_mask, nuisance_bounds, nuisance_scales
 from pipeline.discrepancy.trajectories import Clip
 from pipeline.discrepancy.workspace import Workspace
 
@@ -61,8 +61,8 @@ def screen_candidates(ws: "Workspace", idx: Sequence[int], current: Fit, names: 
         clip, nuis, w = ws.clips[c], current.nuisance[c], ws.weights[c]
         model = ws.model(c, current.effects)
         mask = free_mask(clip, tuple(current.effects), ws.cfg)
-        scale = _nuisance_scales(clip, mask)
-        lo, hi = _nuisance_bounds(clip)
+        scale = nuisance_scales(clip, mask)
+        lo, hi = nuisance_bounds(clip)
         variants, steps = [], []
         for flat in np.flatnonzero(mask.ravel()):
             x = nuis.copy().ravel()
@@ -103,11 +103,19 @@ def screen_candidates(ws: "Workspace", idx: Sequence[int], current: Fit, names: 
     return out
 
 
-def _second_chance_point(name: str, best: Mapping[str, float]) -> dict[str, float]:
+def second_chance_point(name: str, best: Mapping[str, float]) -> dict[str, float]:
     """Strength at which a candidate the linearised screen rejected is refitted from the data:
     for one fitted parameter the middle of its non-null grid (``(len - 1) // 2``, e.g. drag
     density 3 kg/m^3, Magnus lift 1, restitution 0.5), for several the screen's best grid point
-    (its direction)."""
+    (its direction).
+
+    Args:
+        name: an effect of ``pipeline.effects.REGISTRY`` (``KeyError`` otherwise).
+        best: the screen's best grid point ``{parameter: value}`` of ``name``.
+
+    Returns:
+        ``{parameter: value}`` of the effect (its defaults with the fitted one set).
+    """
     cls = fx.REGISTRY[name]
     keys = [k for k, sp in cls.parameters.items() if sp.fit and sp.grid]
     if len(keys) != 1:

@@ -19,7 +19,7 @@ QUAT_COLUMNS = ("qw", "qx", "qy", "qz")
 SPEC_COLUMNS = ("shape", "radius", "width", "depth", "height", "mass")
 """Optional per-object columns (constant within an object): shape, size (m), mass (kg)."""
 MIN_SAMPLES = 5
-"""Fewest samples of a track (and of a truncated one, :func:`_truncate`): the noise estimate
+"""Fewest samples of a track (and of a truncated one, :func:`truncate_clip`): the noise estimate
 fits quadratics over windows of 5 samples."""
 
 
@@ -111,7 +111,7 @@ class Clip:
         return int(max(1, round(1.0 / float(np.median(np.diff(self.times))))))
 
 
-def _truncate(clip: Clip, t_max: float) -> Clip | None:
+def truncate_clip(clip: Clip, t_max: float) -> Clip | None:
     """The clip's samples up to ``t_max`` (s), or ``None`` if an object keeps fewer than
     :data:`MIN_SAMPLES`."""
     tracks = []

@@ -15,13 +15,13 @@ import numpy as np
 from pipeline import effects as fx
 from pipeline.discrepancy.config import DiscrepancyConfig
 from pipeline.discrepancy.find import motion_phases, residual_segments
-from pipeline.discrepancy.fit import (Fit, _bounded_effect_values, _theta_keys, initial_nuisance, newton_leave_one_out,
-                                      single_threaded_blas)
+from pipeline.discrepancy.fit import (Fit, bounded_effect_values, coefficient_keys, initial_nuisance,
+                                      newton_leave_one_out, single_threaded_blas)
 from pipeline.discrepancy.forward import forward_gap
 from pipeline.discrepancy.noise import Noise
-from pipeline.discrepancy.profile import (CHI2_1_95, _parabola_min, _profile_candidate, _refit_from_data,
-                                          profile_intervals)
-from pipeline.discrepancy.screen import _second_chance_point, screen_candidates
+from pipeline.discrepancy.intervals import profile_intervals
+from pipeline.discrepancy.profile import CHI2_1_95, parabola_min, profile_candidate, refit_from_data
+from pipeline.discrepancy.screen import second_chance_point, screen_candidates
 from pipeline.discrepancy.trajectories import MIN_SAMPLES, Clip
 from pipeline.discrepancy.workspace import HeldOut, Workspace
 from pipeline.mjcf import SimOptions
@@ -134,7 +134,7 @@ def _heldout_from_profiles(final: Fit, clip_profile: Mapping[float, Sequence[flo
     One shared coefficient (else all ``None``): the clips share nothing else, so the other
     clips' joint fit minimises the sum of their own profiles; taken as the vertex of the
     parabola through that sum's lowest profiled value and its neighbours
-    (:func:`_parabola_min`, at least 3 values). ``None`` where the lowest value is the first
+    (:func:`parabola_min`, at least 3 values). ``None`` where the lowest value is the first
     or the last profiled one (the minimum may lie beyond the profiled values: on hidden
     restitution trial 1002 the other two clips' sum was lowest at the highest value, 0.573,
     where the left-out clip's refit jumped basin, 5.4 mm; their joint fit gave 0.546, 1.0 mm)."""
@@ -148,7 +148,7 @@ def _heldout_from_profiles(final: Fit, clip_profile: Mapping[float, Sequence[flo
         if int(np.argmin(others)) in (0, len(xs) - 1):
             out.append(None)
             continue
-        v = _parabola_min(xs, others)
+        v = parabola_min(xs, others)
         out.append({k: {**dict(d), **({p: float(v)} if k == e else {})} for k, d in final.effects.items()})
     return out
 
@@ -201,7 +201,7 @@ def _heldout_from_information(final: Fit, n: int) -> list[dict[str, dict[str, fl
     information), the Newton step moved wind_y by up to 0.01 m/s, and every clip's held-out
     RMSE agreed to 0.003 mm (``tests/test_discrepancy.py`` checks the step against exact
     leave-one-out on a linear model)."""
-    return [_bounded_effect_values(final.effects, final.theta_keys, newton_leave_one_out(final.clip_info, c))
+    return [bounded_effect_values(final.effects, final.theta_keys, newton_leave_one_out(final.clip_info, c))
             for c in range(n)]
 
 
@@ -284,7 +284,7 @@ def run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None = None,
        effect not yet named; after step 1 (unless ``rescreen_all``) only those whose profile
        gained at least ``heldout_threshold`` at step 1. With ``screen_gain`` > 0 each is first
        screened (:func:`screen_candidates`, linearised chi-square gain; failing that, the clips
-       refitted from the data at one strength, :func:`_second_chance_point`, decided on the
+       refitted from the data at one strength, :func:`second_chance_point`, decided on the
        worst-fitted clips alone where a bound suffices, :func:`_second_chance`) and dropped
        below ``screen_gain``. With ``race`` the candidates are fitted in the order of their
        predicted gain and the rest (with the second chances) are deferred once an eligible
@@ -293,12 +293,12 @@ def run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None = None,
        at the next step). Each remaining candidate gets its profile over its strength (every
        clip refitted from the data at each point), a converged joint fit (coefficients shared,
        every clip's parameters free) and leave-one-clip-out held-out scores
-       (:func:`_profile_candidate`). It is eligible when BIC drops by at least
+       (:func:`profile_candidate`). It is eligible when BIC drops by at least
        ``bic_threshold``, the profile gains at least ``heldout_threshold`` in chi-square and,
        with >= 2 clips, the held-out chi-square drops by at least ``heldout_threshold`` and the
        held-out RMSE shrinks (:func:`_gate`); the eligible one with the lowest BIC is named and
        each clip's parameters are refitted from the data where that is better
-       (:func:`_refit_from_data`). Stop when none is eligible, or when every clip's chi-square
+       (:func:`refit_from_data`). Stop when none is eligible, or when every clip's chi-square
        per residual is at most ``noise_floor_chi2``.
     3. **Add.** With effects named, a converged joint refit with Gauss-Newton intervals (the
        selection fit is kept if the refit is worse), then profile-likelihood intervals
@@ -370,13 +370,13 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
 
         def score(e: str) -> None:
             """The full fits of candidate ``e`` (profile, joint fit, held-out) and its gate."""
-            f, ho, prof = _profile_candidate(ws, idx, current, e, screen, (screened.get(e) or {}).get("best"))
+            f, ho, prof = profile_candidate(ws, idx, current, e, screen, (screened.get(e) or {}).get("best"))
             # Out-of-sample comparison at equal footing: the current model's per-clip fits (its
             # own coefficients fitted on all clips, like the candidate's profile rows) against
             # the candidate with its strength taken from the other clips.
             before = HeldOut(list(screen.chi2), list(screen.sq_pos), list(screen.n_res), list(screen.n_pos))
             best = prof.best_per_clip()
-            cand = {"effect": e, "parameters": {p: f.effects[e][p] for _, p in _theta_keys([e])},
+            cand = {"effect": e, "parameters": {p: f.effects[e][p] for _, p in coefficient_keys([e])},
                     "rmse": f.rmse, "fit_gain": current.rmse - f.rmse,
                     "chi2": f.rss, "chi2_before": current.rss, "fit_gain_chi2": current.rss - f.rss,
                     "optimizer": f.optimizer(), "nested": bool(fx.REGISTRY[e].nested),
@@ -398,7 +398,7 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
                 # data where that is better; the refits (a cached fit, reused if it is named)
                 # only where the joint fit alone leaves a clip above the floor (they can only
                 # lower a clip's chi-square, so they cannot change a yes)
-                cand["at_noise_floor"] = _at_noise_floor(f, cfg) or _at_noise_floor(_refit_from_data(ws, idx, f), cfg)
+                cand["at_noise_floor"] = _at_noise_floor(f, cfg) or _at_noise_floor(refit_from_data(ws, idx, f), cfg)
             scored.append((cand, f, ho))
 
         def race_over(untried: Sequence[str]) -> str | None:
@@ -433,7 +433,7 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
             # refitted from the data (like a profile point) at one strength. The current
             # optimum may sit in a basin that compensates for the missing effect (a spin that
             # mimics Magnus lift), where the linearisation predicts a loss. (:func:`_second_chance`.)
-            points = {e: _second_chance_point(e, screened[e]["best"]) for e in second}
+            points = {e: second_chance_point(e, screened[e]["best"]) for e in second}
             for e, (gain, fitted) in _second_chance(ws, idx, screen, current, points, cfg.screen_gain).items():
                 screened[e].update(refit_point=points[e], refit_gain=gain, refit_clips=fitted)
             for e in second:
@@ -475,7 +475,7 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
         if winner is None:
             break
         named_order.append(winner[0]["effect"])
-        current, cur_ho = _refit_from_data(ws, idx, winner[1]), (winner[2] or cur_ho)
+        current, cur_ho = refit_from_data(ws, idx, winner[1]), (winner[2] or cur_ho)
         if _at_noise_floor(current, cfg):
             say(f"noise floor reached: chi2/n <= {cfg.noise_floor_chi2:g} in every clip")
             break

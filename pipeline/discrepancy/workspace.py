@@ -15,11 +15,11 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 
 from pipeline import effects as fx
-from pipeline.discrepancy.clip_model import _F, ClipModel, Weights, clip_residuals_many
+from pipeline.discrepancy.clip_model import NUISANCE_FRICTION, ClipModel, Weights, clip_residuals_many
 from pipeline.discrepancy.config import DiscrepancyConfig
 from pipeline.discrepancy.fit import Fit, fit_clips, free_mask, single_threaded_blas
 from pipeline.discrepancy.noise import estimate_noise
-from pipeline.discrepancy.trajectories import Clip, _truncate
+from pipeline.discrepancy.trajectories import Clip, truncate_clip
 from pipeline.mjcf import SimOptions
 
 
@@ -62,17 +62,17 @@ def _scan_friction(clip: Clip, model: ClipModel, weights: Weights, nuis: np.ndar
     mask = free_mask(clip, tuple(effects), cfg)
     nuis = nuis.copy()
     for i in range(len(clip.tracks)):
-        if not mask[i, _F]:
+        if not mask[i, NUISANCE_FRICTION]:
             continue
-        grid = (nuis[i, _F],) + FRICTION_GRID
+        grid = (nuis[i, NUISANCE_FRICTION],) + FRICTION_GRID
         variants = []
         for mu in grid:
             x = nuis.copy()
-            x[i, _F] = mu
+            x[i, NUISANCE_FRICTION] = mu
             variants.append(x)
         qs = model.simulate_many(variants, [effects] * len(grid))
         chi = [float(r @ r) for r in clip_residuals_many(clip, qs, weights)[0]]
-        nuis[i, _F] = grid[int(np.argmin(chi))]
+        nuis[i, NUISANCE_FRICTION] = grid[int(np.argmin(chi))]
     return nuis
 
 
@@ -112,7 +112,7 @@ class Workspace:
         names = tuple(e for e in fx.REGISTRY if e in set(effects))
         key = (c, float(frac), names)
         if key not in self._horizon_models:
-            sub = _truncate(self.clips[c], frac * float(self.clips[c].times[-1]))
+            sub = truncate_clip(self.clips[c], frac * float(self.clips[c].times[-1]))
             self._horizon_models[key] = None if sub is None else \
                 (sub, ClipModel(sub, names, self.options, self.gravity, self.cfg.threads))
         return self._horizon_models[key]
