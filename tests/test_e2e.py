@@ -8,8 +8,6 @@ and the reports have the paper-style rows (with the trivial baseline).
 from __future__ import annotations
 
 import json
-import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -20,49 +18,21 @@ import yaml
 ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT.parent / "shared" / "data" / "real" / "video"
 
-TINY = {
-    "sample": {"n_train": 8, "n_val": 2, "n_test": 2, "n_test_comp": 2, "shard_size": 4},
-    "render": {"width": 48, "height": 32},
-    # max_new_tokens stays at its default: it must cover the longest target (tests/test_model.py)
-    "model": {"max_steps": 4, "eval_interval": 2, "eval_batches": 1, "eval_samples": 2, "batch_size": 2,
-              "warmup_steps": 1, "k": 2},
-    "search": {"k": 2, "popsize": 4, "iterations": 1},
-    "measure_hidden": {"effect": "quadratic_drag", "n_clips": 2, "duration": 0.5},
-    "discrepancy": {"max_effects": 1, "max_nfev": 6, "max_nfev_warm": 4, "recording": False},
-}
-
-
-def _merge(base: dict, over: dict) -> dict:
-    out = dict(base)
-    for k, v in over.items():
-        out[k] = _merge(base[k], v) if isinstance(v, dict) and isinstance(base.get(k), dict) else v
-    return out
+sys.path.insert(0, str(ROOT / "scripts"))
+from tiny_profile import compare, make_workspace, run  # noqa: E402  (the tiny profile: profiles/tiny.yaml)
 
 
 def _run(cmd: list[str], cwd: Path, env: dict, timeout: int = 900) -> subprocess.CompletedProcess:
-    proc = subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=timeout)
-    if proc.returncode != 0:
-        raise AssertionError(f"{' '.join(cmd)} failed ({proc.returncode}):\n{proc.stdout[-4000:]}\n{proc.stderr[-4000:]}")
-    return proc
+    try:
+        return run(cmd, cwd, env, timeout)
+    except RuntimeError as exc:
+        raise AssertionError(str(exc)) from None
 
 
 @pytest.fixture(scope="module")
 def workspace(tmp_path_factory) -> tuple[Path, dict]:
     ws = tmp_path_factory.mktemp("e2e")
-    for name in ("dvc.yaml", ".gitignore"):
-        shutil.copy(ROOT / name, ws / name)
-    for name in ("stages", "pipeline"):  # pipeline/checkpoints: the shipped checkpoint (model.init: shipped)
-        if (ROOT / name).exists():
-            shutil.copytree(ROOT / name, ws / name, ignore=shutil.ignore_patterns("__pycache__"))
-    params = _merge(yaml.safe_load((ROOT / "params.yaml").read_text()), TINY)
-    (ws / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
-    bindir = str(Path(sys.executable).parent)
-    env = {**os.environ, "PATH": bindir + os.pathsep + os.environ.get("PATH", ""), "HF_HUB_OFFLINE": "1",
-           "TOKENIZERS_PARALLELISM": "false", "PYTHONPATH": str(ws), "DVC_NO_ANALYTICS": "1"}
-    _run(["git", "init", "-q"], ws, env)
-    _run(["git", "-c", "user.email=ci@example.com", "-c", "user.name=ci", "commit", "-q", "--allow-empty", "-m", "init"], ws, env)
-    _run([sys.executable, "-m", "dvc", "init", "-q"], ws, env)
-    _run([sys.executable, "-m", "dvc", "config", "core.analytics", "false"], ws, env)
+    env = make_workspace(ws)
     _run([sys.executable, "-m", "dvc", "repro"], ws, env)
     return ws, env
 
@@ -77,6 +47,9 @@ def test_repro_builds_every_stage_and_reports(workspace):
     assert metrics, "empty metrics"
     table = (ws / "reports" / "table.md").read_text()
     assert "Trivial baseline" in table and "CMA-ES" in table
+    # the committed tiny report is current (python scripts/tiny_profile.py regenerates it)
+    committed = json.loads((ROOT / "reports" / "tiny" / "metrics.json").read_text())
+    assert not compare(metrics, committed), "\n".join(compare(metrics, committed))
     report = json.loads((ws / "reports" / "discrepancy.json").read_text())
     assert {"named", "gap"} <= set(report) and report["gap"]["before"] >= 0
     # the configs hold the held-out compositions only in test_comp
