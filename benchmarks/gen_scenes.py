@@ -91,7 +91,8 @@ def run_legacy(n: int, seed: int, params: dict) -> dict:
     from pipeline.mjcf import SimOptions, to_xml
     from pipeline.render import render_mjcf
     from pipeline.params import typed_section
-    from pipeline.sampler import SampleChunk, SampleConfig, sample_chunk
+    from pipeline.sample_config import SampleConfig
+    from pipeline.sampler import SampleChunk, sample_chunk
     from pipeline.scene import Decimals
 
     W, H = int(params["render"]["width"]), int(params["render"]["height"])

@@ -72,7 +72,8 @@ def make_inputs(args, p: dict):
     from pipeline.parallel import chunks
     from pipeline.params import typed_section
     from pipeline.render import render_scene
-    from pipeline.sampler import SampleChunk, SampleConfig, sample_chunk
+    from pipeline.sample_config import SampleConfig
+    from pipeline.sampler import SampleChunk, sample_chunk
     from pipeline.search import SearchConfig
 
     W, H = int(p["render"]["width"]), int(p["render"]["height"])

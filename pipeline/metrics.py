@@ -1,6 +1,7 @@
-"""Metrics used in every report (docs/design.md §7).
+"""Mask and flow metrics used in every report (docs/design.md §7), and the scores of an
+observation against true instance masks; the scene-level metrics and report rows are
+:mod:`pipeline.scene_metrics`.
 
-* **Composition accuracy**: the predicted multiset of shapes equals the true multiset.
 * **Mask IoU**: objects are matched one-to-one by Hungarian assignment
   (``scipy.optimize.linear_sum_assignment``) on their IoU averaged over the sequence; the IoU of
   each matched pair is averaged over the *true* objects, an unmatched true object counting 0.
@@ -8,7 +9,8 @@
   compares the union of all objects and needs no matching.
 * **Flow EPE**: mean Euclidean distance (px at the rendered resolution) between the
   re-simulated and the observed flow over the pixels where either is foreground.
-* **Parameter errors** (synthetic scenes only): per-field absolute errors after matching.
+* **Observation scores** (:func:`observation_scores`, issue 36): per-object IoU over the frames
+  where either mask is visible, identity switches.
 
 Segmentations are ``(T, H, W)`` integer label maps: object index ``0..n-1`` per pixel and
 ``-1`` (:data:`pipeline.render.BACKGROUND`) for the floor and background. A ``bool`` array is
@@ -34,30 +36,9 @@ from typing import Any, Sequence
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
-from tabulate import tabulate
-
-from pipeline.geometry import extents
-from pipeline.scene import Scene
 
 BACKGROUND = -1
 """Label of the floor/background in segmentations (same as ``pipeline.render.BACKGROUND``)."""
-
-OBJECT_FIELDS = ("position", "orientation", "linear_velocity", "angular_velocity", "size", "mass",
-                 "sliding_friction", "rolling_friction", "damping")
-"""Per-object fields of :func:`parameter_errors`, averaged over matched objects."""
-
-SCENE_FIELDS = ("camera_position", "camera_pitch", "camera_fov", "gravity")
-"""Scene-level fields of :func:`parameter_errors`."""
-
-PARAMETER_UNITS = {
-    "position": "m (Euclidean distance)", "orientation": "deg (geodesic angle)",
-    "linear_velocity": "m/s (Euclidean)", "angular_velocity": "rad/s (Euclidean)",
-    "size": "m (mean absolute error of the 3 full extents)", "mass": "kg",
-    "sliding_friction": "1", "rolling_friction": "m", "damping": "N s/m",
-    "camera_position": "m (Euclidean, camera centre)", "camera_pitch": "deg", "camera_fov": "deg",
-    "gravity": "m/s^2",
-}
-"""Units of every :func:`parameter_errors` field (for reports)."""
 
 
 # --------------------------------------------------------------------------- masks
@@ -293,204 +274,6 @@ def flow_epe(flow_pred: np.ndarray, flow_obs: np.ndarray, fg_pred: np.ndarray, f
         return 0.0
     d = fp.reshape(-1, 2)[idx].astype(np.float64) - fo.reshape(-1, 2)[idx].astype(np.float64)
     return float(np.sqrt((d * d).sum(axis=-1)).mean())
-
-
-# --------------------------------------------------------------------------- scenes
-def composition_accuracy(true_scenes: Sequence[Scene], pred_scenes: Sequence[Scene | None]) -> float:
-    """Fraction of scenes whose predicted multiset of shapes equals the true one.
-
-    Args:
-        true_scenes: N true scenes.
-        pred_scenes: N predictions; ``None`` (unparseable output) counts as wrong.
-    Returns:
-        Accuracy in [0, 1]; NaN for N = 0.
-    Raises:
-        ValueError: the lists differ in length.
-    """
-    if len(true_scenes) != len(pred_scenes):
-        raise ValueError(f"composition_accuracy: {len(true_scenes)} true scenes but {len(pred_scenes)} predictions")
-    if not true_scenes:
-        return math.nan
-    hits = [p is not None and p.composition == t.composition for t, p in zip(true_scenes, pred_scenes)]
-    return float(np.mean(hits))
-
-
-def _quat_angle_deg(q1: Sequence[float], q2: Sequence[float]) -> float:
-    """Geodesic angle (deg) between two rotations given as quaternions (q and -q equal).
-
-    Kept as ``2 arccos |q1 . q2|`` rather than :func:`pipeline.rotation.quat_angle`: the
-    arccos form loses precision near 0 (up to ~3e-6 deg for orientations 1e-9 apart), and
-    switching would change reported numbers (``reports/metrics.json``) beyond round-off."""
-    a = np.asarray(q1, dtype=np.float64) / np.linalg.norm(q1)
-    b = np.asarray(q2, dtype=np.float64) / np.linalg.norm(q2)
-    return float(np.degrees(2.0 * np.arccos(np.clip(abs(float(a @ b)), 0.0, 1.0))))
-
-
-def match_by_position(true_scene: Scene, pred_scene: Scene) -> list[tuple[int, int]]:
-    """Hungarian matching on initial-position distance, only between objects of the same shape.
-
-    Returns:
-        ``[(true_index, pred_index), ...]`` sorted by true index; objects whose shape has no
-        counterpart stay unmatched.
-    """
-    pt = np.array([o.position for o in true_scene.objects], dtype=np.float64)
-    pp = np.array([o.position for o in pred_scene.objects], dtype=np.float64)
-    dist = np.linalg.norm(pt[:, None] - pp[None], axis=-1)
-    same = np.array([[a.shape == b.shape for b in pred_scene.objects] for a in true_scene.objects])
-    big = 1e6 + dist.max(initial=0.0) * 10
-    rows, cols = linear_sum_assignment(np.where(same, dist, big))
-    return sorted((int(r), int(c)) for r, c in zip(rows, cols) if same[r, c])
-
-
-def parameter_errors(true_scene: Scene, pred_scene: Scene, true_seg: np.ndarray | None = None,
-                     pred_seg: np.ndarray | None = None) -> dict[str, Any]:
-    """Per-field absolute errors of a predicted scene after matching objects (docs/design.md §7).
-
-    Objects are matched by :func:`match_objects` when both segmentations are given (pred
-    labels are the predicted scene's object indices, as rendered), else by
-    :func:`match_by_position` (same shape only). Object fields are averaged over matched
-    pairs; units in :data:`PARAMETER_UNITS`. Sizes are compared as full extents along the body
-    axes, so a sphere matched to a box still has a size error. The camera is compared by its
-    centre (paper form: (0, -2, height)), pitch and fov.
-
-    Args:
-        true_scene, pred_scene: validated scenes.
-        true_seg, pred_seg: optional ``(T, H, W)`` label maps of both scenes' renders.
-    Returns:
-        dict: every name in :data:`OBJECT_FIELDS` (float, NaN when no object matched) and
-        :data:`SCENE_FIELDS` (float), plus ``n_true``, ``n_matched`` (int) and ``matches``.
-    """
-    if true_seg is not None and pred_seg is not None:
-        iou = pairwise_iou(true_seg, pred_seg, len(true_scene.objects), len(pred_scene.objects))
-        matches = _match(iou)
-    else:
-        matches = match_by_position(true_scene, pred_scene)
-    per: dict[str, list[float]] = {k: [] for k in OBJECT_FIELDS}
-    for i, j in matches:
-        a, b = true_scene.objects[i], pred_scene.objects[j]
-        per["position"].append(float(np.linalg.norm(np.subtract(a.position, b.position))))
-        per["orientation"].append(_quat_angle_deg(a.orientation, b.orientation))
-        per["linear_velocity"].append(float(np.linalg.norm(np.subtract(a.linear_velocity, b.linear_velocity))))
-        per["angular_velocity"].append(float(np.linalg.norm(np.subtract(a.angular_velocity, b.angular_velocity))))
-        per["size"].append(float(np.abs(extents(a.shape, a.size) - extents(b.shape, b.size)).mean()))
-        per["mass"].append(abs(a.mass - b.mass))
-        per["sliding_friction"].append(abs(a.material.sliding_friction - b.material.sliding_friction))
-        per["rolling_friction"].append(abs(a.material.rolling_friction - b.material.rolling_friction))
-        per["damping"].append(abs(a.material.damping - b.material.damping))
-    out: dict[str, Any] = {k: (float(np.mean(v)) if v else math.nan) for k, v in per.items()}
-    ct, cp = true_scene.camera, pred_scene.camera
-    out["camera_position"] = float(np.linalg.norm(np.subtract(ct.eye, cp.eye)))
-    out["camera_pitch"] = abs(ct.pitch - cp.pitch)
-    out["camera_fov"] = abs(ct.fov - cp.fov)
-    out["gravity"] = abs(true_scene.gravity - pred_scene.gravity)
-    out.update(n_true=len(true_scene.objects), n_matched=len(matches), matches=matches)
-    return out
-
-
-# --------------------------------------------------------------------------- reports
-def scene_report(true_scene: Scene | None, pred_scene: Scene | None, true_seg: np.ndarray,
-                 obs_flow: np.ndarray | None, pred_seg: np.ndarray | None,
-                 pred_flow: np.ndarray | None) -> dict[str, Any]:
-    """All metrics of one prediction of one scene (one row of a report).
-
-    An invalid prediction (``pred_scene is None``: unparseable output, or nothing to refine)
-    scores composition wrong and IoU 0; its EPE and parameter errors are NaN (left out of
-    means, counted in ``n - n_valid``).
-
-    Args:
-        true_scene: the true scene (None for real video: no composition/parameter errors).
-        pred_scene: the prediction, or None.
-        true_seg: ``(T, H, W)`` observed labels (-1 background).
-        obs_flow: ``(T-1, H, W, 2)`` observed flow, px, or None (no EPE).
-        pred_seg, pred_flow: the prediction's re-simulated labels and flow (None if invalid).
-    Returns:
-        flat dict: ``valid``, ``composition_correct``, ``initial_iou``, ``full_iou``,
-        ``foreground_iou_initial``, ``foreground_iou_full``, ``epe`` and
-        ``param/<field>`` for every parameter error (NaN if unavailable).
-    """
-    row: dict[str, Any] = {"valid": pred_scene is not None}
-    row["composition_correct"] = bool(
-        pred_scene is not None and true_scene is not None and pred_scene.composition == true_scene.composition)
-    keys = ("initial_iou", "full_iou", "foreground_iou_initial", "foreground_iou_full")
-    if pred_scene is None or pred_seg is None:
-        row.update({k: 0.0 for k in keys}, epe=math.nan)
-        row.update({f"param/{k}": math.nan for k in OBJECT_FIELDS + SCENE_FIELDS})
-        return row
-    iou = sequence_iou(true_seg, pred_seg)
-    row.update({k: iou[k] for k in keys})
-    row["epe"] = (flow_epe(pred_flow, obs_flow, pred_seg[:-1] >= 0, np.asarray(true_seg)[:-1] >= 0)
-                  if pred_flow is not None and obs_flow is not None else math.nan)
-    if true_scene is not None:
-        err = parameter_errors(true_scene, pred_scene, true_seg, pred_seg)
-        row.update({f"param/{k}": err[k] for k in OBJECT_FIELDS + SCENE_FIELDS})
-    else:
-        row.update({f"param/{k}": math.nan for k in OBJECT_FIELDS + SCENE_FIELDS})
-    return row
-
-
-def summarize(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    """Aggregate :func:`scene_report` rows of one method and split.
-
-    Returns:
-        dict: ``n``, ``n_valid``, ``composition_accuracy``, ``initial_iou``, ``full_iou``,
-        ``foreground_iou_initial``, ``foreground_iou`` (full sequence) — means over all rows
-        (invalid rows count 0) — and ``epe`` and ``parameter_errors`` (dict per field) —
-        means over valid rows with a finite value (NaN when none).
-    """
-    def mean(key: str, valid_only: bool = False) -> float:
-        vals = [r[key] for r in rows if (r["valid"] or not valid_only)]
-        vals = [v for v in vals if v is not None and not (isinstance(v, float) and math.isnan(v))]
-        return float(np.mean(vals)) if vals else math.nan
-
-    return {
-        "n": len(rows),
-        "n_valid": int(sum(bool(r["valid"]) for r in rows)),
-        "composition_accuracy": mean("composition_correct"),
-        "initial_iou": mean("initial_iou"),
-        "full_iou": mean("full_iou"),
-        "foreground_iou_initial": mean("foreground_iou_initial"),
-        "foreground_iou": mean("foreground_iou_full"),
-        "epe": mean("epe", valid_only=True),
-        "parameter_errors": {k: mean(f"param/{k}", valid_only=True) for k in OBJECT_FIELDS + SCENE_FIELDS},
-    }
-
-
-def markdown_table(summaries: dict[str, dict[str, Any]], labels: dict[str, str], inputs: dict[str, str],
-                   split: str) -> str:
-    """A paper-style Markdown table of one split.
-
-    Args:
-        summaries: method key -> :func:`summarize` output for this split.
-        labels: method key -> row label (e.g. ``"Best@32 + CMA-ES"``).
-        inputs: method key -> input modality shown in the table (``flow`` / ``rgb`` / ``-``).
-        split: split name, for the heading.
-    Returns:
-        Markdown: a heading and a table with composition accuracy, initial IoU, full-sequence
-        IoU, foreground IoU and EPE (px) per method.
-    """
-    def f(x: float, nd: int = 3) -> str:
-        return "–" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{nd}f}"
-
-    n = max((s["n"] for s in summaries.values()), default=0)
-    header = ["Method", "Input", "Composition acc.", "Initial IoU", "Full-sequence IoU", "Foreground IoU", "EPE (px)",
-              "valid"]
-    rows = [[labels.get(key, key), inputs.get(key, "-"), f(s["composition_accuracy"]), f(s["initial_iou"]),
-             f(s["full_iou"]), f(s["foreground_iou"]), f(s["epe"], 2), f"{s['n_valid']}/{s['n']}"]
-            for key, s in summaries.items()]
-    table = tabulate(rows, header, tablefmt="github", disable_numparse=True)  # cells exactly as formatted here
-    return f"### Split `{split}` (n = {n})\n\n{table}\n"
-
-
-def json_safe(obj: Any) -> Any:
-    """``obj`` with every non-finite float (NaN, ±inf) replaced by None, recursively, so the
-    report is strict JSON (``dvc metrics show`` and browsers reject NaN)."""
-    if isinstance(obj, dict):
-        return {k: json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [json_safe(v) for v in obj]
-    if isinstance(obj, (float, np.floating)):
-        return float(obj) if math.isfinite(obj) else None
-    return obj
 
 
 # --------------------------------------------------------------------------- observation vs truth

@@ -28,10 +28,11 @@ import numpy as np
 from scipy import ndimage
 
 from pipeline.flow import estimate_flow
-from pipeline.perception import find_tracks, object_tracks, still_tracks
+from pipeline.image_tracks import find_tracks, object_tracks, still_tracks
+from pipeline.masks import (drop_ghosts, hold_resting, label_objects, merge_touching, pseudo_ground_truth,
+                            pseudo_masks)
 from pipeline.segmenter import median_background, shipped
-from pipeline.video import (Clip, VideoError, drop_ghosts, hold_resting, label_objects, merge_touching,
-                            pseudo_ground_truth, pseudo_masks, read_video, resample)
+from pipeline.video import Clip, VideoError, read_video, resample
 
 DETECT_LONG_SIDE = 320
 """px, long side of the detection pass (whole frame)."""
@@ -53,7 +54,7 @@ class Observation:
         frames: ``(T, H, W, 3)`` uint8 RGB at the scene fps, working size (the crop).
         seg: ``(T, H, W)`` int8 pseudo masks of the objects (background subtraction, Hungarian
             tracking, only tracks that move: :func:`keep_objects`; objects that come to rest
-            held: :func:`pipeline.video.hold_resting`), -1 background.
+            held: :func:`pipeline.masks.hold_resting`), -1 background.
         flow: ``(T-1, H, W, 2)`` float32 observed optical flow, px/frame.
         clip: the decoded source window (true fps, crop box in original px).
         start: window start, s; ``auto``: whether it was chosen automatically.
@@ -113,7 +114,7 @@ def choose_start(video, fps: float | None, scene_fps: int, duration: float) -> f
 
 MASK_METHODS = ("median", "mog2", "segmenter", "hybrid")
 """``realvideo.mask_method``: background subtraction (``median``, ``mog2``:
-:func:`pipeline.video.pseudo_masks`), the learned segmenter alone (``segmenter``,
+:func:`pipeline.masks.pseudo_masks`), the learned segmenter alone (``segmenter``,
 :mod:`pipeline.segmenter`) or the segmenter checked by motion (``hybrid``, :func:`hybrid_objects`)."""
 LEARNED = ("segmenter", "hybrid")
 """Mask methods that see objects at rest (their tracks are kept whether they move or not)."""
@@ -130,10 +131,10 @@ def segment_objects(frames: np.ndarray, context: np.ndarray, method: str, max_ob
     """Masks of the objects in ``frames``, split into tracks (before :func:`keep_objects`).
 
     ``median`` / ``mog2``: background subtraction against ``context``
-    (:func:`pipeline.video.pseudo_masks`), then :func:`pipeline.video.label_objects`.
+    (:func:`pipeline.masks.pseudo_masks`), then :func:`pipeline.masks.label_objects`.
     ``segmenter``: the learned segmenter's foreground (:mod:`pipeline.segmenter`, with the
     median of ``context`` as the background it compares against) minus its contact pixels
-    (where two objects touch), tracked by :func:`pipeline.video.label_objects`; the contact
+    (where two objects touch), tracked by :func:`pipeline.masks.label_objects`; the contact
     pixels are then given to the nearest track (within 3 px).
 
     Args:
@@ -177,12 +178,12 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int) ->
     """The segmenter first, background subtraction where it misses (``mask_method: hybrid``).
 
     The segmenter (:mod:`pipeline.segmenter`) gives whole silhouettes of objects moving or at
-    rest, split where two touch; background subtraction (:func:`pipeline.video.pseudo_masks` against
+    rest, split where two touch; background subtraction (:func:`pipeline.masks.pseudo_masks` against
     the whole clip's median, tracked and kept as the ``median`` method does: :func:`keep_objects`)
     marks only what moves, as crescents where an object is slow and as a ghost where one rests
     for part of the clip, but it still sees small, blurred movers the segmenter misses. So:
 
-    * a segmenter track (:func:`pipeline.perception.find_tracks`, seen in 15 % of the frames) is a
+    * a segmenter track (:func:`pipeline.image_tracks.find_tracks`, seen in 15 % of the frames) is a
       **mover** when its centroid travels a quarter of its diameter or a moving track of
       background subtraction of its size class overlaps it (30 % of that track's pixels; the
       segmenter track's median area at most :data:`SIZE_CLASS` times the other's, so a wall or a
@@ -299,13 +300,13 @@ def keep_objects(seg: np.ndarray, flow: np.ndarray, max_objects: int, still: boo
     objects at rest too) the tracks of :func:`still_tracks` are kept, moving or not. Otherwise
     (background subtraction) tracks that touch all along are merged
     (:func:`merge_touching`), ghosts of resting objects dropped (:func:`drop_ghosts`), then the
-    tracks :func:`pipeline.perception.object_tracks` accepts
+    tracks :func:`pipeline.image_tracks.object_tracks` accepts
     (they move, they are not slivers) are kept, renumbered 0..n-1 in order of first appearance;
     everything else becomes background.
 
     Returns:
         ``(seg, tracks)``: ``(T, H, W)`` int8 labels and the kept
-        :class:`pipeline.perception.Track` s (with their labels before renumbering).
+        :class:`pipeline.image_tracks.Track` s (with their labels before renumbering).
     """
     if still:
         tracks = still_tracks(seg, max_objects)
@@ -375,7 +376,7 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
         duration: window length, s.
         flow_method, flow_preset: optical flow (``pipeline.flow.estimate_flow``); ``gt`` means
             DIS here (a real video has no simulator truth).
-        mask_method: background model of the pseudo masks (``pipeline.video.pseudo_masks``).
+        mask_method: background model of the pseudo masks (``pipeline.masks.pseudo_masks``).
         max_objects: objects kept by the tracker.
     Raises:
         VideoError: unreadable video or window past its end.
@@ -430,7 +431,7 @@ def observe_frames(video, fps: float | None, frame_indices, size: tuple[int, int
     """The observation's masks of chosen source frames of a whole clip (for scoring against hand
     labels, which are spread over the clip rather than one window): the same masks as
     :func:`observe`, tracked over the whole clip at ``size`` (at most :data:`MAX_LONG_SIDE` px long,
-    scaled up to ``size``; :func:`pipeline.video.pseudo_ground_truth` or the segmenter),
+    scaled up to ``size``; :func:`pipeline.masks.pseudo_ground_truth` or the segmenter),
     keeping the tracks that are objects (seen in 4 tracked frames or more, the centroid travels half
     a diameter, a median area within 1/4..4 times that of the track seen longest, the
     ``max_objects`` seen longest; no flow over the whole clip, so no flow check).

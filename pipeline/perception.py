@@ -1,29 +1,20 @@
 """Perception proposals: scene-language guesses from a video with no trained model (issue 9).
 
-The classical route from pixels to a scene, used next to the model's samples in Best@K:
+The classical route from pixels to a scene, used next to the model's samples in Best@K. The
+image half, object tracks and their motion in px (detect and track, initial motion, gravity in
+the image and so the view), is :mod:`pipeline.image_tracks`; this module lifts it to metric
+scenes:
 
-1. **Detect and track** (:func:`find_tracks`): background subtraction
-   (:func:`pipeline.video.pseudo_masks`), connected components, frame-to-frame Hungarian
-   assignment (:func:`pipeline.video.label_objects`, ``scipy.optimize.linear_sum_assignment``);
-   a track must move somewhere in the window (optical-flow magnitude inside its mask), so static
-   clutter that the background model missed is dropped, while an object that comes to rest
-   stays a track. Per track: centroid, area, bottom row, rotated bounding box (OpenCV
-   ``minAreaRect``) and a silhouette class (circle or rectangle, from the fill ratio of the
-   rotated box: ``pi / 4`` for a disc, 1 for a rectangle).
-2. **Initial motion** (:func:`initial_motion`): a quadratic fitted in time to the first frames
-   of each track, grown until the fit stops explaining the track (a bounce, a collision), gives
-   position, velocity and acceleration in px at ``t = 0``.
-3. **Camera and ground plane** (:func:`estimate_view`): gravity shows in the image when some
-   stretch of a track (:func:`gravity_motion`) accelerates downwards while speeding up (a fall, a roll down a slope): then the view is
-   a *side* view (camera pitch 0, image up = world up); otherwise objects move in the ground
-   plane (constant velocity, friction decelerates them) and the view is *top-down*
-   (pitch :data:`TOP_DOWN_PITCH`). The field of view is a prior (:data:`FOV_PRIOR`): with one
-   view and unknown intrinsics it trades off with depth.
-4. **Metric scale** (:func:`lift_side`, :func:`lift_top`): where an object falls, the parabola's
+1. **Camera and ground plane** (:func:`pipeline.image_tracks.estimate_view`): where gravity
+   shows in the image the view is a *side* view (camera pitch 0, image up = world up);
+   otherwise objects move in the ground plane (constant velocity, friction decelerates them)
+   and the view is *top-down* (pitch :data:`TOP_DOWN_PITCH`). The field of view is a prior
+   (:data:`FOV_PRIOR`): with one view and unknown intrinsics it trades off with depth.
+2. **Metric scale** (:func:`lift_side`, :func:`lift_top`): where an object falls, the parabola's
    curvature is g (``a_px = g * f / depth``); where it rolls down a slope of angle theta without
    slipping, ``a = k g sin(theta)`` with ``k = 5/7`` (sphere) or ``2/3`` (cylinder); otherwise
    the object's apparent size and a size prior (:data:`SIZE_PRIOR`, objects of 2-10 cm).
-5. **Proposals** (:func:`propose`): one scene per shape hypothesis (a circle is a sphere or a
+3. **Proposals** (:func:`propose`): one scene per shape hypothesis (a circle is a sphere or a
    cylinder seen end-on / from above; a rectangle is a box), with a ramp (static box under the
    path, ``Scene.static``) where an object moves along an inclined straight line, the floor
    under the lowest contact seen, restitution from a bounce, and friction from the deceleration.
@@ -36,14 +27,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Literal
 
-import cv2
 import numpy as np
 
 from pipeline.camera import intrinsics, pixel_to_plane
 from pipeline.errors import UserError
 from pipeline.geometry import volume
+from pipeline.image_tracks import (BOX_FILL, CIRCLE_FILL, Motion, Track, View, _gravity_vote, bounce_restitution,
+                                   estimate_view, gravity_motion, initial_motion, initial_state_given, object_tracks,
+                                   still_tracks)
 from pipeline.rotation import axis_angle_quat
 from pipeline.scene import Camera, Scene
 
@@ -68,321 +60,6 @@ ROLL_FACTOR = {"sphere": 5.0 / 7.0, "cylinder": 2.0 / 3.0}
 
 class PerceptionError(UserError, ValueError):
     """Nothing usable was found in the user's video (no moving object)."""
-
-
-# --------------------------------------------------------------------------------- tracks
-@dataclass
-class Track:
-    """One object followed through the window.
-
-    Attributes:
-        label: its id in the segmentation (0, 1, ...).
-        frames: ``(N,)`` int frame indices where it is visible.
-        centre: ``(N, 2)`` float64 centroid (u, v), px.
-        area: ``(N,)`` float64 px.
-        bottom: ``(N,)`` float64 lowest row of the mask (largest v), px.
-        diameter: median short side of the rotated bounding box over frames not touching the
-            border, px (motion blur stretches the long side only).
-        size: median ``(long, short)`` side of the rotated box, px.
-        angle: rotation of the box's long side from +u towards -v (counter-clockwise as seen),
-            deg in (-90, 90].
-        fill: median area / (long * short); ``pi/4 = 0.785`` for a disc, 1 for a rectangle.
-        shape: ``"circle"`` or ``"rectangle"``.
-        moving: the largest flow magnitude inside the mask over the window, px/frame.
-        travel: largest distance of the centroid from its first position, px.
-    """
-
-    label: int
-    frames: np.ndarray
-    centre: np.ndarray
-    area: np.ndarray
-    bottom: np.ndarray
-    diameter: float
-    size: tuple[float, float]
-    angle: float
-    fill: float
-    shape: Literal["circle", "rectangle"]
-    moving: float
-    travel: float = 0.0
-
-
-def _box_stats(mask: np.ndarray) -> tuple[float, float, float] | None:
-    pts = cv2.findNonZero(mask.astype(np.uint8))
-    if pts is None or len(pts) < 3:
-        return None
-    (_, _), (w, h), ang = cv2.minAreaRect(pts)
-    w, h = w + 1.0, h + 1.0  # pixel extents, not centre-to-centre
-    if w < h:
-        w, h, ang = h, w, ang + 90.0
-    ang = -ang  # OpenCV's angle is clockwise in image coordinates (v down)
-    ang = (ang + 90.0) % 180.0 - 90.0
-    return float(w), float(h), float(ang)
-
-
-def find_tracks(seg: np.ndarray, flow: np.ndarray | None = None, min_frames: int = 2,
-                min_motion: float = 0.5) -> list[Track]:
-    """Per-object statistics of a labelled clip.
-
-    Args:
-        seg: ``(T, H, W)`` int8 object ids, -1 background (``pipeline.video.label_objects``).
-        flow: ``(T-1, H, W, 2)`` float optical flow, px/frame, or None (no motion check).
-        min_frames: drop tracks seen in fewer frames.
-        min_motion: drop tracks whose largest flow magnitude inside the mask (95th percentile
-            per frame) never exceeds this, px/frame: static clutter, not an object.
-    Returns:
-        tracks ordered by label.
-    """
-    seg = np.asarray(seg)
-    T, H, W = seg.shape
-    tracks = []
-    for label in range(int(seg.max()) + 1):
-        frames, centre, area, bottom, boxes, moving = [], [], [], [], [], 0.0
-        for t in range(T):
-            m = seg[t] == label
-            n = int(m.sum())
-            if n == 0:
-                continue
-            vs, us = np.nonzero(m)
-            frames.append(t)
-            centre.append((us.mean() + 0.5, vs.mean() + 0.5))
-            area.append(float(n))
-            bottom.append(float(vs.max()) + 1.0)
-            touches = us.min() == 0 or vs.min() == 0 or us.max() == W - 1 or vs.max() == H - 1
-            box = None if touches else _box_stats(m)
-            if box is not None:
-                boxes.append((*box, n))
-            if flow is not None and t < len(flow):
-                mag = np.hypot(flow[t][m][:, 0], flow[t][m][:, 1])
-                moving = max(moving, float(np.percentile(mag, 95)))
-        if len(frames) < min_frames or (flow is not None and moving < min_motion):
-            continue
-        if boxes:
-            b = np.asarray(boxes)
-            long_, short = float(np.median(b[:, 0])), float(np.median(b[:, 1]))
-            fill = float(np.median(b[:, 3] / (b[:, 0] * b[:, 1])))
-            # angle: circular median over the frames with the largest area (least blur)
-            ang = float(np.median(b[:, 2]))
-        else:
-            a = float(np.median(area))
-            long_ = short = 2.0 * math.sqrt(a / math.pi)
-            fill, ang = math.pi / 4, 0.0
-        shape = "circle" if fill < 0.5 * (CIRCLE_FILL + BOX_FILL) else "rectangle"
-        tracks.append(Track(label, np.asarray(frames), np.asarray(centre, dtype=np.float64),
-                            np.asarray(area), np.asarray(bottom), short, (long_, short), ang, fill,
-                            shape, moving,
-                            float(np.linalg.norm(np.asarray(centre) - centre[0], axis=1).max())))
-    return tracks
-
-
-# --------------------------------------------------------------------------------- motion
-@dataclass
-class Motion:
-    """Quadratic motion of a track's first segment, at the window's ``t = 0``.
-
-    Attributes:
-        p0: ``(2,)`` position (u, v) at t = 0, px (extrapolated if the track starts later).
-        v0: ``(2,)`` velocity, px/s.
-        a: ``(2,)`` acceleration, px/s^2.
-        n: frames used; ``t_end``: time of the last of them, s; ``rms``: fit residual, px.
-        a_sd: standard deviation of ``a`` from the fit residual, px/s^2 (0 when not computed).
-    """
-
-    p0: np.ndarray
-    v0: np.ndarray
-    a: np.ndarray
-    n: int
-    t_end: float
-    rms: float
-    a_sd: float = 0.0
-
-
-def initial_motion(track: Track, fps: float, min_frames: int = 5) -> Motion:
-    """Fit ``p(t) = p0 + v0 t + a t^2 / 2`` to the first stretch of a track that one parabola
-    explains.
-
-    The window starts at the earliest frame (within the first third of the track) from which
-    at least ``min_frames`` frames fit one parabola with an RMS residual below ``max(0.75 px,
-    6 % of the diameter)``, and is the longest such window from there: the fit skips a release
-    by hand at the start and stops at the first bounce or collision. The parabola is then evaluated at the window's ``t = 0``. Fewer than
-    ``min_frames`` frames: a straight line (no acceleration); fewer than 3: at rest.
-    """
-    t = track.frames / fps
-    p = track.centre
-    N = len(t)
-    if N < 3:
-        return Motion(p[0].copy(), np.zeros(2), np.zeros(2), N, float(t[-1]), 0.0)
-    tol = max(0.75, 0.06 * track.diameter)
-
-    def fit(i: int, j: int, degree: int = 2) -> tuple[np.ndarray, float]:
-        tt = t[i:j]
-        cols = [np.ones(j - i), tt] + ([0.5 * tt ** 2] if degree == 2 else [])
-        A = np.stack(cols, axis=1)
-        coef, *_ = np.linalg.lstsq(A, p[i:j], rcond=None)
-        rms = float(np.sqrt(np.mean(np.sum((A @ coef - p[i:j]) ** 2, axis=1))))
-        if degree == 1:
-            coef = np.vstack([coef, np.zeros((1, 2))])
-        return coef, rms
-
-    best = None
-    if N >= min_frames:  # a parabola through the very first frames
-        for j in range(N, min_frames - 1, -1):
-            coef, rms = fit(0, j)
-            if rms <= tol:
-                return Motion(coef[0], coef[1], coef[2], j, float(t[j - 1]), rms)
-    if N >= 3 and track.frames[min(N, 4) - 1] - track.frames[0] == min(N, 4) - 1:
-        # too few frames before the first event (a hit, a bounce) for a curvature: a line
-        # through the first 3-4 frames (at rest, or moving steadily) if it explains them
-        n = min(N, 4)
-        coef, rms = fit(0, n, degree=1)
-        if rms > tol and n == 4:
-            n = 3
-            coef, rms = fit(0, n, degree=1)
-        if rms <= tol:
-            return Motion(coef[0], coef[1], coef[2], n, float(t[n - 1]), rms)
-    if N >= min_frames:
-        for i in range(1, max(2, N // 3 + 1)):
-            for j in range(N, i + min_frames - 1, -1):
-                coef, rms = fit(i, j)
-                if rms <= tol:
-                    best = (i, j, coef, rms)
-                    break
-            if best is not None:
-                break
-    if best is None:  # no parabola fits 5 frames: a line through the first ones
-        n = min(N, 4)
-        coef, rms = fit(0, n, degree=1)
-        return Motion(coef[0], coef[1], coef[2], n, float(t[n - 1]), rms)
-    i, j, coef, rms = best
-    return Motion(coef[0], coef[1], coef[2], j - i, float(t[j - 1]), rms)
-
-
-def gravity_motion(track: Track, fps: float, min_frames: int = 6) -> Motion | None:
-    """The stretch of a track that shows gravity best: among all windows of at least
-    ``min_frames`` consecutive visible frames that one parabola fits (RMS below ``max(0.75 px,
-    6 % of the diameter)``), the one whose downward image acceleration is largest at its lower
-    95 % bound (a free fall or a roll down a slope anywhere in the window, not only at its
-    start; long windows win over short noisy ones). ``v0`` is the
-    velocity at the window's middle frame (its direction tells speeding up from slowing down);
-    ``p0`` the parabola at ``t = 0``. None if no window fits.
-    """
-    t = track.frames / fps
-    p = track.centre
-    N = len(t)
-    tol = max(0.75, 0.06 * track.diameter)
-    best = None
-    for i in range(0, N - min_frames + 1):
-        for j in range(i + min_frames, N + 1):
-            if track.frames[j - 1] - track.frames[i] != j - 1 - i:  # a gap: not consecutive
-                break
-            tt = t[i:j]
-            A = np.stack([np.ones(j - i), tt, 0.5 * tt ** 2], axis=1)
-            coef, *_ = np.linalg.lstsq(A, p[i:j], rcond=None)
-            rms = float(np.sqrt(np.mean(np.sum((A @ coef - p[i:j]) ** 2, axis=1))))
-            if rms > tol:
-                break
-            n = j - i
-            # lower confidence bound of the downward acceleration: the curvature of a least-squares
-            # parabola through n equally spaced points has sd ~ sigma * sqrt(720 / (n^5 - 5 n^3 +
-            # 4 n)) / dt^2 (regression on orthogonal polynomials), sigma >= 0.3 px of noise
-            sd = max(rms, 0.3) * math.sqrt(720.0 / (n ** 5 - 5 * n ** 3 + 4 * n)) * fps ** 2
-            score = float(coef[2][1]) - 2.0 * sd
-            if best is None or score > best[4]:
-                best = (i, j, coef, rms, score)
-    if best is None:
-        return None
-    i, j, coef, rms, score = best
-    tm = t[(i + j - 1) // 2]
-    return Motion(coef[0], coef[1] + coef[2] * tm, coef[2], j - i, float(t[j - 1]), rms,
-                  a_sd=float(coef[2][1] - score) / 2.0)
-
-
-def initial_state_given(track: Track, fps: float, a: np.ndarray, min_frames: int = 4) -> Motion:
-    """Position and velocity at ``t = 0`` when the acceleration ``a (2,)`` px/s^2 is known
-    (from :func:`gravity_motion`): ``p - a t^2 / 2`` is fitted by a line on the earliest stretch
-    of at least ``min_frames`` frames that it explains within ``max(0.75 px, 6 %`` of the
-    diameter), grown as far as it goes (skips a release by hand, stops at the first bounce).
-    """
-    t = track.frames / fps
-    q = track.centre - 0.5 * np.outer(t ** 2, a)
-    N = len(t)
-    tol = max(0.75, 0.06 * track.diameter)
-
-    def fit(i: int, j: int) -> tuple[np.ndarray, float]:
-        A = np.stack([np.ones(j - i), t[i:j]], axis=1)
-        coef, *_ = np.linalg.lstsq(A, q[i:j], rcond=None)
-        return coef, float(np.sqrt(np.mean(np.sum((A @ coef - q[i:j]) ** 2, axis=1))))
-
-    for i in range(0, max(1, N - min_frames + 1)):
-        best = None
-        for j in range(i + min_frames, N + 1):
-            coef, rms = fit(i, j)
-            if rms > tol:
-                break
-            best = (j, coef, rms)
-        if best is not None:
-            j, coef, rms = best
-            return Motion(coef[0], coef[1], np.asarray(a, dtype=np.float64), j - i, float(t[j - 1]), rms)
-    coef, rms = fit(0, min(N, 2) if N >= 2 else 1) if N >= 2 else (np.stack([track.centre[0], np.zeros(2)]), 0.0)
-    return Motion(coef[0], coef[1], np.asarray(a, dtype=np.float64), min(N, 2), float(t[min(N, 2) - 1]), rms)
-
-
-def bounce_restitution(track: Track, fps: float) -> float | None:
-    """Coefficient of restitution at the first bounce of a falling track, or None.
-
-    The bounce frame ``b`` is the first where the vertical image velocity turns from down (+v)
-    to up. A parabola ``v(t)`` is fitted to the frames before it and one to the frames after
-    it (until the next bounce); the bounce instant is where the two meet, and
-    ``e = |v_after'(t_b)| / |v_before'(t_b)|`` (vertical speeds just after and before the
-    impact, Newton's experimental law). Needs 3 frames on each side; clamped to [0.2, 0.95].
-    """
-    if len(track.frames) < 6:
-        return None
-    t = track.frames / fps
-    v = track.centre[:, 1]
-    vv = np.diff(v) / np.diff(t)
-    turns = [i for i in range(1, len(vv)) if vv[i - 1] > 0 and vv[i] < 0]
-    if not turns:
-        return None
-    b = turns[0]  # frame index (into the track) of the lowest point seen
-    after_end = next((j for j in turns[1:]), len(v) - 1)
-    pre = slice(max(0, b - 6), b + 1)
-    post = slice(b + 1, min(after_end + 1, b + 8))
-    if pre.stop - pre.start < 3 or post.stop - post.start < 3:
-        return None
-    c1 = np.polyfit(t[pre], v[pre], 2)
-    c2 = np.polyfit(t[post], v[post], 2)
-    roots = np.roots(c1 - c2)
-    roots = [float(r.real) for r in roots if abs(r.imag) < 1e-9 and t[b] - 1.5 / fps <= r.real <= t[b + 1] + 0.5 / fps]
-    tb = roots[0] if roots else float(0.5 * (t[b] + t[b + 1]))
-    before = np.polyval(np.polyder(c1), tb)
-    after = np.polyval(np.polyder(c2), tb)
-    if before <= 0 or after >= 0:
-        return None
-    return float(np.clip(-after / before, 0.2, 0.95))
-
-
-View = Literal["side", "top"]
-
-
-def _gravity_vote(track: Track, m: Motion) -> bool:
-    """Does this motion show gravity: a fall (acceleration within ~37 deg of image down and
-    strong) or a speed-up with a downward component (rolling/sliding down a slope)?"""
-    a, v = m.a, m.v0
-    na, nv = float(np.linalg.norm(a)), float(np.linalg.norm(v))
-    if m.n < 5 or na < 4.0 * track.diameter:  # |a| / diameter < 4 s^-2: no clear acceleration
-        return False
-    if a[1] - 2.0 * m.a_sd <= 0:  # downward acceleration not significant (95 %)
-        return False
-    falling = a[1] > 0.8 * na
-    speeding_down = a[1] > 0.05 * na and float(a @ v) > 0.3 * na * nv
-    return bool(falling or speeding_down)
-
-
-def estimate_view(tracks: list[Track], gravity: list[Motion | None]) -> tuple[View, list[bool]]:
-    """``"side"`` when some track shows gravity in its :func:`gravity_motion` window (see
-    :func:`_gravity_vote`), else ``"top"``; and per track whether it shows gravity."""
-    shows = [g is not None and _gravity_vote(t, g) for t, g in zip(tracks, gravity)]
-    return ("side" if any(shows) else "top"), shows
 
 
 # --------------------------------------------------------------------------------- lifting
@@ -592,11 +269,6 @@ def lift_top(tracks: list[Track], motions: list[Motion], width: int, height: int
 
 
 # --------------------------------------------------------------------------------- proposals
-CIRCLE_FILL, BOX_FILL = 0.80, 0.93
-"""Fill ratios of the rotated box below which a silhouette is surely a disc, above which surely
-a rectangle; in between (small or blurred silhouettes) both are tried."""
-
-
 def shape_candidates(track: Track, view: View) -> list[str]:
     """Shapes to try for a silhouette, most likely first: a disc is a sphere or a cylinder
     (side view: sphere first; top view: a puck, cylinder first); a rectangle is a box."""
@@ -640,32 +312,6 @@ class Proposals:
     tracks: list[Track]
     motions: list[Motion]
     notes: list[str]
-
-
-def object_tracks(seg: np.ndarray, flow: np.ndarray | None, max_objects: int = 4) -> list[Track]:
-    """The tracks that are objects: seen in at least 30 % of the frames (4 at least), moving
-    somewhere (:func:`find_tracks`; and the centroid travels at least half a diameter: blobs
-    that flicker in place, lighting changes, are not objects), at least 35 % of the largest
-    one's median area (reflections, shadows and flicker are smaller), the ``max_objects``
-    largest; ordered by first appearance, then left to right."""
-    T = len(seg)
-    tracks = [t for t in find_tracks(seg, flow, min_frames=max(4, int(0.3 * T)))
-              if t.travel >= 0.5 * t.diameter]
-    if tracks:
-        big = max(float(np.median(t.area)) for t in tracks)
-        tracks = [t for t in tracks if float(np.median(t.area)) >= 0.35 * big]
-    tracks = sorted(tracks, key=lambda t: -float(np.sum(t.area)))[:max_objects]
-    return sorted(tracks, key=lambda t: (int(t.frames[0]), float(t.centre[0, 0])))
-
-
-def still_tracks(seg: np.ndarray, max_objects: int) -> list:
-    """Tracks of segmenter masks that are objects, moving or at rest: seen in at least 15 % of the
-    frames (3 at least: objects enter and leave), the ``max_objects`` largest; ordered by first appearance, then left to
-    right (as :func:`pipeline.perception.object_tracks`)."""
-    T = len(seg)
-    tracks = find_tracks(seg, None, min_frames=max(3, int(0.15 * T)))
-    tracks = sorted(tracks, key=lambda t: -float(np.sum(t.area)))[:max_objects]
-    return sorted(tracks, key=lambda t: (int(t.frames[0]), float(t.centre[0, 0])))
 
 
 def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: float,

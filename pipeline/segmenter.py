@@ -12,7 +12,7 @@ norm and ReLU, bilinear upsampling; 0.12 M parameters. Fully convolutional: any 
 sides are multiples of 8 (inputs are padded).
 
 Input ``(4, H, W)`` float32: RGB / 255 - 0.5, and the largest RGB difference from the median
-background / 255 (``pipeline.video`` conventions). Output ``(2, H, W)`` logits: foreground (the
+background / 255 (``pipeline.masks`` conventions). Output ``(2, H, W)`` logits: foreground (the
 pixel belongs to an object) and *contact* (the pixel lies within a few px of a boundary between two
 different objects, :data:`CONTACT_PX`), the cue that splits touching objects.
 

@@ -1,7 +1,7 @@
 """IoU of the pseudo ground-truth masks against the hand labels of the real clips.
 
 For each clip of ``tests/fixtures/realvideo/labels.yaml``: pseudo masks of the labelled
-source frames (:func:`pipeline.video.pseudo_ground_truth`, background fitted over the whole
+source frames (:func:`pipeline.masks.pseudo_ground_truth`, background fitted over the whole
 clip, ``max_objects`` = number of labelled objects) against the label PNGs. Two scores per
 frame, averaged per clip: foreground IoU (any object vs background) and per-object IoU
 after Hungarian matching of pseudo objects to labelled ones (an unmatched labelled object
@@ -29,7 +29,7 @@ sys.path.insert(0, str(ROOT / "scripts"))
 from label_masks import FIXTURES, load_spec, real_video_dir  # noqa: E402
 
 from pipeline.atomic import write_json  # noqa: E402
-from pipeline.video import pseudo_ground_truth  # noqa: E402
+from pipeline.masks import pseudo_ground_truth  # noqa: E402
 
 
 def frame_scores(pred: np.ndarray, label: np.ndarray) -> tuple[float, float]:
@@ -85,7 +85,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", type=Path, default=ROOT / "reports/realvideo/pseudo_mask_iou.json")
     args = ap.parse_args(argv)
     specs = load_spec()
-    report = {"what": "pseudo masks (pipeline.video.pseudo_ground_truth) vs hand labels "
+    report = {"what": "pseudo masks (pipeline.masks.pseudo_ground_truth) vs hand labels "
                       "(tests/fixtures/realvideo)", "clips": {}}
     for clip in sorted(specs):
         report["clips"][clip] = clip_scores(clip, specs[clip])

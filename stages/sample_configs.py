@@ -1,6 +1,6 @@
 """DVC stage `sample_configs`: random scenes that pass the paper's filters.
 
-Reads params ``sample`` (:class:`pipeline.sampler.SampleConfig`), ``seed``, ``sim``, ``render`` and
+Reads params ``sample`` (:class:`pipeline.sample_config.SampleConfig`), ``seed``, ``sim``, ``render`` and
 ``scene.decimals``; writes ``paths.configs``: Parquet shards of ``shard_size`` scenes with
 columns scene_id, split, seed (the scene's own seed), scene (canonical YAML), composition
 (comma-joined sorted shapes), n_objects; and meta.json (shard count, split counts, rejections).
@@ -18,7 +18,8 @@ from pipeline.entry import run_stage
 from pipeline.mjcf import SimOptions
 from pipeline.parallel import compute_from_params, parallel_map
 from pipeline.params import load_params, path_of, section, typed_section
-from pipeline.sampler import SampleChunk, SampleConfig, sample_chunk, scene_seed
+from pipeline.sample_config import SampleConfig, scene_seed
+from pipeline.sampler import SampleChunk, sample_chunk
 from pipeline.scene import Decimals
 
 CHUNK = 20

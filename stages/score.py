@@ -16,10 +16,10 @@ from tqdm import tqdm
 
 from pipeline import shards
 from pipeline.entry import run_stage
-from pipeline.metrics import PARAMETER_UNITS, json_safe, markdown_table, scene_report, summarize
 from pipeline.mjcf import SimOptions
 from pipeline.params import load_params, path_of, typed_section
 from pipeline.scene import Scene, SceneError
+from pipeline.scene_metrics import PARAMETER_UNITS, json_safe, markdown_table, scene_report, summarize
 from pipeline.search import (EvaluatorPool, Observations, SearchConfig, at_clip_timing, baseline_scene, parse_sample,
                              plot_history, samples_by_scene)
 

@@ -5,7 +5,8 @@ import pytest
 
 from pipeline.codec import (ANSWER, END_ANSWER, CodecError, SceneCodec, composition_of, split_completion,
                             target_tokens, think_tokens)
-from pipeline.sampler import SampleConfig, iter_dataset
+from pipeline.sample_config import SampleConfig
+from pipeline.sampler import iter_dataset
 from pipeline.scene import Decimals, Scene
 
 CODEC = SceneCodec.from_params({})

@@ -1,13 +1,14 @@
-"""Tests for pipeline.metrics on hand-made masks and flows whose values are computed by hand."""
+"""Tests for pipeline.metrics and pipeline.scene_metrics on hand-made masks and flows whose values are
+computed by hand."""
 
 import math
 
 import numpy as np
 import pytest
 
-from pipeline.metrics import (
-    composition_accuracy, flow_epe, mask_iou, match_by_position, match_objects, parameter_errors,
-    scene_report, sequence_iou, summarize,
+from pipeline.metrics import flow_epe, mask_iou, match_objects, sequence_iou
+from pipeline.scene_metrics import (
+    composition_accuracy, match_by_position, parameter_errors, scene_report, summarize,
 )
 from pipeline.scene import Scene
 

@@ -140,7 +140,7 @@ def _config_classes() -> dict:
     from pipeline.model import ModelConfig
     from pipeline.parallel import ComputeConfig
     from pipeline.reconstruct import RealVideoConfig
-    from pipeline.sampler import SampleConfig
+    from pipeline.sample_config import SampleConfig
     from pipeline.sanity import SanityConfig
     return {"compute": ComputeConfig, "discrepancy": DiscrepancyConfig, "measure_hidden": HiddenConfig,
             "events": EventConfig, "flow": FlowConfig, "realvideo": RealVideoConfig, "sample": SampleConfig,

@@ -2,7 +2,7 @@
 
 Labels: ``tests/fixtures/realvideo/<clip>/<frame>.png`` (uint8, 0 background, 1..n
 objects), written by ``scripts/label_masks.py`` from the rules in ``labels.yaml`` (read off
-the frames, checked on overlays). Pseudo masks: :func:`pipeline.video.pseudo_ground_truth`
+the frames, checked on overlays). Pseudo masks: :func:`pipeline.masks.pseudo_ground_truth`
 with the background fitted over the whole clip and ``max_objects`` = labelled objects.
 
 Target: mean per-object IoU >= 0.8 per clip, with one method and one set of defaults

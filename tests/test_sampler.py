@@ -17,8 +17,8 @@ from pydantic import ValidationError
 from pipeline.camera import project
 from pipeline.mjcf import SimOptions, compile_model, initial_state
 from pipeline.render import FrameRenderer
-from pipeline.sampler import (SampleConfig, SceneFilter, _sample_layout, initial_overlap, iter_dataset,
-                              sample_composition, sample_scene, scene_seed, split_names)
+from pipeline.sample_config import SampleConfig, sample_composition, scene_seed, split_names
+from pipeline.sampler import SceneFilter, _sample_layout, initial_overlap, iter_dataset, sample_scene
 from pipeline.scene import Scene
 from pipeline.simulate import rollout
 

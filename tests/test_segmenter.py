@@ -59,10 +59,10 @@ def test_shipped_weights_find_an_object_at_rest_throughout():
     background subtraction sees nothing there; the segmenter finds the whole box in every frame."""
     from pipeline.metrics import observation_scores
     from pipeline.observe import segment_objects
-    from pipeline.perception import still_tracks
+    from pipeline.image_tracks import still_tracks
     from pipeline.render import render_scene
     from pipeline.scene import Scene
-    from pipeline.video import label_objects, pseudo_masks
+    from pipeline.masks import label_objects, pseudo_masks
 
     scene = Scene.from_dict({"duration": 1.0, "fps": 30, "camera": {"height": 1.2, "pitch": 40.0, "fov": 45.0},
                              "objects": [

@@ -20,7 +20,8 @@ import pytest
 from pipeline.codec import CodecError, SceneCodec
 from pipeline.mjcf import STATIC_COLOUR, SimOptions, compile_model, to_xml
 from pipeline.render import render_scene
-from pipeline.sampler import SampleConfig, SceneFilter, iter_dataset, sample_scene, scene_seed
+from pipeline.sample_config import SampleConfig, scene_seed
+from pipeline.sampler import SceneFilter, iter_dataset, sample_scene
 from pipeline.scene import Decimals, Scene, SceneError, StaticBox, StaticPlane, json_schema_text
 from pipeline.simulate import simulate
 from pipeline.rotation import quat_to_mat as rotation_matrix

@@ -12,7 +12,8 @@ from pipeline.truthsets import mujoco_scenes
 from pipeline.truthsets.__main__ import main
 from pipeline.truthsets.common import (TruthClip, TruthsetError, category_of, generate_clip, load_clip, motion_labels,
                                        project, write_clip)
-from pipeline.truthsets.scenario import CATEGORIES, GRAVITY, CameraSpec, Look, ObjectSpec, Scenario, roll, slide
+from pipeline.truthsets.planning import GRAVITY, roll, slide
+from pipeline.truthsets.scenario import CATEGORIES, CameraSpec, Look, ObjectSpec, Scenario
 
 W, H = 160, 120
 

@@ -1,4 +1,4 @@
-"""Tests for pipeline.video: reading real clips, fps override, resampling, pseudo masks."""
+"""Tests for pipeline.video (reading real clips, fps override, resampling) and pipeline.masks (pseudo masks)."""
 
 import os
 from pathlib import Path
@@ -9,8 +9,8 @@ import pytest
 import cv2
 
 from conftest import moving_disc_avi
-from pipeline.video import (BACKGROUND, VideoError, VideoWarning, label_objects, pseudo_ground_truth,
-                            pseudo_masks, read_video, resample)
+from pipeline.masks import BACKGROUND, label_objects, pseudo_ground_truth, pseudo_masks
+from pipeline.video import VideoError, VideoWarning, read_video, resample
 
 _ROOT = Path(__file__).resolve().parents[1]
 REAL_VIDEO = next((p for p in [Path(os.environ.get("DYNAMICS_REAL_DATA", "/nonexistent")),
@@ -207,7 +207,7 @@ def test_pseudo_ground_truth_crop_and_ids():
 def test_hold_resting_keeps_an_object_that_stops_inside_the_frame():
     """Background subtraction loses an object where it comes to rest; hold_resting keeps its
     last mask until the end, but not for an object that left through the border."""
-    from pipeline.video import hold_resting
+    from pipeline.masks import hold_resting
 
     seg = np.full((6, 20, 30), -1, dtype=np.int8)
     seg[:3, 8:12, 5:9] = 0      # object 0 seen in frames 0-2, inside the frame, then lost

@@ -21,7 +21,7 @@ def fitness(pred_seg: np.ndarray, pred_flow: np.ndarray | None, obs_seg: np.ndar
     Paper: fitness IoU − EPE. The IoU is the matched full-sequence IoU
     (:func:`pipeline.metrics.sequence_iou`) when ``obs_seg`` is a label map (int, -1
     background: rendered ground truth, or pseudo masks split into objects by
-    ``pipeline.video.label_objects``); with ``cfg.penalize_extra`` it is averaged over
+    ``pipeline.masks.label_objects``); with ``cfg.penalize_extra`` it is averaged over
     ``max(n_true, n_pred)`` objects instead of the true ones, so a predicted object that
     matches nothing costs as much as a missed one (the docs/design.md §7 metric ignores extra objects,
     which would let Best@K prefer candidates that add objects). For a bool foreground-only

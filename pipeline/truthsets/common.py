@@ -51,7 +51,8 @@ import numpy as np
 
 from pipeline.atomic import atomic_dir, json_default
 from pipeline.errors import UserError
-from pipeline.truthsets.scenario import CATEGORIES, Scenario, project, sample_scenario
+from pipeline.truthsets.planning import sample_scenario
+from pipeline.truthsets.scenario import CATEGORIES, Scenario, project
 from pipeline.viz import Mp4Writer
 
 CLIP_DIR = "clip-{:05d}"
