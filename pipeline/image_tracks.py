@@ -357,7 +357,7 @@ def bounce_restitution(track: Track, fps: float) -> float | None:
 View = Literal["side", "top"]
 
 
-def _gravity_vote(track: Track, m: Motion) -> bool:
+def gravity_vote(track: Track, m: Motion) -> bool:
     """Does this motion show gravity: a fall (acceleration within ~37 deg of image down and
     strong) or a speed-up with a downward component (rolling/sliding down a slope)?"""
     a, v = m.a, m.v0
@@ -373,6 +373,6 @@ def _gravity_vote(track: Track, m: Motion) -> bool:
 
 def estimate_view(tracks: list[Track], gravity: list[Motion | None]) -> tuple[View, list[bool]]:
     """``"side"`` when some track shows gravity in its :func:`gravity_motion` window (see
-    :func:`_gravity_vote`), else ``"top"``; and per track whether it shows gravity."""
-    shows = [g is not None and _gravity_vote(t, g) for t, g in zip(tracks, gravity)]
+    :func:`gravity_vote`), else ``"top"``; and per track whether it shows gravity."""
+    shows = [g is not None and gravity_vote(t, g) for t, g in zip(tracks, gravity)]
     return ("side" if any(shows) else "top"), shows

@@ -111,7 +111,7 @@ def pairwise_iou(true_seg: np.ndarray, pred_seg: np.ndarray, n_true: int | None 
     return _counts_iou(counts)
 
 
-def _match(iou: np.ndarray) -> list[tuple[int, int]]:
+def hungarian_match(iou: np.ndarray) -> list[tuple[int, int]]:
     """Hungarian assignment maximising the sequence-mean IoU of ``iou (T, n_true, n_pred)``."""
     if iou.shape[1] == 0 or iou.shape[2] == 0:
         return []
@@ -133,7 +133,7 @@ def match_objects(true_seg: np.ndarray, pred_seg: np.ndarray) -> list[tuple[int,
     Raises:
         ValueError: shapes differ or a segmentation is malformed.
     """
-    return _match(pairwise_iou(true_seg, pred_seg))
+    return hungarian_match(pairwise_iou(true_seg, pred_seg))
 
 
 def _small_labels(seg: np.ndarray, name: str) -> tuple[np.ndarray, int] | None:
@@ -225,7 +225,7 @@ def sequence_iou(true_seg: np.ndarray, pred_seg: np.ndarray) -> dict[str, Any]:
         iou = _counts_iou(counts)
         inter = counts[:, 1:, 1:].sum(axis=(1, 2))
         union = counts[0].sum() - counts[:, 0, 0]
-    matches = _match(iou)
+    matches = hungarian_match(iou)
     nt = iou.shape[1]
     fg = np.where(union > 0, inter / np.maximum(union, 1), 1.0)
     if nt == 0:

@@ -57,7 +57,7 @@ RAY_MAX_RETRIES = 3
 exception raised by the chunk function is not retried, it fails the map)."""
 
 WORKER_ENV = {"OMP_NUM_THREADS": "1", "LP_NUM_THREADS": "0"}
-"""Environment of every worker, set before it imports a library (see :func:`_init_worker`)."""
+"""Environment of every worker, set before it imports a library (see :func:`init_worker`)."""
 
 
 class ComputeConfig(BaseModel):
@@ -168,7 +168,7 @@ def map_shards(fn: Callable[[Any], list[R]], groups: Iterable[Sequence[T]], task
             rows = []
 
 
-def _init_worker() -> None:
+def init_worker() -> None:
     """Worker set-up: one thread per library (the pool already fills the cores).
 
     ``LP_NUM_THREADS=0``: Mesa llvmpipe rasterizes in the calling thread instead of handing
@@ -187,7 +187,7 @@ def make_pool(workers: int) -> ProcessPoolExecutor:
     """A ``spawn`` process pool of ``workers`` workers, set up as :func:`parallel_map`'s (for
     callers that run several maps on one pool)."""
     return ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                               initializer=_init_worker)
+                               initializer=init_worker)
 
 
 def parallel_map(fn: Callable[[T], R], items: Iterable[T], compute: ComputeConfig | int | None = None,
@@ -236,7 +236,7 @@ def _ray_task(fn: Callable[[T], R], item: T, cwd: str) -> R:
     """A Ray task: worker set-up as in the local pool, the driver's working directory ``cwd``
     (stage paths are relative to the workspace; on a cluster it must be on a file system every
     node mounts at the same path), then ``fn(item)``."""
-    _init_worker()
+    init_worker()
     os.chdir(cwd)
     return fn(item)
 

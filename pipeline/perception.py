@@ -33,7 +33,7 @@ import numpy as np
 from pipeline.camera import intrinsics, pixel_to_plane
 from pipeline.errors import UserError
 from pipeline.geometry import volume
-from pipeline.image_tracks import (BOX_FILL, CIRCLE_FILL, Motion, Track, View, _gravity_vote, bounce_restitution,
+from pipeline.image_tracks import (BOX_FILL, CIRCLE_FILL, Motion, Track, View, gravity_vote, bounce_restitution,
                                    estimate_view, gravity_motion, initial_motion, initial_state_given, object_tracks,
                                    still_tracks)
 from pipeline.rotation import axis_angle_quat
@@ -89,7 +89,7 @@ def _side_motion_kind(track: Track, m: Motion) -> str:
     na = float(np.linalg.norm(m.a))
     if m.n >= 5 and m.a[1] > 0.8 * na and na > 30.0 * track.diameter:
         return "fall"
-    if _gravity_vote(track, m):
+    if gravity_vote(track, m):
         return "ramp"
     return "floor"
 

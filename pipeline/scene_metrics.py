@@ -21,7 +21,7 @@ from scipy.optimize import linear_sum_assignment
 from tabulate import tabulate
 
 from pipeline.geometry import extents
-from pipeline.metrics import _match, flow_epe, pairwise_iou, sequence_iou
+from pipeline.metrics import hungarian_match, flow_epe, pairwise_iou, sequence_iou
 from pipeline.scene import Scene
 
 OBJECT_FIELDS = ("position", "orientation", "linear_velocity", "angular_velocity", "size", "mass",
@@ -109,7 +109,7 @@ def parameter_errors(true_scene: Scene, pred_scene: Scene, true_seg: np.ndarray 
     """
     if true_seg is not None and pred_seg is not None:
         iou = pairwise_iou(true_seg, pred_seg, len(true_scene.objects), len(pred_scene.objects))
-        matches = _match(iou)
+        matches = hungarian_match(iou)
     else:
         matches = match_by_position(true_scene, pred_scene)
     per: dict[str, list[float]] = {k: [] for k in OBJECT_FIELDS}

@@ -30,11 +30,13 @@ from pipeline.params import merge_params  # noqa: E402
 
 PROFILE = ROOT / "profiles" / "tiny.yaml"
 REPORTS = ROOT / "reports" / "tiny"
-TOLERANCE = 0.05
-"""Largest accepted difference of a rate or IoU (0..1) from the committed report (machine to
-machine: the fine-tuning and the CMA-ES run on floating point that differs across CPUs)."""
-RATES = ("composition_accuracy", "initial_iou", "full_iou")
-"""The metrics compared, per method and split of ``reports/metrics.json``."""
+TOLERANCE = 0.10
+"""Largest accepted difference of an IoU from the committed report. Runs on one machine repeat
+exactly; on another CPU the fine-tuning and the CMA-ES run on floating point that can differ,
+and with 2 scenes per split one scene moves a mean by up to half its change."""
+IOUS = ("initial_iou", "full_iou")
+"""The IoUs compared, per method and split of ``reports/metrics.json``; the composition
+accuracy is compared too, within one scene (``1 / n``)."""
 
 
 def run(cmd: list[str], cwd: Path, env: dict, timeout: int = 1800) -> subprocess.CompletedProcess:
@@ -78,9 +80,10 @@ def compare(now: dict, committed: dict, tolerance: float = TOLERANCE) -> list[st
             if got is None:
                 out.append(f"{method}/{split}: missing now")
                 continue
-            for key in RATES:
+            for key in ("composition_accuracy", *IOUS):
                 a, b = got.get(key), row.get(key)
-                if a is None or b is None or not math.isclose(a, b, abs_tol=tolerance):
+                tol = 1.0 / max(int(row.get("n") or 1), 1) + 1e-9 if key == "composition_accuracy" else tolerance
+                if a is None or b is None or not math.isclose(a, b, abs_tol=tol):
                     out.append(f"{method}/{split}/{key}: now {a}, committed {b}")
     out += [f"{m}: not in the committed report" for m in now.get("methods", {}) if m not in committed["methods"]]
     return out

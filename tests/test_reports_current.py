@@ -18,8 +18,12 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT.parent / "shared" / "data" / "real" / "video"
 CLIP, FILE = "02_ball_on_ramp", "02_tracker_BallOnRamp_30fps.mp4"   # 30 fps, 4 labelled frames, ~20 s
-TOLERANCE = 0.10
-"""Largest accepted difference of an IoU from the committed report (machine to machine)."""
+TOLERANCE = 0.15
+"""Largest accepted difference of an IoU of the search from the committed report (machine to
+machine; on one machine it repeats exactly)."""
+OBSERVATION_TOLERANCE = 0.02
+"""The same for the observation (background subtraction and tracking: integer image operations,
+nearly exact across machines)."""
 
 
 @pytest.mark.slow
@@ -37,9 +41,10 @@ def test_one_real_clip_reproduces_the_committed_report(tmp_path):
                           cwd=ROOT, env=env, capture_output=True, text=True, timeout=900)
     assert proc.returncode == 0, proc.stderr[-3000:]
     now = json.loads((out / "metrics.json").read_text())
-    # the same window, crop and objects: the observation is deterministic
+    # the same window, crop and objects: the observation is (nearly) deterministic
     assert now["window"] == committed["window"]
-    assert now["against_labels"]["observation_vs_labels"] == committed["against_labels"]["observation_vs_labels"]
+    assert now["against_labels"]["observation_vs_labels"] == pytest.approx(
+        committed["against_labels"]["observation_vs_labels"], abs=OBSERVATION_TOLERANCE)
     for key in ("best_of_k", "best_of_k_cmaes"):
         assert now[key]["full_iou"] == pytest.approx(committed[key]["full_iou"], abs=TOLERANCE), key
     assert now["against_labels"]["resim_vs_labels"] == pytest.approx(

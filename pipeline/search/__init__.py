@@ -29,17 +29,17 @@ Package layout: :mod:`.config` (SearchConfig, SearchRanges, FREE_FIELDS), :mod:`
 (SceneEvaluator, EvaluatorPool, evaluate_scene; ``structure_key`` from :mod:`pipeline.engine`), :mod:`.fitness` (fitness,
 best_of_k), :mod:`.observations` (Observations, samples_by_scene, parse_sample,
 at_clip_timing), :mod:`.space` (SearchSpace, floor_height), :mod:`.cmaes` (cmaes_refine),
-:mod:`.parallel` (ParallelEvaluator: candidates over a process pool), :mod:`.baseline`
+:mod:`.parallel_eval` (ParallelEvaluator: candidates over a process pool), :mod:`.baseline`
 (baseline_scene), :mod:`.plot` (plot_history). Everything is re-exported
 here, so ``from pipeline.search import X`` and ``search.X`` work as before the split.
 """
 
-from pipeline.search.baseline import _scenes_of, baseline_scene
+from pipeline.search.baseline import baseline_scene
 from pipeline.search.cmaes import cmaes_refine
 from pipeline.search.config import FREE_FIELDS, FreeField, SearchConfig, SearchRanges
 from pipeline.engine import structure_key
 from pipeline.search.evaluator import EvaluatorPool, SceneEvaluator, evaluate_scene
-from pipeline.search.fitness import _check_obs, _invalid_score, best_of_k, fitness
+from pipeline.search.fitness import best_of_k, fitness
 from pipeline.search.observations import Observations, at_clip_timing, parse_sample, samples_by_scene
 from pipeline.search.parallel_eval import ParallelEvaluator
 from pipeline.search.plot import plot_history

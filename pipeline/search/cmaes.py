@@ -12,7 +12,7 @@ from pipeline.mjcf import SimOptions
 from pipeline.scene import Scene
 from pipeline.search.config import SearchConfig
 from pipeline.search.evaluator import EvaluatorPool, SceneEvaluator
-from pipeline.search.fitness import _check_obs, fitness
+from pipeline.search.fitness import check_observation, fitness
 from pipeline.search.space import SearchSpace
 
 
@@ -52,7 +52,7 @@ def cmaes_refine(scene: Scene, obs_seg: np.ndarray, obs_flow: np.ndarray | None,
     """
     import cma
 
-    T, H, W = _check_obs(obs_seg, obs_flow)
+    T, H, W = check_observation(obs_seg, obs_flow)
     space = SearchSpace(scene, cfg.free, cfg.ranges)
     need_flow = obs_flow is not None and cfg.lambda_epe > 0
     t0 = time.perf_counter()

@@ -65,7 +65,13 @@ def _invalid_score(error: str) -> dict[str, Any]:
             "epe": math.nan, "prior": 0.0, "error": error}
 
 
-def _check_obs(obs_seg: np.ndarray, obs_flow: np.ndarray | None) -> tuple[int, int, int]:
+def check_observation(obs_seg: np.ndarray, obs_flow: np.ndarray | None) -> tuple[int, int, int]:
+    """``(T, H, W)`` of an observed clip: ``obs_seg (T, H, W)`` integer labels (-1 background),
+    ``obs_flow (T-1, H, W, 2)`` float px or None.
+
+    Raises:
+        ValueError: a shape that does not fit (one line naming the array).
+    """
     seg = np.asarray(obs_seg)
     if seg.ndim != 3:
         raise ValueError(f"obs_seg: must be (T, H, W), got shape {seg.shape}")
@@ -96,7 +102,7 @@ def best_of_k(candidates: Sequence[Scene | None], obs_seg: np.ndarray, obs_flow:
         ``full_iou``, ``epe``, ``prior``, ``error``) and the index of the highest fitness
         (first on ties), or None when no candidate is valid.
     """
-    T, H, W = _check_obs(obs_seg, obs_flow)
+    T, H, W = check_observation(obs_seg, obs_flow)
     own = pool is None
     pool = pool or EvaluatorPool(W, H, options)
     if (pool.width, pool.height) != (W, H):

@@ -35,11 +35,11 @@ from typing import Sequence
 import numpy as np
 
 from pipeline.mjcf import SimOptions
-from pipeline.parallel import _init_worker, make_pool
+from pipeline.parallel import init_worker, make_pool
 from pipeline.scene import Scene
 from pipeline.search.config import SearchConfig
 from pipeline.search.evaluator import EvaluatorPool
-from pipeline.search.fitness import _check_obs, fitness
+from pipeline.search.fitness import check_observation, fitness
 
 _POOLS: dict = {}
 """Worker-side evaluator pools, by (width, height, options)."""
@@ -131,9 +131,9 @@ _FITNESS: dict = {}
 
 def _init_fitness_worker(token: str, width: int, height: int, options: SimOptions | None,
                          obs_seg: np.ndarray, obs_flow: np.ndarray | None) -> None:
-    """Worker set-up (pool initializer): :func:`pipeline.parallel._init_worker`'s thread limits,
+    """Worker set-up (pool initializer): :func:`pipeline.parallel.init_worker`'s thread limits,
     then keep the observation and an evaluator pool for every later job."""
-    _init_worker()
+    init_worker()
     _FITNESS.clear()
     _FITNESS.update(token=token, obs_seg=obs_seg, obs_flow=obs_flow,
                     pool=EvaluatorPool(width, height, options))
@@ -182,7 +182,7 @@ class ParallelFitness(_PoolOwner):
 
     def __init__(self, obs_seg: np.ndarray, obs_flow: np.ndarray | None, cfg: SearchConfig | None = None,
                  options: SimOptions | None = None, workers: int = 2):
-        T, H, W = _check_obs(obs_seg, obs_flow)
+        T, H, W = check_observation(obs_seg, obs_flow)
         self.n_frames, self.height, self.width = T, H, W
         self.obs_seg, self.obs_flow = np.asarray(obs_seg), (None if obs_flow is None else np.asarray(obs_flow))
         self.cfg, self.options = cfg or SearchConfig(), options
