@@ -155,11 +155,16 @@ def _schema_cli(args: argparse.Namespace) -> int:
     return 0
 
 
+_warned: set[str] = set()
+
+
 def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
-    """Our own warnings (e.g. a truncated video) as one stderr line ``warning: <message>``;
-    others keep Python's format."""
+    """Our own warnings (e.g. a truncated video) as one stderr line ``warning: <message>``, each
+    message once per run (the main job reads a video several times); others keep Python's format."""
     if issubclass(category, VideoWarning):
-        print(f"warning: {message}", file=file or sys.stderr)
+        if str(message) not in _warned:
+            _warned.add(str(message))
+            print(f"warning: {message}", file=file or sys.stderr)
     else:
         _python_showwarning(message, category, filename, lineno, file, line)
 

@@ -10,7 +10,9 @@ between :data:`MIN_LONG_SIDE` and :data:`MAX_LONG_SIDE` px. Cropping (rather tha
 the working size) keeps the render small, so the search runs at 100+ evaluations/s, and never
 cuts an object out because the box is built from where the objects are.
 
-Window (``start=None``): the 1 s window whose frames show the most *object-sized* motion
+Window (``start=None``): a clip shorter than the window is its own window (at least
+:data:`MIN_WINDOW_FRAMES` frames at the scene rate), and the scene's duration follows it.
+Otherwise the 1 s window whose frames show the most *object-sized* motion
 (frame differences at 30 fps on a 160 px wide copy of the whole clip; a frame counts up to 1
 as its moving area grows to :data:`FULL_MOTION_FRACTION` of the image, and -2 when it
 exceeds :data:`MAX_MOVING_FRACTION`, e.g. a hand or a person; frames weigh from 1 at the
@@ -36,6 +38,9 @@ from pipeline.video import Clip, VideoError, read_video, resample
 
 DETECT_LONG_SIDE = 320
 """px, long side of the detection pass (whole frame)."""
+MIN_WINDOW_FRAMES = 8
+"""Fewest frames (at the scene rate) of a clip shorter than the window that is still observed
+as its own window: 0.27 s at 30 fps, enough for the flow and for a velocity from the masks."""
 MIN_OBJECT_DIAMETER = 12.0
 """px, smallest median object diameter in the working image (a disc of 12 px is 113 px)."""
 MIN_LONG_SIDE, MAX_LONG_SIDE = 160, 384
@@ -75,6 +80,8 @@ class Observation:
     scene_fps: int
     flow_method: str
     mask_method: str = "median"
+    duration: float = 1.0
+    """s, length of the window (the asked duration, or less for a clip shorter than it)."""
 
 
 def _detect_size(orig_w: int, orig_h: int) -> tuple[int, int]:
@@ -83,10 +90,22 @@ def _detect_size(orig_w: int, orig_h: int) -> tuple[int, int]:
 
 
 def choose_start(video, fps: float | None, scene_fps: int, duration: float) -> float:
-    """Start (s) of the ``duration`` window with the most object-sized motion (module docstring).
+    """Start (s) of the ``duration`` window with the most object-sized motion (module docstring);
+    0.0 for a clip shorter than ``duration`` (:func:`choose_window`).
 
     Raises:
-        VideoError: unreadable video, or shorter than ``duration``.
+        VideoError: unreadable video, or shorter than :data:`MIN_WINDOW_FRAMES` frames.
+    """
+    return choose_window(video, fps, scene_fps, duration)[0]
+
+
+def choose_window(video, fps: float | None, scene_fps: int, duration: float) -> tuple[float, float]:
+    """``(start, length)`` in s of the window: the ``duration`` window with the most object-sized
+    motion (module docstring), or for a clip shorter than ``duration`` the whole clip
+    (``(0.0, length)``, :func:`window_duration`).
+
+    Raises:
+        VideoError: unreadable video, or shorter than :data:`MIN_WINDOW_FRAMES` frames.
     """
     probe = read_video(video, fps=fps, max_frames=1)
     W0, H0 = probe.original_size
@@ -94,7 +113,7 @@ def choose_start(video, fps: float | None, scene_fps: int, duration: float) -> f
     frames = small.frames
     total = len(frames) / small.fps
     if total + 0.5 / small.fps < duration:
-        raise VideoError(f"{video}: only {total:.3f} s long at {small.fps:g} fps, need {duration:g} s")
+        return 0.0, window_duration(video, total, small.fps, scene_fps, duration)
     at = resample(frames, small.fps, scene_fps)
     grey = at.astype(np.int16).max(axis=-1)
     moving = np.abs(np.diff(grey, axis=0)) > 25
@@ -102,14 +121,14 @@ def choose_start(video, fps: float | None, scene_fps: int, duration: float) -> f
     score = np.where(frac > MAX_MOVING_FRACTION, -2.0, np.minimum(frac, FULL_MOTION_FRACTION) / FULL_MOTION_FRACTION)
     n = max(1, round(duration * scene_fps))
     if len(score) < n:
-        return 0.0
+        return 0.0, duration
     # n frames: n - 1 differences, weighted from 1 at the window's start down to 0.5 at its
     # end, so that the window starts where the motion starts: the scene's state at t = 0 has
     # to explain the rest (a push in the middle of the window cannot be explained)
     sums = np.correlate(score, np.linspace(1.0, 0.5, max(1, n - 1)), mode="valid")
     last = max(0, math.floor((total - duration) * scene_fps + 1e-6))
     sums = sums[: last + 1]
-    return float(np.argmax(sums)) / scene_fps
+    return float(np.argmax(sums)) / scene_fps, duration
 
 
 MASK_METHODS = ("median", "mog2", "segmenter", "hybrid")
@@ -363,6 +382,22 @@ def working_size(crop: tuple[int, int, int, int], diameter: float) -> tuple[int,
     return max(2, round(w * s / 2) * 2), max(2, round(h * s / 2) * 2)
 
 
+def window_duration(video, available: float, video_fps: float, scene_fps: int, duration: float) -> float:
+    """Length (s) of the window: ``duration``, or for a clip of ``available`` s shorter than it
+    the whole clip, cut to whole frames at ``scene_fps``.
+
+    Raises:
+        VideoError: fewer than :data:`MIN_WINDOW_FRAMES` frames at ``scene_fps``.
+    """
+    if available + 0.5 / video_fps >= duration:
+        return duration
+    n = math.floor((available + 0.5 / video_fps) * scene_fps + 1e-6)
+    if n < MIN_WINDOW_FRAMES:
+        raise VideoError(f"{video}: only {available:.3f} s long at {video_fps:g} fps, need at least "
+                         f"{MIN_WINDOW_FRAMES / scene_fps:.3f} s ({MIN_WINDOW_FRAMES} frames at {scene_fps} fps)")
+    return n / scene_fps
+
+
 def observe(video, fps: float | None, start: float | None, scene_fps: int, duration: float,
             flow_method: str = "dis", flow_preset: str = "medium", mask_method: str = "median",
             max_objects: int = 4) -> Observation:
@@ -371,7 +406,8 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     Args:
         video: video file.
         fps: true frame rate (overrides the container's), or None.
-        start: window start, s; None chooses it (:func:`choose_start`).
+        start: window start, s; None chooses it (:func:`choose_start`), and a clip shorter than
+            ``duration`` is then its own window (``Observation.duration`` says how long).
         scene_fps: frame rate of the result (the scene's), frames per second.
         duration: window length, s.
         flow_method, flow_preset: optical flow (``pipeline.flow.estimate_flow``); ``gt`` means
@@ -382,8 +418,8 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
         VideoError: unreadable video or window past its end.
     """
     auto = start is None
-    if auto:
-        start = choose_start(video, fps, scene_fps, duration)
+    if auto:   # a clip shorter than the window is its own window
+        start, duration = choose_window(video, fps, scene_fps, duration)
     probe = read_video(video, fps=fps, max_frames=1)
     W0, H0 = probe.original_size
     dsize = _detect_size(W0, H0)
@@ -412,7 +448,8 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     method = "dis" if flow_method == "gt" else flow_method
     flow = estimate_flow(frames, method=method, preset=flow_preset)
     seg, _ = keep_objects(seg if learned else hold_resting(seg), flow, max_objects, learned)
-    return Observation(frames, seg, flow, clip, float(start), auto, clip.crop, size, scene_fps, method, mask_method)
+    return Observation(frames, seg, flow, clip, float(start), auto, clip.crop, size, scene_fps, method, mask_method,
+                       duration)
 
 
 def original_frames(obs: Observation, video, fps: float | None, height: int = 320) -> np.ndarray:

@@ -298,6 +298,7 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
         truth = load_labels(labels_path, read_video(video, fps=fps, max_frames=1).original_size)
     obs = observe(video, fps, start, scene_fps, duration, fcfg.method, fcfg.preset,
                   rv.mask_method, max_objects)
+    duration = obs.duration   # a clip shorter than the window is its own window, and the scene follows it
     W, H = obs.size
     print(f"[infer] {video}: window {obs.start:.3f}-{obs.start + duration:.3f} s"
           f"{' (chosen automatically)' if obs.auto else ''}, {len(obs.frames)} frames at {scene_fps} fps, "
