@@ -52,7 +52,7 @@ from pipeline.atomic import publish_dir, remove_stale_temps, temp_dir_for
 from pipeline.flow import FlowConfig, estimate_flow
 from pipeline.labels import load_labels, score_against_labels
 from pipeline.npz import NpzWriter
-from pipeline.metrics import flow_epe, sequence_iou
+from pipeline.metrics import flow_epe, observation_scores, sequence_iou
 from pipeline.mjcf import SimOptions
 from pipeline.observe import LEARNED, MASK_METHODS, observe, original_frames, source_frames, upscale
 from pipeline.params import ParamsError, load_params, path_of, section, typed_section
@@ -360,8 +360,12 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     def score(scene: Scene) -> tuple[dict, object]:
         trace, fr = render_scene(scene, W, H, options=sim)
         iou = sequence_iou(obs.seg, fr.seg)
+        # strict: per observed object over the frames where it or its match is visible (no free
+        # credit for frames where both are absent; issue 29 item 7), reported beside full_iou
+        strict = observation_scores(obs.seg, fr.seg)["matched_iou"]
         epe = flow_epe(fr.flow, obs.flow, fr.seg[:-1] >= 0, obs.seg[:-1] >= 0)
         return {"initial_iou": round(iou["initial_iou"], 4), "full_iou": round(iou["full_iou"], 4),
+                "strict_full_iou": None if not np.isfinite(strict) else round(float(strict), 4),
                 "foreground_iou_full": round(iou["foreground_iou_full"], 4), "epe": round(epe, 4)}, (trace, fr)
 
     first_i = next(i for i, c in enumerate(candidates) if c is not None)
