@@ -246,7 +246,7 @@ def _dvc_repo(tmp_path: Path) -> tuple[Path, dict]:
     params = yaml.safe_load((ws / "params.yaml").read_text())
     params["model"].update(DVC_FINETUNE)
     (ws / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
-    for name in ("stages", "pipeline", "models"):
+    for name in ("stages", "pipeline"):   # pipeline/checkpoints: the shipped checkpoint (model.init: shipped)
         shutil.copytree(ROOT / name, ws / name, ignore=shutil.ignore_patterns("__pycache__"))
     shutil.copy(ROOT / "dvc.yaml", ws / "dvc.yaml")
     env = {**env, "PYTHONPATH": str(ws), "DVC_NO_ANALYTICS": "1", "HF_HUB_OFFLINE": "1",
