@@ -129,40 +129,23 @@ def test_relative_paths_are_relative_to_the_params_file(tmp_path, monkeypatch):
     assert path_of(load_params(project / "abs.yaml"), "model") == tmp_path / "m"
 
 
-def _config_classes() -> dict:
-    """params.yaml section -> the typed config that reads it (every section that has one)."""
-    from pipeline.codec import TokenConfig
-    from pipeline.discrepancy.config import DiscrepancyConfig
-    from pipeline.discrepancy.hidden import HiddenConfig
-    from pipeline.events import EventConfig
-    from pipeline.flow import FlowConfig
-    from pipeline.mjcf import SimOptions
-    from pipeline.model import ModelConfig
-    from pipeline.parallel import ComputeConfig
-    from pipeline.reconstruct import RealVideoConfig
-    from pipeline.sample_config import SampleConfig
-    from pipeline.sanity import SanityConfig
-    return {"compute": ComputeConfig, "discrepancy": DiscrepancyConfig, "measure_hidden": HiddenConfig,
-            "events": EventConfig, "flow": FlowConfig, "realvideo": RealVideoConfig, "sample": SampleConfig,
-            "sanity": SanityConfig, "scene.decimals": Decimals, "search": SearchConfig, "sim": SimOptions,
-            "tokens": TokenConfig, "model": ModelConfig}
-
-
-def test_params_yaml_agrees_with_the_code_defaults():
+def test_params_yaml_agrees_with_the_code_defaults(tmp_path):
     """One default per setting: every key params.yaml gives equals the default of the typed
-    config that reads it (params.yaml is the default profile, written out); a profile
-    (profiles/*.yaml, dvc exp run -S) changes values, the code holds the defaults."""
+    config that reads it (pipeline.param_defaults); a profile (profiles/*.yaml, dvc exp run -S)
+    changes values, the code holds the defaults, and --write generates params.yaml's values."""
+    from pipeline.param_defaults import differences, main, write_defaults
     params = yaml.safe_load((ROOT / "params.yaml").read_text())
-    classes = _config_classes()
-    typed_tops = {key.split(".")[0] for key in classes}
-    untyped = {"seed", "paths", "scene", "render"}           # no config class: read as plain values
-    assert set(params) <= typed_tops | untyped, set(params) - (typed_tops | untyped)   # a new section: add it above
-    disagree = []
-    for key, cls in classes.items():
-        given = params
-        for name in key.split("."):
-            given = given.get(name) or {}
-        typed, default = typed_section(params, key, cls), cls()
-        disagree += [f"{key}.{name}: params.yaml {getattr(typed, name)!r}, code {getattr(default, name)!r}"
-                     for name in given if getattr(typed, name) != getattr(default, name)]
-    assert not disagree, "\n".join(disagree)
+    assert not differences(params), "\n".join(differences(params))
+    assert main(["--check", "--params", str(ROOT / "params.yaml")]) == 0
+    # a value that disagrees is named, and --write sets it from the class, comments kept
+    text = (ROOT / "params.yaml").read_text()
+    assert "\n  lr: 0.0002 " in text
+    changed = tmp_path / "params.yaml"
+    changed.write_text(text.replace("\n  lr: 0.0002 ", "\n  lr: 0.001 ", 1).replace("\n  bins: 256", "\n  bins: 64", 1))
+    assert differences(yaml.safe_load(changed.read_text())) == [
+        "tokens.bins: params 64, code 256", "model.lr: params 0.001, code 0.0002"]
+    assert main(["--check", "--params", str(changed)]) == 1
+    assert write_defaults(changed) == ["tokens.bins", "model.lr"]
+    assert not differences(yaml.safe_load(changed.read_text()))
+    assert "# fine-tuning the shipped checkpoint" in changed.read_text()
+    assert yaml.safe_load(changed.read_text()) == params
