@@ -170,6 +170,7 @@ def _one_line_warning(message, category, filename, lineno, file=None, line=None)
 
 
 def main(argv: list[str] | None = None) -> int:
+    _warned.clear()   # "once per run": a second main() in one process warns again
     warnings.showwarning = _one_line_warning
     configure_logging("dynamics")
     args = build_parser().parse_args(argv)

@@ -53,16 +53,11 @@ def test_bad_checkpoints_are_one_error(tmp_path):
         Segmenter(bad)
 
 
-@pytest.mark.skipif(not DEFAULT_WEIGHTS.exists(), reason="no shipped segmenter weights")
-def test_shipped_weights_find_an_object_at_rest_throughout():
-    """A ball rolls past a box that never moves: the median background holds the box, so
-    background subtraction sees nothing there; the segmenter finds the whole box in every frame."""
-    from pipeline.metrics import observation_scores
-    from pipeline.observe import segment_objects
-    from pipeline.image_tracks import still_tracks
+def _box_at_rest_and_rolling_ball():
+    """Rendered frames (192 x 144) of a box that never moves (label 0) and a ball rolling past it
+    (label 1)."""
     from pipeline.render import render_scene
     from pipeline.scene import Scene
-    from pipeline.masks import label_objects, pseudo_masks
 
     scene = Scene.from_dict({"duration": 1.0, "fps": 30, "camera": {"height": 1.2, "pitch": 40.0, "fov": 45.0},
                              "objects": [
@@ -70,7 +65,19 @@ def test_shipped_weights_find_an_object_at_rest_throughout():
                                   "position": [0.25, -0.6, 0.1]},
                                  {"shape": "sphere", "size": {"radius": 0.08}, "mass": 0.5,
                                   "position": [-0.5, -0.8, 0.08], "linear_velocity": [0.8, 0.0, 0.0]}]})
-    _, fr = render_scene(scene, 192, 144)
+    return render_scene(scene, 192, 144)[1]
+
+
+@pytest.mark.skipif(not DEFAULT_WEIGHTS.exists(), reason="no shipped segmenter weights")
+def test_shipped_weights_find_an_object_at_rest_throughout():
+    """A ball rolls past a box that never moves: the median background holds the box, so
+    background subtraction sees nothing there; the segmenter finds the whole box in every frame."""
+    from pipeline.metrics import observation_scores
+    from pipeline.observe import segment_objects
+    from pipeline.image_tracks import still_tracks
+    from pipeline.masks import label_objects, pseudo_masks
+
+    fr = _box_at_rest_and_rolling_ball()
     median = label_objects(pseudo_masks(fr.rgb), max_objects=4)
     seg = segment_objects(fr.rgb, fr.rgb, "segmenter", 4)
     still = [True, False]
@@ -91,16 +98,8 @@ def test_hybrid_finds_the_mover_first_and_the_object_at_rest():
     the mover (confirmed by background subtraction) gets id 0, the object at rest id 1."""
     from pipeline.metrics import observation_scores
     from pipeline.observe import hybrid_objects
-    from pipeline.render import render_scene
-    from pipeline.scene import Scene
 
-    scene = Scene.from_dict({"duration": 1.0, "fps": 30, "camera": {"height": 1.2, "pitch": 40.0, "fov": 45.0},
-                             "objects": [
-                                 {"shape": "box", "size": {"width": 0.2, "depth": 0.2, "height": 0.2}, "mass": 2.0,
-                                  "position": [0.25, -0.6, 0.1]},
-                                 {"shape": "sphere", "size": {"radius": 0.08}, "mass": 0.5,
-                                  "position": [-0.5, -0.8, 0.08], "linear_velocity": [0.8, 0.0, 0.0]}]})
-    _, fr = render_scene(scene, 192, 144)
+    fr = _box_at_rest_and_rolling_ball()
     seg = hybrid_objects(fr.rgb, fr.rgb, 4)
     s = observation_scores(fr.seg, seg, [True, False])
     assert s["n_pred"] == 2 and s["still_iou"] >= 0.7 and s["moving_iou"] >= 0.6, s["per_object"]
