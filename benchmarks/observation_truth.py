@@ -52,10 +52,10 @@ for p in (ROOT, ROOT / "scripts"):
         sys.path.insert(0, str(p))
 
 from pipeline.atomic import write_json, write_text  # noqa: E402
-from pipeline.flow import FlowConfig  # noqa: E402
+from pipeline.flow import flow_config  # noqa: E402
 from pipeline.metrics import observation_scores  # noqa: E402
 from pipeline.observe import observe, truth_in_window  # noqa: E402
-from pipeline.params import load_params, typed_section  # noqa: E402
+from pipeline.params import load_params  # noqa: E402
 from pipeline.reconstruct import realvideo_config  # noqa: E402
 
 SETS = {("mujoco", "dev"): (0, 24), ("mujoco", "heldout"): (1, 12),
@@ -82,10 +82,10 @@ def ensure_set(root: Path, engine: str, split: str, generate: bool = True) -> Pa
 def rendered_clip(folder: Path, params: dict) -> dict:
     """Observe one rendered clip as ``dynamics infer`` does and score it against its truth."""
     rv = realvideo_config(params)
-    fcfg = typed_section(params, "flow", FlowConfig, required=True)
+    fcfg = flow_config(params)
     truth = np.load(folder / "truth.npz", allow_pickle=False)
     t0 = time.perf_counter()
-    obs = observe(folder / "video.mp4", float(truth["fps"]), None, rv.fps, rv.duration, fcfg.method, fcfg.preset,
+    obs = observe(folder / "video.mp4", float(truth["fps"]), None, rv.fps, rv.duration, fcfg,
                   rv.mask_method, rv.max_objects)
     seconds = time.perf_counter() - t0
     seg, frames = truth_in_window(truth["seg"], obs)

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.atomic import write_json, write_text
-from pipeline.flow import FlowConfig
+from pipeline.flow import flow_config
 from pipeline.geometry import bounding_radius
 from pipeline.metrics import sequence_iou
 from pipeline.mjcf import SimOptions
@@ -51,7 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     params = load_params(args.params)
     rv = realvideo_config(params)
-    fcfg = typed_section(params, "flow", FlowConfig, required=True)
+    fcfg = flow_config(params)
     sim = typed_section(params, "sim", SimOptions, required=True)
     rows = []
     for r in json.loads((args.runs / "summary.json").read_text()):
@@ -59,7 +59,7 @@ def main(argv: list[str] | None = None) -> int:
         if "error" in r or not (folder / "scene.yaml").exists():
             continue
         m = json.loads((folder / "metrics.json").read_text())
-        obs = observe(m["video"], r["fps"], None, rv.fps, rv.duration, fcfg.method, fcfg.preset, rv.mask_method,
+        obs = observe(m["video"], r["fps"], None, rv.fps, rv.duration, fcfg, rv.mask_method,
                       rv.max_objects)
         scene = load_scene(folder / "scene.yaml")
         new = score(scene, obs.seg, sim)

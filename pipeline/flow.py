@@ -8,23 +8,30 @@ Estimators (params ``flow.method``):
 
 - ``dis``: OpenCV's Dense Inverse Search (Kroeger et al., ECCV 2016), the default.
 - ``farneback``: OpenCV's polynomial-expansion flow (Farnebäck, SCIA 2003).
+- ``raft``: RAFT (Teed & Deng, ECCV 2020), written and trained here (``pipeline.raft``); weights
+  from ``raft_weights`` (a released ``raft-small.pth`` / ``raft-things.pth`` or the shipped
+  ``pipeline/weights/raft-small-dynamics.pth`` when null).
 - ``gt``: the simulator's exact flow, written by the render stage; nothing to estimate here.
 
 Example::
 
     flow = estimate_flow(frames)              # (T-1, H, W, 2) float32, px
+    flow = flow_of(frames, FlowConfig(method="raft"))   # the params section decides
     rgb = flow_to_rgb(flow, max_magnitude=8)  # (T-1, H, W, 3) uint8, Middlebury colours
 """
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Literal
 
 import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-METHODS = ("dis", "farneback", "gt")
+from pipeline.params import typed_section
+
+METHODS = ("dis", "farneback", "raft", "gt")
 """Values of ``flow.method``; ``gt`` is the render stage's exact flow."""
 
 DIS_PRESETS = {
@@ -39,8 +46,13 @@ class FlowConfig(BaseModel):
     """Section ``flow`` of params.yaml.
 
     Attributes:
-        method: ``dis`` | ``farneback`` | ``gt`` (simulator truth, copied from the render).
+        method: ``dis`` | ``farneback`` | ``raft`` | ``gt`` (simulator truth, copied from the
+            render; real videos, which have none, use ``dis``).
         preset: DIS preset, ``ultrafast`` | ``fast`` | ``medium`` (ignored by other methods).
+        raft_weights: RAFT checkpoint file (the authors' ``raft-small.pth`` / ``raft-things.pth``
+            or one trained here); ``None`` = the shipped ``pipeline/weights/raft-small-dynamics.pth``.
+            A relative path is relative to the params file's folder.
+        raft_iters: RAFT's GRU updates per frame pair (12 in the paper's evaluation).
         max_magnitude: flow magnitude (px) shown at full colour saturation by
             :func:`flow_to_rgb` (default 4 px, the model's inputs); ``None`` scales every call by
             its own maximum.
@@ -48,8 +60,10 @@ class FlowConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    method: Literal["dis", "farneback", "gt"] = "dis"
+    method: Literal["dis", "farneback", "raft", "gt"] = "dis"
     preset: Literal["ultrafast", "fast", "medium"] = "medium"
+    raft_weights: str | None = None
+    raft_iters: int = Field(default=12, ge=1, le=32)
     max_magnitude: float | None = Field(default=4.0, gt=0, allow_inf_nan=False)
 
 
@@ -148,16 +162,20 @@ def _grey(frames: np.ndarray) -> np.ndarray:
 
 def estimate_flow(
     frames: np.ndarray,
-    method: Literal["dis", "farneback"] = "dis",
+    method: Literal["dis", "farneback", "raft"] = "dis",
     preset: Literal["ultrafast", "fast", "medium"] = "medium",
+    raft_weights: str | Path | None = None,
+    raft_iters: int = 12,
 ) -> np.ndarray:
     """Forward optical flow between consecutive frames.
 
     Args:
         frames: ``(T, H, W, 3)`` uint8 RGB, ``T >= 2``.
-        method: ``dis`` (OpenCV DIS, default) or ``farneback``. ``gt`` is not an
+        method: ``dis`` (OpenCV DIS, default), ``farneback`` or ``raft``. ``gt`` is not an
             estimator: the simulator's flow comes from the render stage.
-        preset: DIS preset name (see :data:`DIS_PRESETS`); ignored by Farneback.
+        preset: DIS preset name (see :data:`DIS_PRESETS`); ignored by the others.
+        raft_weights: RAFT checkpoint (None: the shipped weights); ``raft`` only.
+        raft_iters: RAFT's GRU updates per pair; ``raft`` only.
 
     Returns:
         ``(T-1, H, W, 2)`` float32 flow in px: ``flow[t, y, x] = (u, v)`` moves pixel
@@ -165,12 +183,16 @@ def estimate_flow(
 
     Raises:
         ValueError: bad shape/dtype, fewer than two frames, or an unknown method/preset.
+        pipeline.raft.estimator.RaftWeightsError: ``raft`` with a missing or foreign checkpoint.
     """
     frames = np.asarray(frames)
     if frames.ndim != 4 or frames.shape[-1] != 3 or frames.dtype != np.uint8:
         raise ValueError(f"frames: must be (T, H, W, 3) uint8, got {frames.shape} {frames.dtype}")
     if len(frames) < 2:
         raise ValueError(f"frames: need at least 2 frames, got {len(frames)}")
+    if method == "raft":
+        from pipeline.raft.estimator import RaftFlow   # torch is imported only when RAFT is used
+        return RaftFlow.from_file(raft_weights, iters=raft_iters)(frames)
     grey = _grey(frames)
     out = np.empty((len(frames) - 1, *frames.shape[1:3], 2), dtype=np.float32)
     if method == "dis":
@@ -187,5 +209,34 @@ def estimate_flow(
     elif method == "gt":
         raise ValueError("method: 'gt' flow comes from the render stage, not from frames")
     else:
-        raise ValueError(f"method: must be one of ('dis', 'farneback'), got {method!r}")
+        raise ValueError(f"method: must be one of ('dis', 'farneback', 'raft'), got {method!r}")
     return out
+
+
+def flow_config(params) -> FlowConfig:
+    """The validated ``flow`` section of ``params`` (:class:`pipeline.params.Params`), with a
+    relative ``raft_weights`` made relative to the params file's folder.
+
+    Raises:
+        pipeline.params.ParamsError: the section is missing or invalid.
+    """
+    cfg = typed_section(params, "flow", FlowConfig, required=True)
+    root = getattr(params, "root", None)
+    if cfg.raft_weights is not None and root is not None and not Path(cfg.raft_weights).is_absolute():
+        cfg = cfg.model_copy(update={"raft_weights": str(Path(root) / cfg.raft_weights)})
+    return cfg
+
+
+def flow_of(frames: np.ndarray, cfg: FlowConfig) -> np.ndarray:
+    """:func:`estimate_flow` with the settings of a ``flow`` params section; ``gt`` (no truth
+    exists for these frames, e.g. a real video) falls back to DIS.
+
+    Args:
+        frames: ``(T, H, W, 3)`` uint8 RGB.
+        cfg: the section (:func:`flow_config` resolves its weights path).
+
+    Returns:
+        ``(T-1, H, W, 2)`` float32 px.
+    """
+    return estimate_flow(frames, method="dis" if cfg.method == "gt" else cfg.method, preset=cfg.preset,
+                         raft_weights=cfg.raft_weights, raft_iters=cfg.raft_iters)

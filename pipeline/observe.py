@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 from scipy import ndimage
 
-from pipeline.flow import estimate_flow
+from pipeline.flow import FlowConfig, estimate_flow, flow_of
 from pipeline.image_tracks import find_tracks, object_tracks, still_tracks
 from pipeline.masks import (drop_ghosts, hold_resting, label_objects, merge_touching, pseudo_ground_truth,
                             pseudo_masks)
@@ -399,7 +399,7 @@ def window_duration(video, available: float, video_fps: float, scene_fps: int, d
 
 
 def observe(video, fps: float | None, start: float | None, scene_fps: int, duration: float,
-            flow_method: str = "dis", flow_preset: str = "medium", mask_method: str = "median",
+            flow: FlowConfig | None = None, mask_method: str = "median",
             max_objects: int = 4) -> Observation:
     """Read a window of a real video at its working crop and size; pseudo masks and flow.
 
@@ -410,8 +410,8 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
             ``duration`` is then its own window (``Observation.duration`` says how long).
         scene_fps: frame rate of the result (the scene's), frames per second.
         duration: window length, s.
-        flow_method, flow_preset: optical flow (``pipeline.flow.estimate_flow``); ``gt`` means
-            DIS here (a real video has no simulator truth).
+        flow: the ``flow`` section (``pipeline.flow.flow_of``; None = its defaults, DIS);
+            ``gt`` means DIS here (a real video has no simulator truth).
         mask_method: background model of the pseudo masks (``pipeline.masks.pseudo_masks``).
         max_objects: objects kept by the tracker.
     Raises:
@@ -445,11 +445,12 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     size = working_size(crop, diameter * scale)
     clip, frames, ctx = window(size, crop)
     seg = _masks(frames, ctx, mask_method, max_objects)
-    method = "dis" if flow_method == "gt" else flow_method
-    flow = estimate_flow(frames, method=method, preset=flow_preset)
-    seg, _ = keep_objects(seg if learned else hold_resting(seg), flow, max_objects, learned)
-    return Observation(frames, seg, flow, clip, float(start), auto, clip.crop, size, scene_fps, method, mask_method,
-                       duration)
+    flow = flow or FlowConfig()
+    method = "dis" if flow.method == "gt" else flow.method
+    flow_px = flow_of(frames, flow)
+    seg, _ = keep_objects(seg if learned else hold_resting(seg), flow_px, max_objects, learned)
+    return Observation(frames, seg, flow_px, clip, float(start), auto, clip.crop, size, scene_fps, method,
+                       mask_method, duration)
 
 
 def original_frames(obs: Observation, video, fps: float | None, height: int = 320) -> np.ndarray:

@@ -49,7 +49,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from pipeline import infer_tracks, perception, shards, viz
 from pipeline.atomic import publish_dir, remove_stale_temps, temp_dir_for
-from pipeline.flow import FlowConfig, estimate_flow
+from pipeline.flow import flow_config, flow_of
 from pipeline.labels import load_labels, score_against_labels
 from pipeline.npz import NpzWriter
 from pipeline.metrics import flow_epe, observation_scores, sequence_iou
@@ -153,9 +153,9 @@ def model_samples(model_dir: Path, frames: np.ndarray, params: dict, k: int | No
     from pipeline import model as vlm
 
     W, H = int(section(params, "render")["width"]), int(section(params, "render")["height"])
-    fcfg = typed_section(params, "flow", FlowConfig, required=True)
+    fcfg = flow_config(params)
     small = np.stack([cv2.resize(f, (W, H), interpolation=cv2.INTER_AREA) for f in frames])
-    flow = estimate_flow(small, method="dis" if fcfg.method == "gt" else fcfg.method, preset=fcfg.preset)
+    flow = flow_of(small, fcfg)
     torch.set_num_threads(1)  # as in stages/predict.py: decoding K samples, 1 thread is as fast
     net, tok = vlm.load_model(model_dir)
     codec, _ = vlm.load_codec(model_dir)
@@ -269,7 +269,7 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     t0 = time.time()
     out = Path(out)
     rv = realvideo_config(params)
-    fcfg = typed_section(params, "flow", FlowConfig, required=True)
+    fcfg = flow_config(params)
     scfg = typed_section(params, "search", SearchConfig, required=True)
     scfg = scfg.model_copy(update={"popsize": rv.popsize, "iterations": rv.iterations, "lambda_epe": rv.lambda_epe})
     sim = typed_section(params, "sim", SimOptions, required=True)
@@ -296,7 +296,7 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     truth, labels_path = None, labels
     if labels_path is not None:   # read (and checked) before the search, used only after it
         truth = load_labels(labels_path, read_video(video, fps=fps, max_frames=1).original_size)
-    obs = observe(video, fps, start, scene_fps, duration, fcfg.method, fcfg.preset,
+    obs = observe(video, fps, start, scene_fps, duration, fcfg,
                   rv.mask_method, max_objects)
     duration = obs.duration   # a clip shorter than the window is its own window, and the scene follows it
     W, H = obs.size
@@ -478,6 +478,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mask-method", default=None, choices=MASK_METHODS,
                    help="how the observation's masks are made (default params realvideo.mask_method; "
                         "docs/observation.md)")
+    p.add_argument("--flow-method", default=None, choices=("dis", "farneback", "raft"),
+                   help="optical flow of the observation and the model input (default params flow.method)")
+    p.add_argument("--raft-weights", default=None, metavar="PTH",
+                   help="RAFT checkpoint for --flow-method raft: the authors' raft-small.pth / raft-things.pth "
+                        "or one trained here (default params flow.raft_weights, else the shipped weights)")
     p.add_argument("--params", default=None, help="params.yaml (default ./params.yaml)")
 
 
@@ -485,6 +490,10 @@ def main_cli(args: argparse.Namespace) -> int:
     params = load_params(args.params)
     if args.mask_method is not None:
         params.setdefault("realvideo", {})["mask_method"] = args.mask_method
+    if args.flow_method is not None:
+        params.setdefault("flow", {})["method"] = args.flow_method
+    if args.raft_weights is not None:   # a command-line path is relative to the working folder
+        params.setdefault("flow", {})["raft_weights"] = str(Path(args.raft_weights).resolve())
     metrics = reconstruct(args.video, args.out, params, fps=args.fps, start=args.start,
                           model_dir=args.model, k=args.k, seed=args.seed, use_model=not args.no_model,
                           labels=args.labels)

@@ -23,6 +23,7 @@ HEAVY = {
     "cma",                          # CMA-ES: imports matplotlib.pyplot and scipy.stats (~0.5 s)
     "mujoco.rendering.classic.gl_context",  # the GL context (pipeline/render.py): created on first render
     "pipeline.model",               # the project's model package: imports torch at its top
+    "pipeline.raft",                # RAFT optical flow: imports torch at its top (flow.method: raft only)
 }
 """Modules that may be imported inside a function (dotted prefixes)."""
 

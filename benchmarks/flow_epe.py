@@ -1,0 +1,225 @@
+"""Optical flow benchmark (issue 33): OpenCV DIS, Farneback and RAFT against ground truth,
+photometric error on real clips, and time per frame pair on 2 cores.
+
+1. **Synthetic test split** (the render stage's ``test`` clips, 96x64, the simulator's exact
+   flow): end-point error over all pixels and over object pixels of frame t (foreground).
+2. **PyBullet cross-engine clips** (``data/truthsets/pybullet/{dev,heldout}``, 320x240, another
+   engine and renderer, never trained on): EPE against the analytic flow of the true poses
+   (:func:`pipeline.truthsets.flow.truth_flow`), valid pixels only.
+3. **Real clips** (the 19 of ``../shared/data/real``; no true flow): the photometric warping error
+   ``|I_t(x) - I_{t+1}(x + f(x))|`` (grey levels, 0-255) over the pixels where the frames differ
+   by more than 10 grey levels (where zero flow is wrong), at 30 frames per true second in the
+   main job's window (:func:`pipeline.observe.choose_window`), 160 px wide. Zero flow is listed
+   as the floor to beat.
+4. **Time** per pair on a 16-frame clip at 96x64 and 160x120 (wall clock, this machine, best of
+   3 runs; RAFT encodes each frame once and refines 8 pairs per batch).
+
+Usage::
+
+    MUJOCO_GL=egl python benchmarks/flow_epe.py                 # writes reports/flow_epe.{md,json}
+    MUJOCO_GL=egl python benchmarks/flow_epe.py --raft-weights raft-things=/path/raft-things.pth
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+from tqdm import tqdm
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from pipeline.atomic import write_json, write_text  # noqa: E402
+from pipeline.flow import estimate_flow  # noqa: E402
+from pipeline.observe import choose_window  # noqa: E402
+from pipeline.raft.estimator import DEFAULT_WEIGHTS, RaftFlow  # noqa: E402
+from pipeline.raft.train import epe, load_split  # noqa: E402
+from pipeline.video import read_video, resample  # noqa: E402
+
+REAL = ROOT.parent / "shared" / "data" / "real"
+PHOTO_THRESHOLD = 10
+"""Grey levels: pixels whose frames differ by more are where flow matters (zero flow fails)."""
+
+
+def estimators(raft_weights: dict[str, Path]) -> dict:
+    """Name -> ``frames (T, H, W, 3) uint8 -> flow (T-1, H, W, 2)``."""
+    out = {"DIS (medium)": lambda f: estimate_flow(f, "dis", "medium"),
+           "Farneback": lambda f: estimate_flow(f, "farneback")}
+    for name, path in raft_weights.items():
+        out[name] = RaftFlow.from_file(path)
+    return out
+
+
+def synthetic(methods: dict, video: Path, configs: Path) -> dict:
+    """EPE (px) on the test split: all pixels, foreground."""
+    rgb, flow, seg = load_split(video, configs, "test")
+    fg = seg[:, :-1] >= 0
+    rows = {}
+    for name, fn in methods.items():
+        pred = np.stack([fn(c) for c in tqdm(rgb, desc=f"synthetic {name}", leave=False)])
+        rows[name] = {"epe_all": epe(pred, flow), "epe_fg": epe(pred, flow, fg)}
+    rows["zero flow"] = {"epe_all": epe(np.zeros_like(flow, np.float32), flow),
+                         "epe_fg": epe(np.zeros_like(flow, np.float32), flow, fg)}
+    return {"clips": int(len(rgb)), "pairs": int(flow.shape[0] * flow.shape[1]), "size": [rgb.shape[3], rgb.shape[2]],
+            "rows": rows}
+
+
+def pybullet(methods: dict, root: Path, stride: int) -> dict:
+    """EPE (px) on the PyBullet truth-set clips (every ``stride``-th pair)."""
+    from pipeline.truthsets.flow import truth_flow
+    folders = sorted(p for s in ("dev", "heldout") for p in (root / s).glob("clip-*") if (p / "truth.npz").is_file())
+    if not folders:
+        return {"clips": 0, "note": f"no clips under {root} (python -m pipeline.truthsets generate --engine pybullet)"}
+    errs = {name: {"all": [], "fg": []} for name in [*methods, "zero flow"]}
+    for folder in tqdm(folders, desc="pybullet clips", leave=False):
+        frames = read_video(folder / "video.mp4").frames
+        gt, valid = truth_flow(folder)
+        seg = np.load(folder / "truth.npz")["seg"]
+        idx = np.arange(0, len(gt), stride)
+        for name, fn in methods.items():
+            pred = np.concatenate([fn(frames[t:t + 2]) for t in idx])
+            _accumulate(errs[name], pred, gt[idx], valid[idx], seg[idx] >= 0)
+        _accumulate(errs["zero flow"], np.zeros_like(gt[idx]), gt[idx], valid[idx], seg[idx] >= 0)
+    return {"clips": len(folders), "pair_stride": stride, "size": [int(frames.shape[2]), int(frames.shape[1])],
+            "rows": {n: {"epe_all": float(np.mean(e["all"])), "epe_fg": float(np.nanmean(e["fg"]))}
+                     for n, e in errs.items()}}
+
+
+def _accumulate(acc: dict, pred: np.ndarray, gt: np.ndarray, valid: np.ndarray, fg: np.ndarray) -> None:
+    acc["all"].append(epe(pred, gt, valid))
+    acc["fg"].append(epe(pred, gt, valid & fg))
+
+
+def photometric_error(frames: np.ndarray, flow: np.ndarray) -> tuple[float, int]:
+    """Mean ``|I_t(x) - I_{t+1}(x + f(x))|`` (grey, 0-255) over pixels that differ by more than
+    :data:`PHOTO_THRESHOLD` between t and t+1 and whose target lies in the frame; and their count."""
+    grey = frames.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)
+    H, W = grey.shape[1:]
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float32)
+    total, count = 0.0, 0
+    for t in range(len(flow)):
+        mx, my = xx + flow[t, ..., 0], yy + flow[t, ..., 1]
+        warped = cv2.remap(grey[t + 1], mx, my, cv2.INTER_LINEAR)
+        m = (np.abs(grey[t] - grey[t + 1]) > PHOTO_THRESHOLD) & (mx >= 0) & (mx <= W - 1) & (my >= 0) & (my <= H - 1)
+        total += float(np.abs(grey[t] - warped)[m].sum())
+        count += int(m.sum())
+    return (total / count if count else float("nan")), count
+
+
+def real(methods: dict) -> dict:
+    """Photometric error per real clip and the mean over clips."""
+    sys.path.insert(0, str(ROOT / "scripts"))
+    from realvideo_all import CLIPS
+    per_clip, names = {}, [*methods, "zero flow"]
+    for clip, rel, fps in tqdm(CLIPS, desc="real clips", leave=False):
+        path = REAL / rel
+        if not path.is_file():
+            continue
+        start, length = choose_window(path, fps, 30, 1.0)
+        probe = read_video(path, fps=fps, max_frames=1)
+        W0, H0 = probe.original_size
+        c = read_video(path, fps=fps, start=start, duration=length + 1 / 30, size=(160, max(2, round(160 * H0 / W0 / 2) * 2)))
+        frames = resample(c.frames, c.fps, 30, length)
+        per_clip[clip] = {}
+        for name in names:
+            flow = np.zeros((len(frames) - 1, *frames.shape[1:3], 2), np.float32) if name == "zero flow" else methods[name](frames)
+            per_clip[clip][name] = photometric_error(frames, flow)[0]
+    mean = {n: float(np.nanmean([per_clip[c][n] for c in per_clip])) for n in names}
+    wins = {n: int(sum(per_clip[c][n] <= min(per_clip[c][m] for m in names if m != "zero flow") + 1e-9
+                       for c in per_clip)) for n in names if n != "zero flow"}
+    return {"clips": len(per_clip), "mean": mean, "best_on": wins, "per_clip": per_clip}
+
+
+def timing(methods: dict, video: Path, configs: Path) -> dict:
+    """ms per pair at 96x64 and 160x120 (16 frames of a test clip, best of 3)."""
+    rgb, _, _ = load_split(video, configs, "test")
+    clip = rgb[0, :16]
+    out = {}
+    for W, H in ((96, 64), (160, 120)):
+        frames = np.stack([cv2.resize(f, (W, H), interpolation=cv2.INTER_LINEAR) for f in clip])
+        for name, fn in methods.items():
+            fn(frames[:2])                                   # warm-up (model load, allocations)
+            best = min(_seconds(fn, frames) for _ in range(3))
+            out.setdefault(name, {})[f"{W}x{H}"] = 1000 * best / (len(frames) - 1)
+    return {"threads": torch.get_num_threads(), "ms_per_pair": out}
+
+
+def _seconds(fn, frames) -> float:
+    t = time.perf_counter()
+    fn(frames)
+    return time.perf_counter() - t
+
+
+def markdown(res: dict) -> str:
+    s, p, r, t = res["synthetic"], res["pybullet"], res["real"], res["timing"]
+    names = list(t["ms_per_pair"])
+    lines = ["# Optical flow: DIS, Farneback and RAFT", "",
+             f"`{res['command']}` on tree `{res['tree']}` ({res['date']}, {t['threads']} torch threads).", "",
+             f"RAFT weights: {', '.join(f'{k} = `{v}`' for k, v in res['raft_weights'].items())}.", "",
+             "| method | synthetic EPE fg / all (px) | PyBullet EPE fg / all (px) | real photometric error (grey) | "
+             "real clips best on | ms/pair 96x64 | ms/pair 160x120 |", "|---|---|---|---|---|---|---|"]
+    for n in [*names, "zero flow"]:
+        sy = s["rows"].get(n, {})
+        pb = p.get("rows", {}).get(n, {})
+        tm = t["ms_per_pair"].get(n, {})
+        fmt = lambda d, k: f"{d[k]:.3f}" if k in d else "-"  # noqa: E731
+        lines.append(f"| {n} | {fmt(sy, 'epe_fg')} / {fmt(sy, 'epe_all')} | {fmt(pb, 'epe_fg')} / {fmt(pb, 'epe_all')} | "
+                     f"{r['mean'][n]:.2f} | {r['best_on'].get(n, '-')} of {r['clips']} | "
+                     f"{tm.get('96x64', float('nan')):.1f} | {tm.get('160x120', float('nan')):.1f} |"
+                     if n != "zero flow" else
+                     f"| zero flow | {fmt(sy, 'epe_fg')} / {fmt(sy, 'epe_all')} | {fmt(pb, 'epe_fg')} / "
+                     f"{fmt(pb, 'epe_all')} | {r['mean'][n]:.2f} | - | - | - |")
+    lines += ["", f"- Synthetic: the render stage's `test` split, {s['clips']} clips, {s['pairs']} pairs at "
+              f"{s['size'][0]}x{s['size'][1]}, simulator flow; foreground = object pixels of frame t.",
+              f"- PyBullet: {p.get('clips', 0)} clips (dev + held-out) at {p.get('size', ['?', '?'])[0]}x"
+              f"{p.get('size', ['?', '?'])[1]}, every {p.get('pair_stride', '?')}th pair, flow of the true poses "
+              "(`pipeline/truthsets/flow.py`), valid pixels only. Never used for training.",
+              f"- Real: {r['clips']} clips, 30 frames per true second in the main job's window, 160 px wide; mean over "
+              f"clips of the warping error over pixels that change by more than {PHOTO_THRESHOLD} grey levels. "
+              "'best on' counts the clips where a method has the lowest error.", "",
+              "## Real clips, photometric error per clip", "",
+              "| clip | " + " | ".join([*names, "zero flow"]) + " |", "|---" * (len(names) + 2) + "|"]
+    for clip, row in r["per_clip"].items():
+        lines.append(f"| {clip} | " + " | ".join(f"{row[n]:.2f}" for n in [*names, "zero flow"]) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--video", type=Path, default=Path("data/video"), help="render stage shards")
+    ap.add_argument("--configs", type=Path, default=Path("data/configs"), help="sample_configs shards")
+    ap.add_argument("--pybullet", type=Path, default=Path("data/truthsets/pybullet"), help="PyBullet truth sets")
+    ap.add_argument("--raft-weights", action="append", default=[], metavar="NAME=PTH",
+                    help="extra RAFT checkpoints to compare (e.g. raft-small=/path/raft-small.pth)")
+    ap.add_argument("--pair-stride", type=int, default=3, help="PyBullet: every n-th pair")
+    ap.add_argument("--report", type=Path, default=Path("reports/flow_epe"), help="report path stem")
+    args = ap.parse_args(argv)
+    torch.set_num_threads(2)
+    weights = {"RAFT (trained here)": DEFAULT_WEIGHTS}
+    for item in args.raft_weights:
+        name, _, path = item.partition("=")
+        weights[f"RAFT ({name})"] = Path(path)
+    methods = estimators(weights)
+    import subprocess
+    tree = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
+    res = {"command": "MUJOCO_GL=egl python benchmarks/flow_epe.py" + "".join(f" --raft-weights {w}" for w in args.raft_weights),
+           "tree": tree, "date": time.strftime("%Y-%m-%d"),
+           "raft_weights": {k: str(v.relative_to(ROOT) if v.is_relative_to(ROOT) else v) for k, v in weights.items()}}
+    res["timing"] = timing(methods, args.video, args.configs)
+    res["synthetic"] = synthetic(methods, args.video, args.configs)
+    res["pybullet"] = pybullet(methods, args.pybullet, args.pair_stride)
+    res["real"] = real(methods)
+    write_json(args.report.with_suffix(".json"), res)
+    write_text(args.report.with_suffix(".md"), markdown(res))
+    print(markdown(res))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

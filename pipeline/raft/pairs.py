@@ -1,0 +1,120 @@
+"""Procedural FlyingChairs-style image pairs with exact flow, for training RAFT here.
+
+FlyingChairs (Dosovitskiy et al., "FlowNet", ICCV 2015) pastes textured objects on a
+textured background and moves every layer by its own affine transform; the flow follows in closed
+form. No chair models or photos can be downloaded here, so the layers are made procedurally:
+smooth noise, stripes, checkers and blobs in random colours, cut into ellipses and polygons.
+
+For a layer moved by the affine map ``x' = A x + b`` (pixels), a pixel ``x`` of image 1 that
+shows the layer moves to ``A x + b`` in image 2, so its flow is ``(A - I) x + b``. Image 1 shows
+every layer at its place; image 2 shows every layer warped by its map, composited in the same
+order (later layers on top). The flow of a pixel is that of the topmost layer covering it in
+image 1 (as in FlyingChairs, pixels that become occluded keep their flow).
+
+Example::
+
+    rng = np.random.default_rng(0)
+    img1, img2, flow = chairs_pair(rng, height=128, width=192)
+    # img1, img2: (128, 192, 3) uint8; flow: (128, 192, 2) float32 px (u, v)
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+
+def _texture(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
+    """A random ``(h, w, 3)`` float32 texture in [0, 255]: smooth noise, stripes, a checker or
+    blobs, in one or two random colours, with fine noise on top."""
+    kind = rng.integers(4)
+    if kind == 0:      # smooth noise at a random scale
+        cells = int(rng.integers(2, 16))
+        base = cv2.resize(rng.random((cells, max(cells * w // max(h, 1), 2))).astype(np.float32), (w, h),
+                          interpolation=cv2.INTER_CUBIC)
+    elif kind == 1:    # stripes at a random angle and period
+        yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+        theta, period = rng.uniform(0, np.pi), rng.uniform(4, 24)
+        base = 0.5 + 0.5 * np.sin(2 * np.pi * (xx * np.cos(theta) + yy * np.sin(theta)) / period)
+    elif kind == 2:    # checker
+        yy, xx = np.mgrid[0:h, 0:w]
+        sq = int(rng.integers(3, 20))
+        base = ((xx // sq + yy // sq) % 2).astype(np.float32)
+        base = cv2.GaussianBlur(base, (0, 0), rng.uniform(0.3, 1.0))
+    else:              # blobs
+        base = np.zeros((h, w), np.float32)
+        for _ in range(int(rng.integers(5, 30))):
+            c = (int(rng.integers(w)), int(rng.integers(h)))
+            cv2.circle(base, c, int(rng.integers(2, max(3, min(h, w) // 4))), float(rng.random()), -1)
+        base = cv2.GaussianBlur(base, (0, 0), 1.0)
+    base = np.clip(base, 0, 1)[..., None]
+    c0, c1 = rng.uniform(0, 255, 3), rng.uniform(0, 255, 3)
+    tex = c0 * (1 - base) + c1 * base
+    tex += rng.normal(0, rng.uniform(0, 8), tex.shape)
+    return np.clip(tex, 0, 255).astype(np.float32)
+
+
+def _shape_mask(rng: np.random.Generator, h: int, w: int, size: float) -> np.ndarray:
+    """A ``(h, w)`` float32 {0, 1} mask of an ellipse or polygon about ``size`` px across,
+    at a random place."""
+    mask = np.zeros((h, w), np.float32)
+    cx, cy = rng.uniform(0, w), rng.uniform(0, h)
+    if rng.random() < 0.5:
+        axes = (max(1, int(size / 2 * rng.uniform(0.5, 1))), max(1, int(size / 2 * rng.uniform(0.5, 1))))
+        cv2.ellipse(mask, (int(cx), int(cy)), axes, float(rng.uniform(0, 180)), 0, 360, 1.0, -1)
+    else:
+        n = int(rng.integers(3, 9))
+        ang = np.sort(rng.uniform(0, 2 * np.pi, n))
+        rad = size / 2 * rng.uniform(0.4, 1.0, n)
+        pts = np.stack([cx + rad * np.cos(ang), cy + rad * np.sin(ang)], axis=1).astype(np.int32)
+        cv2.fillPoly(mask, [pts], 1.0)
+    return mask
+
+
+def _affine(rng: np.random.Generator, h: int, w: int, max_shift: float, max_rot: float,
+            max_scale: float) -> np.ndarray:
+    """A random ``(2, 3)`` affine map about a random centre: rotation (rad), scale, shift (px)."""
+    rot, scale = rng.uniform(-max_rot, max_rot), np.exp(rng.uniform(-max_scale, max_scale))
+    centre = np.array([rng.uniform(0, w), rng.uniform(0, h)])
+    R = scale * np.array([[np.cos(rot), -np.sin(rot)], [np.sin(rot), np.cos(rot)]])
+    shift = rng.uniform(-max_shift, max_shift, 2)
+    return np.hstack([R, (centre - R @ centre + shift)[:, None]])
+
+
+def chairs_pair(rng: np.random.Generator, height: int = 128, width: int = 192, max_shift: float = 10.0,
+                n_objects: tuple[int, int] = (1, 6)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One procedural image pair and its exact forward flow (module docstring).
+
+    Args:
+        rng: the random generator (all randomness comes from it).
+        height, width: image size, px.
+        max_shift: largest translation of a layer, px (the background gets a third of it).
+        n_objects: inclusive range of foreground layers.
+
+    Returns:
+        ``img1, img2``: ``(height, width, 3)`` uint8 RGB; ``flow``: ``(height, width, 2)``
+        float32 px, ``(u, v)`` = (x, y) displacement from image 1 to image 2.
+    """
+    h, w = height, width
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    img1, img2 = _texture(rng, h, w), np.empty((h, w, 3), np.float32)
+    M = _affine(rng, h, w, max_shift / 3, 0.05, 0.05)
+    img2[:] = cv2.warpAffine(img1, M, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    flow = np.stack([(M[0, 0] - 1) * xx + M[0, 1] * yy + M[0, 2],
+                     M[1, 0] * xx + (M[1, 1] - 1) * yy + M[1, 2]], axis=-1)
+    for _ in range(int(rng.integers(n_objects[0], n_objects[1] + 1))):
+        size = rng.uniform(0.08, 0.6) * min(h, w)
+        mask, tex = _shape_mask(rng, h, w, size), _texture(rng, h, w)
+        M = _affine(rng, h, w, max_shift, 0.2, 0.15)
+        inside = mask > 0.5
+        img1[inside] = tex[inside]
+        flow[inside] = np.stack([(M[0, 0] - 1) * xx + M[0, 1] * yy + M[0, 2],
+                                 M[1, 0] * xx + (M[1, 1] - 1) * yy + M[1, 2]], axis=-1)[inside]
+        warped_mask = cv2.warpAffine(mask, M, (w, h), flags=cv2.INTER_LINEAR)[..., None]
+        warped_tex = cv2.warpAffine(tex, M, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+        img2 = img2 * (1 - warped_mask) + warped_tex * warped_mask
+    # image 1's object edges are hard; soften both alike so edges do not tell the frames apart
+    img1 = cv2.GaussianBlur(img1, (0, 0), 0.5)
+    img2 = cv2.GaussianBlur(img2.astype(np.float32), (0, 0), 0.5)
+    return (np.clip(np.rint(img1), 0, 255).astype(np.uint8), np.clip(np.rint(img2), 0, 255).astype(np.uint8),
+            flow.astype(np.float32))
