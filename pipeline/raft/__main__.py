@@ -26,9 +26,13 @@ def main(argv: list[str] | None = None) -> int:
     t.add_argument("--max-minutes", type=float, default=60.0, help="stop (and save) after this much training time")
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--resume", action="store_true", help="continue from OUT.ckpt")
+    t.add_argument("--init", type=Path, default=None, help="start from these weights (.pth, or a run's .ckpt); new schedule")
+    t.add_argument("--crop", type=int, nargs=2, default=None, metavar=("H", "W"),
+                   help="train on H x W windows of the working-size pairs (multiples of 8; default whole frames)")
     args = ap.parse_args(argv)
     train(args.video, args.configs, args.out, steps=args.steps, batch=args.batch, iters=args.iters, lr=args.lr,
-          chairs_fraction=args.chairs_fraction, max_minutes=args.max_minutes, seed=args.seed, resume=args.resume)
+          chairs_fraction=args.chairs_fraction, max_minutes=args.max_minutes, seed=args.seed, resume=args.resume,
+          crop=tuple(args.crop) if args.crop else None, init=args.init)
     return 0
 
 

@@ -92,19 +92,40 @@ def _photometric(rng: np.random.Generator, pair: np.ndarray) -> np.ndarray:
     return np.clip(x, 0, 255).astype(np.float32)
 
 
+def _crop_at_motion(rng: np.random.Generator, a: np.ndarray, b: np.ndarray, f: np.ndarray,
+                    crop: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A ``crop = (h, w)`` window of a pair, centred near a random moving pixel 4 times in 5
+    (most of a rendered frame is static floor), anywhere otherwise."""
+    H, W = a.shape[:2]
+    ch, cw = min(crop[0], H), min(crop[1], W)
+    moving = np.argwhere(np.abs(f).sum(-1) > 0.05)
+    if len(moving) and rng.random() < 0.8:
+        cy, cx = moving[rng.integers(len(moving))]
+        y0, x0 = int(np.clip(cy - ch // 2 + rng.integers(-ch // 4, ch // 4 + 1), 0, H - ch)), \
+            int(np.clip(cx - cw // 2 + rng.integers(-cw // 4, cw // 4 + 1), 0, W - cw))
+    else:
+        y0, x0 = int(rng.integers(H - ch + 1)), int(rng.integers(W - cw + 1))
+    win = (slice(y0, y0 + ch), slice(x0, x0 + cw))
+    return a[win], b[win], f[win]
+
+
 def make_batch(rng: np.random.Generator, rgb: np.ndarray, flow: np.ndarray, batch: int,
-               chairs_fraction: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """``img1, img2 (B, 3, h, w)`` float [0, 255] and ``flow (B, 2, h, w)`` px at the working size."""
+               chairs_fraction: float, crop: tuple[int, int] | None = None
+               ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``img1, img2 (B, 3, h, w)`` float [0, 255] and ``flow (B, 2, h, w)`` px at the working size,
+    or ``crop = (h, w)`` windows of it (multiples of 8)."""
     H, W = rgb.shape[2:4]
     s = working_scale(H, W)
     h, w = round(H * s), round(W * s)
     i1, i2, fl = [], [], []
     for _ in range(batch):
         if rng.random() < chairs_fraction:
-            a, b, f = chairs_pair(rng, h, w, max_shift=rng.choice([4.0, 10.0, 20.0]))
+            a, b, f = chairs_pair(rng, *(crop or (h, w)), max_shift=rng.choice([4.0, 10.0, 20.0]))
         else:
             n, t = int(rng.integers(len(rgb))), int(rng.integers(flow.shape[1]))
             a, b, f = _upscale(rgb[n, t], rgb[n, t + 1], flow[n, t], s)
+            if crop is not None:
+                a, b, f = _crop_at_motion(rng, a, b, f, crop)
         pair = _photometric(rng, np.stack([a, b]))
         f = f.copy()
         if rng.random() < 0.5:                     # horizontal flip: u changes sign
@@ -158,13 +179,18 @@ def validate(net: RAFT, rgb: np.ndarray, flow: np.ndarray, seg: np.ndarray, iter
 def train(video: Path, configs: Path, out: Path, steps: int = 4000, batch: int = 6, iters: int = 8,
           lr: float = 4e-4, chairs_fraction: float = 0.5, max_minutes: float = 60.0, seed: int = 0,
           resume: bool = False, checkpoint_every: int = 100, eval_every: int = 500,
-          arch: RaftArch = RaftArch(small=True, convex=True)) -> dict:
+          arch: RaftArch = RaftArch(small=True, convex=True), crop: tuple[int, int] | None = None,
+          init: Path | None = None) -> dict:
     """Train and write ``out`` (weights) and ``out.json`` (summary, returned). See module doc."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     rgb, flow, _ = load_split(video, configs, "train")
     vrgb, vflow, vseg = load_split(video, configs, "val")
     net = RAFT(arch)
+    if init is not None:   # weights of an earlier run (a .pth or the .ckpt of a run); a new schedule
+        state = torch.load(init, map_location="cpu", weights_only=False)
+        net.load_state_dict(state["net"] if "net" in state else {k.removeprefix("module."): v for k, v in state.items()})
+        print(f"initialised from {init}", flush=True)
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-5, eps=1e-8)
     ckpt, step, spent, history = Path(str(out) + ".ckpt"), 0, 0.0, []
     if resume and ckpt.is_file():
@@ -188,7 +214,7 @@ def train(video: Path, configs: Path, out: Path, steps: int = 4000, batch: int =
         rate = learning_rate(lr, max(step / steps, (spent + (time.time() - start) / 60) / max_minutes))
         for group in opt.param_groups:
             group["lr"] = rate
-        i1, i2, gt = make_batch(rng, rgb, flow, batch, chairs_fraction)
+        i1, i2, gt = make_batch(rng, rgb, flow, batch, chairs_fraction, crop)
         loss = sequence_loss(net(i1, i2, iters=iters), gt)
         opt.zero_grad(set_to_none=True)
         loss.backward()
@@ -213,7 +239,8 @@ def train(video: Path, configs: Path, out: Path, steps: int = 4000, batch: int =
     minutes = spent + (time.time() - start) / 60
     v = validate(net, vrgb, vflow, vseg)
     summary = {"steps": step, "minutes": round(minutes, 1), "batch": batch, "train_iters": iters, "lr": lr,
-               "chairs_fraction": chairs_fraction, "seed": seed, "arch": {"small": arch.small, "convex": arch.convex},
+               "chairs_fraction": chairs_fraction, "crop": list(crop) if crop else None,
+               "init": str(init) if init else None, "seed": seed, "arch": {"small": arch.small, "convex": arch.convex},
                "parameters": sum(p.numel() for p in net.parameters()),
                "final_loss": float(np.mean(losses[-100:])) if losses else None,
                "val": v, "history": history,
