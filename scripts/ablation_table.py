@@ -13,7 +13,7 @@ ROWS = (("first_sample", "Model (first sample)"), ("best_of_k", "Best@K"), ("bes
         ("trivial_baseline_cmaes", "Trivial baseline + CMA-ES"))
 
 
-HEADER = ["Method", "Input", "Reasoning", "Split", "Composition acc.", "Initial IoU", "Full-sequence IoU", "EPE (px)",
+HEADER = ["Method", "Input", "Reasoning", "Flow", "Split", "Composition acc.", "Initial IoU", "Full-sequence IoU", "EPE (px)",
           "valid"]
 
 
@@ -24,7 +24,8 @@ def main(paths: list[str]) -> None:
         for key, label in ROWS:
             for split, r in (m["methods"].get(key) or {}).items():
                 epe = f"{r['epe']:.2f}" if r.get("epe") is not None else "–"
-                rows.append([label, m["input"] if "baseline" not in key else "–", str(m["reasoning"]), split,
+                rows.append([label, m["input"] if "baseline" not in key else "–", str(m["reasoning"]),
+                             (m.get("observed") or {}).get("flow", "dis"), split,
                              f"{r['composition_accuracy']:.3f}", f"{r['initial_iou']:.3f}", f"{r['full_iou']:.3f}",
                              epe, f"{r['n_valid']}/{r['n']}"])
     print(tabulate(rows, HEADER, tablefmt="github", disable_numparse=True))
