@@ -23,6 +23,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -182,7 +183,7 @@ def markdown(res: dict) -> str:
     lines += ["", f"- Synthetic: the render stage's `test` split, {s['clips']} clips, {s['pairs']} pairs at "
               f"{s['size'][0]}x{s['size'][1]}, simulator flow; foreground = object pixels of frame t.",
               f"- PyBullet: {p.get('clips', 0)} clips (dev + held-out) at {p.get('size', ['?', '?'])[0]}x"
-              f"{p.get('size', ['?', '?'])[1]}, every {p.get('pair_stride', '?')}th pair, flow of the true poses "
+              f"{p.get('size', ['?', '?'])[1]}, one pair in {p.get('pair_stride', '?')}, flow of the true poses "
               "(`pipeline/truthsets/flow.py`), valid pixels only. Never used for training.",
               f"- Real: {r['clips']} clips, 30 frames per true second in the main job's window, 160 px wide; mean over "
               f"clips of the warping error over pixels that change by more than {PHOTO_THRESHOLD} grey levels. "
@@ -204,7 +205,11 @@ def main(argv: list[str] | None = None) -> int:
                     help="extra RAFT checkpoints to compare (e.g. raft-small=/path/raft-small.pth)")
     ap.add_argument("--pair-stride", type=int, default=3, help="PyBullet: every n-th pair")
     ap.add_argument("--report", type=Path, default=Path("reports/flow_epe"), help="report path stem")
+    ap.add_argument("--markdown-only", action="store_true", help="rewrite REPORT.md from REPORT.json (no runs)")
     args = ap.parse_args(argv)
+    if args.markdown_only:
+        write_text(args.report.with_suffix(".md"), markdown(json.loads(args.report.with_suffix(".json").read_text())))
+        return 0
     torch.set_num_threads(2)
     weights = {"RAFT (trained here)": DEFAULT_WEIGHTS}
     for item in args.raft_weights:
