@@ -36,8 +36,8 @@ from tqdm import tqdm
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pipeline.atomic import write_json, write_text  # noqa: E402
-from pipeline.flow import estimate_flow  # noqa: E402
+from pipeline.atomic import write_bytes, write_json, write_text  # noqa: E402
+from pipeline.flow import estimate_flow, flow_to_rgb  # noqa: E402
 from pipeline.observe import choose_window  # noqa: E402
 from pipeline.raft.estimator import DEFAULT_WEIGHTS, RaftFlow  # noqa: E402
 from pipeline.raft.train import epe, load_split  # noqa: E402
@@ -161,12 +161,48 @@ def _seconds(fn, frames) -> float:
     return time.perf_counter() - t
 
 
+def figure(methods: dict, video: Path, configs: Path, pybullet_root: Path, out: Path) -> Path:
+    """``out`` (PNG): per row a test clip (synthetic, then a PyBullet clip when there is one),
+    frame t, then the true flow and each method's, Middlebury colours on one scale per row."""
+    rows = []
+    rgb, flow, _ = load_split(video, configs, "test")
+    n = int(np.argmax(np.abs(flow[:, 3].astype(np.float32)).sum(axis=(1, 2, 3))))   # the clip moving most
+    rows.append(("synthetic test", np.asarray(rgb[n, 3:5]), flow[n, 3].astype(np.float32)))
+    folders = sorted((pybullet_root / "heldout").glob("clip-*"))
+    if folders:
+        from pipeline.truthsets.flow import truth_flow
+        frames = read_video(folders[0] / "video.mp4").frames
+        gt, _ = truth_flow(folders[0])
+        t = int(np.argmax(np.abs(gt).sum(axis=(1, 2, 3))))
+        rows.append(("PyBullet held-out", frames[t:t + 2], gt[t]))
+    panels = []
+    for title, pair, gt in rows:
+        h, w = 128, round(128 * pair.shape[2] / pair.shape[1])
+        scale = max(float(np.abs(gt).max()), 1.0)
+        cells = [("frame t", pair[0]), ("truth", flow_to_rgb(gt[None], scale)[0])]
+        cells += [(name, flow_to_rgb(fn(pair), scale)[0]) for name, fn in methods.items()]
+        row = []
+        for label, img in cells:
+            img = cv2.resize(np.ascontiguousarray(img), (w, h), interpolation=cv2.INTER_NEAREST)
+            img = cv2.copyMakeBorder(img, 18, 2, 2, 2, cv2.BORDER_CONSTANT, value=(255, 255, 255))
+            cv2.putText(img, f"{title}: {label}" if label == "frame t" else label, (3, 13), cv2.FONT_HERSHEY_SIMPLEX,
+                        0.38, (0, 0, 0), 1, cv2.LINE_AA)
+            row.append(img)
+        panels.append(np.concatenate(row, axis=1))
+    width = max(p.shape[1] for p in panels)
+    sheet = np.concatenate([cv2.copyMakeBorder(p, 0, 0, 0, width - p.shape[1], cv2.BORDER_CONSTANT, value=(255, 255, 255))
+                            for p in panels])
+    write_bytes(out, cv2.imencode(".png", sheet[..., ::-1])[1].tobytes())
+    return out
+
+
 def markdown(res: dict) -> str:
     s, p, r, t = res["synthetic"], res["pybullet"], res["real"], res["timing"]
     names = list(t["ms_per_pair"])
     lines = ["# Optical flow: DIS, Farneback and RAFT", "",
              f"`{res['command']}` on tree `{res['tree']}` ({res['date']}, {t['threads']} torch threads).", "",
              f"RAFT weights: {', '.join(f'{k} = `{v}`' for k, v in res['raft_weights'].items())}.", "",
+             "![flow of two test pairs](flow_epe.png)", "",
              "| method | synthetic EPE fg / all (px) | PyBullet EPE fg / all (px) | real photometric error (grey) | "
              "real clips best on | ms/pair 96x64 | ms/pair 160x120 |", "|---|---|---|---|---|---|---|"]
     for n in [*names, "zero flow"]:
@@ -206,6 +242,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--pair-stride", type=int, default=3, help="PyBullet: every n-th pair")
     ap.add_argument("--report", type=Path, default=Path("reports/flow_epe"), help="report path stem")
     ap.add_argument("--markdown-only", action="store_true", help="rewrite REPORT.md from REPORT.json (no runs)")
+    ap.add_argument("--figure-only", action="store_true", help="only draw REPORT.png (flow of two test pairs)")
     args = ap.parse_args(argv)
     if args.markdown_only:
         write_text(args.report.with_suffix(".md"), markdown(json.loads(args.report.with_suffix(".json").read_text())))
@@ -216,6 +253,9 @@ def main(argv: list[str] | None = None) -> int:
         name, _, path = item.partition("=")
         weights[f"RAFT ({name})"] = Path(path)
     methods = estimators(weights)
+    figure(methods, args.video, args.configs, args.pybullet, args.report.with_suffix(".png"))
+    if args.figure_only:
+        return 0
     import subprocess
     tree = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
     res = {"command": "MUJOCO_GL=egl python benchmarks/flow_epe.py" + "".join(f" --raft-weights {w}" for w in args.raft_weights),

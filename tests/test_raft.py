@@ -251,3 +251,21 @@ def test_flow_stage_writes_raft_flow(tmp_path):
     assert got.shape == (2, 3, 64, 96, 2) and got.dtype == np.float16
     want = RaftFlow.from_file(None, iters=6)(rgb[1])
     np.testing.assert_allclose(got[1].astype(np.float32), want, atol=2e-2)
+
+
+def test_infer_flags_choose_raft_and_its_weights(tmp_path, monkeypatch):
+    """``dynamics infer --flow-method raft --raft-weights PTH``: the params the main job gets name
+    RAFT and the absolute checkpoint path (a command-line path is relative to the working folder)."""
+    import argparse
+
+    from pipeline import reconstruct
+
+    seen = {}
+    monkeypatch.setattr(reconstruct, "reconstruct", lambda video, out, params, **kw: seen.update(params=params) or {})
+    monkeypatch.chdir(tmp_path)
+    p = argparse.ArgumentParser()
+    reconstruct.add_arguments(p)
+    args = p.parse_args(["clip.mp4", "--out", "o", "--flow-method", "raft", "--raft-weights", "w/raft-things.pth"])
+    assert reconstruct.main_cli(args) == 0
+    cfg = flow_config(seen["params"])
+    assert cfg.method == "raft" and Path(cfg.raft_weights) == tmp_path / "w" / "raft-things.pth"
