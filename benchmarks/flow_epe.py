@@ -57,9 +57,9 @@ def estimators(raft_weights: dict[str, Path]) -> dict:
     return out
 
 
-def synthetic(methods: dict, video: Path, configs: Path) -> dict:
-    """EPE (px) on the test split: all pixels, foreground."""
-    rgb, flow, seg = load_split(video, configs, "test")
+def synthetic(methods: dict, test: tuple[np.ndarray, np.ndarray, np.ndarray]) -> dict:
+    """EPE (px) on the test split ``(rgb, flow, seg)`` (:func:`load_split`): all pixels, foreground."""
+    rgb, flow, seg = test
     fg = seg[:, :-1] >= 0
     rows = {}
     for name, fn in methods.items():
@@ -141,9 +141,8 @@ def real(methods: dict) -> dict:
     return {"clips": len(per_clip), "mean": mean, "best_on": wins, "per_clip": per_clip, "skipped": skipped}
 
 
-def timing(methods: dict, video: Path, configs: Path) -> dict:
-    """ms per pair at 96x64 and 160x120 (16 frames of a test clip, best of 3)."""
-    rgb, _, _ = load_split(video, configs, "test")
+def timing(methods: dict, rgb: np.ndarray) -> dict:
+    """ms per pair at 96x64 and 160x120 (16 frames of the first test clip ``rgb[0]``, best of 3)."""
     clip = rgb[0, :16]
     out = {}
     for W, H in ((96, 64), (160, 120)):
@@ -161,11 +160,11 @@ def _seconds(fn, frames) -> float:
     return time.perf_counter() - t
 
 
-def figure(methods: dict, video: Path, configs: Path, pybullet_root: Path, out: Path) -> Path:
+def figure(methods: dict, test: tuple[np.ndarray, np.ndarray, np.ndarray], pybullet_root: Path, out: Path) -> Path:
     """``out`` (PNG): per row a test clip (synthetic, then a PyBullet clip when there is one),
     frame t, then the true flow and each method's, Middlebury colours on one scale per row."""
     rows = []
-    rgb, flow, _ = load_split(video, configs, "test")
+    rgb, flow, _ = test
     n = int(np.argmax(np.abs(flow[:, 3].astype(np.float32)).sum(axis=(1, 2, 3))))   # the clip moving most
     rows.append(("synthetic test", np.asarray(rgb[n, 3:5]), flow[n, 3].astype(np.float32)))
     folders = sorted((pybullet_root / "heldout").glob("clip-*"))
@@ -253,7 +252,8 @@ def main(argv: list[str] | None = None) -> int:
         name, _, path = item.partition("=")
         weights[f"RAFT ({name})"] = Path(path)
     methods = estimators(weights)
-    figure(methods, args.video, args.configs, args.pybullet, args.report.with_suffix(".png"))
+    test = load_split(args.video, args.configs, "test")
+    figure(methods, test, args.pybullet, args.report.with_suffix(".png"))
     if args.figure_only:
         return 0
     import subprocess
@@ -261,8 +261,8 @@ def main(argv: list[str] | None = None) -> int:
     res = {"command": "MUJOCO_GL=egl python benchmarks/flow_epe.py" + "".join(f" --raft-weights {w}" for w in args.raft_weights),
            "tree": tree, "date": time.strftime("%Y-%m-%d"),
            "raft_weights": {k: str(v.relative_to(ROOT) if v.is_relative_to(ROOT) else v) for k, v in weights.items()}}
-    res["timing"] = timing(methods, args.video, args.configs)
-    res["synthetic"] = synthetic(methods, args.video, args.configs)
+    res["timing"] = timing(methods, test[0])
+    res["synthetic"] = synthetic(methods, test)
     res["pybullet"] = pybullet(methods, args.pybullet, args.pair_stride)
     res["real"] = real(methods)
     write_json(args.report.with_suffix(".json"), res)

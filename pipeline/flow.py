@@ -66,6 +66,12 @@ class FlowConfig(BaseModel):
     raft_iters: int = Field(default=12, ge=1, le=32)
     max_magnitude: float | None = Field(default=4.0, gt=0, allow_inf_nan=False)
 
+    @property
+    def estimator(self) -> Literal["dis", "farneback", "raft"]:
+        """The estimator that runs on frames: ``method``, except ``gt`` (no truth exists for
+        frames that were not rendered, e.g. a real video), which falls back to ``dis``."""
+        return "dis" if self.method == "gt" else self.method
+
 
 # ---------------------------------------------------------------------------------------
 # Colour coding
@@ -228,8 +234,8 @@ def flow_config(params) -> FlowConfig:
 
 
 def flow_of(frames: np.ndarray, cfg: FlowConfig) -> np.ndarray:
-    """:func:`estimate_flow` with the settings of a ``flow`` params section; ``gt`` (no truth
-    exists for these frames, e.g. a real video) falls back to DIS.
+    """:func:`estimate_flow` with the settings of a ``flow`` params section
+    (:attr:`FlowConfig.estimator`: ``gt`` falls back to DIS).
 
     Args:
         frames: ``(T, H, W, 3)`` uint8 RGB.
@@ -238,5 +244,5 @@ def flow_of(frames: np.ndarray, cfg: FlowConfig) -> np.ndarray:
     Returns:
         ``(T-1, H, W, 2)`` float32 px.
     """
-    return estimate_flow(frames, method="dis" if cfg.method == "gt" else cfg.method, preset=cfg.preset,
+    return estimate_flow(frames, method=cfg.estimator, preset=cfg.preset,
                          raft_weights=cfg.raft_weights, raft_iters=cfg.raft_iters)

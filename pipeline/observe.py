@@ -446,10 +446,9 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     clip, frames, ctx = window(size, crop)
     seg = _masks(frames, ctx, mask_method, max_objects)
     flow = flow or FlowConfig()
-    method = "dis" if flow.method == "gt" else flow.method
     flow_px = flow_of(frames, flow)
     seg, _ = keep_objects(seg if learned else hold_resting(seg), flow_px, max_objects, learned)
-    return Observation(frames, seg, flow_px, clip, float(start), auto, clip.crop, size, scene_fps, method,
+    return Observation(frames, seg, flow_px, clip, float(start), auto, clip.crop, size, scene_fps, flow.estimator,
                        mask_method, duration)
 
 
