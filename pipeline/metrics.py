@@ -207,10 +207,16 @@ def sequence_iou(true_seg: np.ndarray, pred_seg: np.ndarray) -> dict[str, Any]:
         * ``foreground_iou_initial`` / ``foreground_iou_full`` (float): IoU of the union of
           objects at frame 0 / averaged over frames (no matching);
         * ``matches``: the ``(true, pred)`` pairs used;
-        * ``n_true``, ``n_pred`` (int): object counts (max label + 1).
+        * ``n_true``, ``n_pred`` (int): object counts (max label + 1);
+        * ``strict_iou`` (float): the full-sequence IoU without free credit (issue 29 item 7):
+          per true object, the IoU with its match averaged over the frames where the object or
+          its match is visible (:func:`track_iou`; objects matched on that IoU, an unmatched one
+          counts 0), averaged over the true objects visible in some frame; NaN when none is;
+        * ``n_true_visible``, ``n_pred_visible`` (int): the objects visible in some frame.
 
-        With no true object at all, ``per_frame`` is the foreground IoU (1.0 where the
-        prediction is empty too).
+        ``full_iou`` keeps the docs/design.md §7 convention: a frame where a true object and its
+        match are both absent counts 1.0. With no true object at all, ``per_frame`` is the
+        foreground IoU (1.0 where the prediction is empty too).
     Raises:
         ValueError: shapes differ or a segmentation is malformed.
     """
@@ -221,10 +227,17 @@ def sequence_iou(true_seg: np.ndarray, pred_seg: np.ndarray) -> dict[str, Any]:
         fg_t, fg_p = t >= 0, p >= 0
         inter = np.count_nonzero(fg_t & fg_p, axis=(1, 2))
         union = np.count_nonzero(fg_t | fg_p, axis=(1, 2))
+        tiou, _ = track_iou(t, p)
+        vis_t = [k for k in range(tiou.shape[0]) if (t == k).any()]
+        vis_p = [k for k in range(tiou.shape[1]) if (p == k).any()]
+        pairs = match_tracks(tiou, vis_t, vis_p)
+        strict = (float(sum(tiou[i, j] for i, j in pairs.items()) / len(vis_t)), len(vis_t), len(vis_p)) \
+            if vis_t else (math.nan, 0, len(vis_p))
     else:  # the same integers as above, from one histogram of (true, pred) label pairs per frame
         iou = _counts_iou(counts)
         inter = counts[:, 1:, 1:].sum(axis=(1, 2))
         union = counts[0].sum() - counts[:, 0, 0]
+        strict = _strict_iou(counts)
     matches = hungarian_match(iou)
     nt = iou.shape[1]
     fg = np.where(union > 0, inter / np.maximum(union, 1), 1.0)
@@ -244,6 +257,9 @@ def sequence_iou(true_seg: np.ndarray, pred_seg: np.ndarray) -> dict[str, Any]:
         "matches": matches,
         "n_true": nt,
         "n_pred": int(iou.shape[2]),
+        "strict_iou": strict[0],
+        "n_true_visible": strict[1],
+        "n_pred_visible": strict[2],
     }
 
 
@@ -301,6 +317,12 @@ def track_iou(true_seg: np.ndarray, pred_seg: np.ndarray) -> tuple[np.ndarray, n
         code = ((t + 1) * (npd + 1) + (p + 1)).reshape(T, -1)
         counts = np.stack([np.bincount(c, minlength=(nt + 1) * (npd + 1)) for c in code]) \
             .reshape(T, nt + 1, npd + 1) if T else np.zeros((0, nt + 1, npd + 1), np.int64)
+    return _counts_track_iou(counts)
+
+
+def _counts_track_iou(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`track_iou` from the ``(T, n_true + 1, n_pred + 1)`` label-pair counts of
+    :func:`_label_counts`."""
     inter = counts[:, 1:, 1:].astype(np.float64)
     area_t = counts[:, 1:, :].sum(axis=2).astype(np.float64)     # (T, nt)
     area_p = counts[:, :, 1:].sum(axis=1).astype(np.float64)     # (T, np)
@@ -310,6 +332,37 @@ def track_iou(true_seg: np.ndarray, pred_seg: np.ndarray) -> tuple[np.ndarray, n
     frames = either.sum(axis=0)
     iou = np.where(frames > 0, per_frame.sum(axis=0) / np.maximum(frames, 1), 0.0)
     return iou, frames.astype(np.int64)
+
+
+def match_tracks(iou: np.ndarray, visible_true: Sequence[int], visible_pred: Sequence[int]) -> dict[int, int]:
+    """One-to-one match of the visible true and predicted objects, Hungarian assignment
+    (``scipy.optimize.linear_sum_assignment``) maximising the summed :func:`track_iou`.
+
+    Args:
+        iou: ``(n_true, n_pred)`` float per-object IoU (:func:`track_iou`).
+        visible_true, visible_pred: labels of the objects seen in at least one frame.
+    Returns:
+        true label -> predicted label, for the matched pairs.
+    """
+    vt, vp = list(visible_true), list(visible_pred)
+    if not vt or not vp:
+        return {}
+    rows, cols = linear_sum_assignment(iou[np.ix_(vt, vp)], maximize=True)
+    return {vt[a]: vp[b] for a, b in zip(rows, cols)}
+
+
+def _strict_iou(counts: np.ndarray) -> tuple[float, int, int]:
+    """``(strict_iou, n_true, n_pred)`` of :func:`sequence_iou` from label-pair counts: the mean
+    over the true objects visible in any frame of their matched :func:`track_iou` (0 when
+    unmatched), NaN when no true object is visible; ``n_true`` / ``n_pred`` count the visible
+    objects."""
+    iou, _ = _counts_track_iou(counts)
+    vis_t = np.flatnonzero(counts[:, 1:, :].sum(axis=(0, 2)) > 0)
+    vis_p = np.flatnonzero(counts[:, :, 1:].sum(axis=(0, 1)) > 0)
+    pairs = match_tracks(iou, vis_t, vis_p)
+    if not len(vis_t):
+        return math.nan, 0, len(vis_p)
+    return float(sum(iou[i, j] for i, j in pairs.items()) / len(vis_t)), len(vis_t), len(vis_p)
 
 
 def identity_switches(true_seg: np.ndarray, pred_seg: np.ndarray, min_iou: float = 0.5) -> int:
@@ -376,11 +429,7 @@ def observation_scores(true_seg: np.ndarray, pred_seg: np.ndarray,
     nt, npd = iou.shape
     vis_t = [k for k in range(nt) if (t == k).any()]
     vis_p = [k for k in range(npd) if (p == k).any()]
-    sub = iou[np.ix_(vis_t, vis_p)] if vis_t and vis_p else np.zeros((len(vis_t), len(vis_p)))
-    pairs = {}
-    if sub.size:
-        for a, b in zip(*linear_sum_assignment(sub, maximize=True)):
-            pairs[vis_t[a]] = vis_p[b]
+    pairs = match_tracks(iou, vis_t, vis_p)
     still = [False] * nt if still is None else [bool(s) for s in still] + [False] * max(0, nt - len(still))
     rows = []
     for k in vis_t:

@@ -52,7 +52,7 @@ from pipeline.atomic import publish_dir, remove_stale_temps, temp_dir_for
 from pipeline.flow import flow_config, flow_of
 from pipeline.labels import load_labels, score_against_labels
 from pipeline.npz import NpzWriter
-from pipeline.metrics import flow_epe, observation_scores, sequence_iou
+from pipeline.metrics import flow_epe, sequence_iou
 from pipeline.mjcf import SimOptions
 from pipeline.observe import LEARNED, MASK_METHODS, observe, original_frames, source_frames, upscale
 from pipeline.params import ParamsError, load_params, path_of, section, typed_section
@@ -220,7 +220,7 @@ def choose_output(candidates: list[tuple[str, Scene]], obs_seg: np.ndarray, obs_
         pool: evaluators to reuse.
     Returns:
         ``(index, scene, report)``: the index chosen, its writable scene, and per candidate
-        ``{name, fitness, full_iou, epe, simulate_ok, problem, moves}``.
+        ``{name, fitness, full_iou, strict_iou, epe, simulate_ok, problem, moves}``.
     """
     report, scenes = [], []
     for name, scene in candidates:
@@ -228,6 +228,7 @@ def choose_output(candidates: list[tuple[str, Scene]], obs_seg: np.ndarray, obs_
         s = score_scene(fixed, obs_seg, obs_flow, cfg, sim, pool=pool)
         scenes.append(fixed)
         report.append({"name": name, "fitness": round(float(s["fitness"]), 6), "full_iou": round(float(s["full_iou"]), 6),
+                       "strict_iou": None if s["strict_iou"] != s["strict_iou"] else round(float(s["strict_iou"]), 6),
                        "epe": round(float(s["epe"]), 6), "simulate_ok": problem is None, "problem": problem,
                        "moves": moves})
     pool_ok = [i for i, r in enumerate(report) if r["simulate_ok"]] or list(range(len(report)))
@@ -361,8 +362,9 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
         trace, fr = render_scene(scene, W, H, options=sim)
         iou = sequence_iou(obs.seg, fr.seg)
         # strict: per observed object over the frames where it or its match is visible (no free
-        # credit for frames where both are absent; issue 29 item 7), reported beside full_iou
-        strict = observation_scores(obs.seg, fr.seg)["matched_iou"]
+        # credit for frames where both are absent; issue 29 item 7; the search's fitness IoU),
+        # reported beside full_iou (docs/design.md §7)
+        strict = iou["strict_iou"]
         epe = flow_epe(fr.flow, obs.flow, fr.seg[:-1] >= 0, obs.seg[:-1] >= 0)
         return {"initial_iou": round(iou["initial_iou"], 4), "full_iou": round(iou["full_iou"], 4),
                 "strict_full_iou": None if not np.isfinite(strict) else round(float(strict), 4),

@@ -152,6 +152,8 @@ def scene_report(true_scene: Scene | None, pred_scene: Scene | None, true_seg: n
         pred_seg, pred_flow: the prediction's re-simulated labels and flow (None if invalid).
     Returns:
         flat dict: ``valid``, ``composition_correct``, ``initial_iou``, ``full_iou``,
+        ``strict_full_iou`` (:func:`pipeline.metrics.sequence_iou`'s ``strict_iou``: no credit for
+        frames where an object and its match are both absent; NaN with no visible true object),
         ``foreground_iou_initial``, ``foreground_iou_full``, ``epe`` and
         ``param/<field>`` for every parameter error (NaN if unavailable).
     """
@@ -160,11 +162,12 @@ def scene_report(true_scene: Scene | None, pred_scene: Scene | None, true_seg: n
         pred_scene is not None and true_scene is not None and pred_scene.composition == true_scene.composition)
     keys = ("initial_iou", "full_iou", "foreground_iou_initial", "foreground_iou_full")
     if pred_scene is None or pred_seg is None:
-        row.update({k: 0.0 for k in keys}, epe=math.nan)
+        row.update({k: 0.0 for k in keys}, strict_full_iou=0.0, epe=math.nan)
         row.update({f"param/{k}": math.nan for k in OBJECT_FIELDS + SCENE_FIELDS})
         return row
     iou = sequence_iou(true_seg, pred_seg)
     row.update({k: iou[k] for k in keys})
+    row["strict_full_iou"] = iou["strict_iou"]
     row["epe"] = (flow_epe(pred_flow, obs_flow, pred_seg[:-1] >= 0, np.asarray(true_seg)[:-1] >= 0)
                   if pred_flow is not None and obs_flow is not None else math.nan)
     if true_scene is not None:
@@ -180,7 +183,7 @@ def summarize(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
 
     Returns:
         dict: ``n``, ``n_valid``, ``composition_accuracy``, ``initial_iou``, ``full_iou``,
-        ``foreground_iou_initial``, ``foreground_iou`` (full sequence) — means over all rows
+        ``strict_full_iou`` (over the rows where it is defined), ``foreground_iou_initial``, ``foreground_iou`` (full sequence) — means over all rows
         (invalid rows count 0) — and ``epe`` and ``parameter_errors`` (dict per field) —
         means over valid rows with a finite value (NaN when none).
     """
@@ -195,6 +198,7 @@ def summarize(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
         "composition_accuracy": mean("composition_correct"),
         "initial_iou": mean("initial_iou"),
         "full_iou": mean("full_iou"),
+        "strict_full_iou": mean("strict_full_iou"),
         "foreground_iou_initial": mean("foreground_iou_initial"),
         "foreground_iou": mean("foreground_iou_full"),
         "epe": mean("epe", valid_only=True),
@@ -213,16 +217,18 @@ def markdown_table(summaries: dict[str, dict[str, Any]], labels: dict[str, str],
         split: split name, for the heading.
     Returns:
         Markdown: a heading and a table with composition accuracy, initial IoU, full-sequence
-        IoU, foreground IoU and EPE (px) per method.
+        IoU (strict: the headline, issue 29 item 7; and all frames: docs/design.md §7),
+        foreground IoU and EPE (px) per method.
     """
     def f(x: float, nd: int = 3) -> str:
         return "–" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{nd}f}"
 
     n = max((s["n"] for s in summaries.values()), default=0)
-    header = ["Method", "Input", "Composition acc.", "Initial IoU", "Full-sequence IoU", "Foreground IoU", "EPE (px)",
-              "valid"]
+    header = ["Method", "Input", "Composition acc.", "Initial IoU", "Full-sequence IoU (strict)",
+              "Full-sequence IoU (all frames)", "Foreground IoU", "EPE (px)", "valid"]
     rows = [[labels.get(key, key), inputs.get(key, "-"), f(s["composition_accuracy"]), f(s["initial_iou"]),
-             f(s["full_iou"]), f(s["foreground_iou"]), f(s["epe"], 2), f"{s['n_valid']}/{s['n']}"]
+             f(s.get("strict_full_iou", math.nan)), f(s["full_iou"]), f(s["foreground_iou"]), f(s["epe"], 2),
+             f"{s['n_valid']}/{s['n']}"]
             for key, s in summaries.items()]
     table = tabulate(rows, header, tablefmt="github", disable_numparse=True)  # cells exactly as formatted here
     return f"### Split `{split}` (n = {n})\n\n{table}\n"

@@ -13,8 +13,8 @@ ROWS = (("first_sample", "Model (first sample)"), ("best_of_k", "Best@K"), ("bes
         ("trivial_baseline_cmaes", "Trivial baseline + CMA-ES"))
 
 
-HEADER = ["Method", "Input", "Reasoning", "Flow", "Split", "Composition acc.", "Initial IoU", "Full-sequence IoU", "EPE (px)",
-          "valid"]
+HEADER = ["Method", "Input", "Reasoning", "Flow", "Split", "Composition acc.", "Initial IoU",
+          "Full-sequence IoU (strict)", "Full-sequence IoU (all frames)", "EPE (px)", "valid"]
 
 
 def main(paths: list[str]) -> None:
@@ -26,7 +26,9 @@ def main(paths: list[str]) -> None:
                 epe = f"{r['epe']:.2f}" if r.get("epe") is not None else "–"
                 rows.append([label, m["input"] if "baseline" not in key else "–", str(m["reasoning"]),
                              (m.get("observed") or {}).get("flow", "dis"), split,
-                             f"{r['composition_accuracy']:.3f}", f"{r['initial_iou']:.3f}", f"{r['full_iou']:.3f}",
+                             f"{r['composition_accuracy']:.3f}", f"{r['initial_iou']:.3f}",
+                             f"{r['strict_full_iou']:.3f}" if r.get("strict_full_iou") is not None else "–",
+                             f"{r['full_iou']:.3f}",
                              epe, f"{r['n_valid']}/{r['n']}"])
     print(tabulate(rows, HEADER, tablefmt="github", disable_numparse=True))
 

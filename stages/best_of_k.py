@@ -4,9 +4,9 @@ Reads ``paths.predictions`` (scene_id, split, sample, text, scene YAML or null, 
 ``paths.video`` (observed segmentation = the rendered ground truth) and ``paths.flow``
 (observed flow, params ``flow.method``). For each scene of ``search.splits``, the first
 ``search.k`` samples are re-timed to the clip, simulated and scored with the fitness
-``full_iou - lambda_epe * EPE`` (pipeline.search). Writes ``paths.best_of_k``: one Parquet
-shard per predictions shard with scene_id, split, sample, valid, initial_iou, full_iou, epe
-(px), fitness, is_best, error.
+``IoU - lambda_epe * EPE`` (pipeline.search; IoU per ``search.fitness_iou``, strict by default).
+Writes ``paths.best_of_k``: one Parquet shard per predictions shard with scene_id, split, sample,
+valid, initial_iou, full_iou, strict_iou, epe (px), fitness, is_best, error.
 
 Scenes are scored in chunks of :data:`CHUNK` on the ``compute`` backend (``pipeline.parallel``:
 local processes or Ray tasks), each chunk with its own evaluators; rows come back in scene
@@ -25,7 +25,7 @@ from pipeline.search import (EvaluatorPool, Observations, SearchConfig, at_clip_
 
 SCHEMA = pa.schema([("scene_id", pa.string()), ("split", pa.string()), ("sample", pa.int32()),
                     ("valid", pa.bool_()), ("initial_iou", pa.float64()), ("full_iou", pa.float64()),
-                    ("epe", pa.float64()), ("fitness", pa.float64()), ("is_best", pa.bool_()),
+                    ("strict_iou", pa.float64()), ("epe", pa.float64()), ("fitness", pa.float64()), ("is_best", pa.bool_()),
                     ("error", pa.string())])
 
 
@@ -46,7 +46,8 @@ def score_chunk(task: tuple[str, str, SearchConfig, SimOptions, list[tuple[str, 
             cands = [None if c is None else at_clip_timing(c, len(seg), fps) for c in cands]
             scores, best = best_of_k(cands, seg, flow, cfg, sim, pool=pool)
             rows += [{"scene_id": sid, "split": r["split"], "sample": r["sample"], "valid": s["valid"],
-                      "initial_iou": s["initial_iou"], "full_iou": s["full_iou"], "epe": s["epe"],
+                      "initial_iou": s["initial_iou"], "full_iou": s["full_iou"],
+                      "strict_iou": s["strict_iou"], "epe": s["epe"],
                       "fitness": s["fitness"], "is_best": j == best, "error": r["error"] or s["error"]}
                      for j, (r, s) in enumerate(zip(preds, scores))]
     return rows

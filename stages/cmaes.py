@@ -7,9 +7,9 @@ flow), and ``paths.configs`` for the trivial baseline, which is refined too (row
 alone recovers when the model's samples are poor. Params ``search`` set the budget (popsize x iterations), the free fields and the
 fitness; ``seed`` plus a hash of the scene id seeds each search. Writes ``paths.cmaes``: one
 Parquet shard per best_of_k shard with scene_id, split, sample (the start), scene (refined,
-canonical YAML; null when no sample was valid), initial_iou, full_iou, epe (px), fitness of the
+canonical YAML; null when no sample was valid), initial_iou, full_iou, strict_iou, epe (px), fitness of the
 written (rounded) scene, start_fitness, evaluations, seconds and history (JSON list of
-{iteration, best_fitness, mean_fitness, best_full_iou, best_epe, evaluations, seconds}).
+{iteration, best_fitness, mean_fitness, best_full_iou, best_strict_iou, best_epe, evaluations, seconds}).
 
 Scenes are refined in chunks of :data:`CHUNK` on the ``compute`` backend (``pipeline.parallel``:
 local processes or Ray tasks), each chunk with its own evaluators; each search is seeded by
@@ -34,7 +34,7 @@ from pipeline.search import (EvaluatorPool, Observations, SearchConfig, at_clip_
 
 SCHEMA = pa.schema([("scene_id", pa.string()), ("split", pa.string()), ("start", pa.string()), ("sample", pa.int32()),
                     ("scene", pa.string()), ("initial_iou", pa.float64()), ("full_iou", pa.float64()),
-                    ("epe", pa.float64()), ("fitness", pa.float64()), ("start_fitness", pa.float64()),
+                    ("strict_iou", pa.float64()), ("epe", pa.float64()), ("fitness", pa.float64()), ("start_fitness", pa.float64()),
                     ("evaluations", pa.int32()), ("seconds", pa.float64()), ("history", pa.string())])
 
 
@@ -58,7 +58,7 @@ def refine_chunk(task: tuple) -> list[dict]:
             for start_kind in ("model", "baseline"):
                 row = {"scene_id": sid, "split": split, "start": start_kind, "sample": None, "scene": None,
                        "evaluations": 0, "seconds": 0.0, "history": "[]", **dict.fromkeys(
-                           ("initial_iou", "full_iou", "epe", "fitness", "start_fitness"), math.nan)}
+                           ("initial_iou", "full_iou", "strict_iou", "epe", "fitness", "start_fitness"), math.nan)}
                 if start_kind in starts:
                     start_sample, start = starts[start_kind]
                     start = at_clip_timing(start, len(seg), fps)
@@ -69,7 +69,7 @@ def refine_chunk(task: tuple) -> list[dict]:
                     row.update(sample=start_sample, scene=final.to_yaml(decimals),
                                evaluations=history[-1]["evaluations"], seconds=history[-1]["seconds"],
                                start_fitness=history[0]["best_fitness"], history=json.dumps(history),
-                               **{k: f[k] for k in ("initial_iou", "full_iou", "epe", "fitness")})
+                               **{k: f[k] for k in ("initial_iou", "full_iou", "strict_iou", "epe", "fitness")})
                 rows.append(row)
     return rows
 

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from pipeline.metrics import flow_epe, mask_iou, match_objects, sequence_iou
+from pipeline.metrics import flow_epe, mask_iou, match_objects, observation_scores, sequence_iou
 from pipeline.scene_metrics import (
     composition_accuracy, match_by_position, parameter_errors, scene_report, summarize,
 )
@@ -99,6 +99,38 @@ def test_bool_masks_are_one_object():
     fg = TRUE >= 0
     res = sequence_iou(fg, fg)
     assert res["n_true"] == 1 and res["full_iou"] == 1.0
+
+
+def test_strict_iou_gives_no_credit_for_agreeing_on_absence():
+    # object 0 is seen in frame 0 only, object 1 in all four; the prediction has object 1 exact
+    # and never shows an object 0 (label 0 empty in every frame).
+    true = _seg(["0...", "..11"], ["....", "..11"], ["....", "..11"], ["....", "..11"])
+    pred = np.where(true == 1, 1, -1).astype(np.int8)
+    res = sequence_iou(true, pred)
+    # design §7: object 0 matches the empty label 0 and scores 1.0 in the 3 frames where both are
+    # absent: (0 + 1 + 1 + 1) / 4 = 0.75, so full = (0.75 + 1) / 2
+    assert res["full_iou"] == pytest.approx(0.875)
+    # strict (issue 29 item 7): object 0 is missed (0), object 1 exact (1)
+    assert res["strict_iou"] == pytest.approx(0.5)
+    assert res["n_true_visible"] == 2 and res["n_pred_visible"] == 1
+    # with object 0 found in its one frame, both agree on a perfect score
+    assert sequence_iou(true, true)["strict_iou"] == 1.0
+
+
+def test_strict_iou_nothing_observed_is_undefined_not_perfect():
+    empty = np.full((3, 2, 4), -1, np.int8)
+    res = sequence_iou(empty, empty)
+    assert res["full_iou"] == 1.0                    # the docs/design.md §7 convention
+    assert math.isnan(res["strict_iou"]) and res["n_true_visible"] == 0
+
+
+def test_strict_iou_equals_the_observation_score():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        true = rng.integers(-1, 3, (5, 6, 7)).astype(np.int8)
+        true[2:][true[2:] == 1] = -1                 # object 1 leaves after frame 1
+        pred = rng.integers(-1, 2, (5, 6, 7)).astype(np.int8)
+        assert sequence_iou(true, pred)["strict_iou"] == pytest.approx(observation_scores(true, pred)["matched_iou"])
 
 
 def test_sequence_iou_rejects_bad_input():

@@ -166,6 +166,25 @@ def test_fitness_weights_and_foreground_only_observation():
     assert f["full_iou"] == 1.0 and math.isnan(f["epe"])
 
 
+def test_fitness_strict_iou_gives_no_credit_for_a_missing_object():
+    # the observation sees object 0 only in its first frame; a candidate without any object 0
+    # earns 0 for it under the strict fitness, and the free credit of the frames where both are
+    # absent under all_frames (issue 29 item 7)
+    seg, flow = evaluate_scene(_scene(), W, H)
+    obs = seg.copy()
+    obs[1:][obs[1:] == 0] = -1
+    pred = np.where(seg == 0, -1, seg).astype(np.int8)
+    strict = fitness(pred, None, obs, None, SearchConfig(penalize_extra=False))
+    old = fitness(pred, None, obs, None, SearchConfig(penalize_extra=False, fitness_iou="all_frames"))
+    n = int(seg.max()) + 1
+    assert strict["fitness"] == pytest.approx((n - 1) / n) == pytest.approx(strict["strict_iou"])
+    assert old["fitness"] == pytest.approx(old["full_iou"]) and old["fitness"] > strict["fitness"] + 0.5 / n
+    # the strict fitness prefers the candidate that shows object 0 where it is seen
+    assert fitness(seg, None, obs, None, SearchConfig(penalize_extra=False))["fitness"] > strict["fitness"]
+    with pytest.raises(ValidationError):
+        SearchConfig(fitness_iou="both")
+
+
 def test_search_config_rejects_unknown_keys():
     with pytest.raises(ValidationError):
         SearchConfig(popsize=8, typo=1)
@@ -377,7 +396,7 @@ def test_stages_best_of_k_cmaes_score(tmp_path, monkeypatch):
     # the table shows the numbers of metrics.json: every method, split and column, in place
     labels = {"trivial_baseline": "Trivial baseline", "trivial_baseline_cmaes": "Trivial baseline + CMA-ES",
               "first_sample": "Model (first sample)", "best_of_k": "Best@2", "best_of_k_cmaes": "Best@2 + CMA-ES"}
-    columns = ["composition_accuracy", "initial_iou", "full_iou", "foreground_iou", "epe"]
+    columns = ["composition_accuracy", "initial_iou", "strict_full_iou", "full_iou", "foreground_iou", "epe"]
     checked = 0
     for section in table.split("### Split `")[1:]:
         split = section.split("`")[0]
@@ -387,7 +406,7 @@ def test_stages_best_of_k_cmaes_score(tmp_path, monkeypatch):
             if method is None:
                 continue
             want = metrics["methods"][method][split]
-            for col, cell in zip(columns, cells[2:7]):
+            for col, cell in zip(columns, cells[2:8]):
                 if want[col] is None:
                     assert cell == "–", (method, split, col, cell)
                 else:

@@ -10,7 +10,7 @@ iterations) on the fitness *IoU − EPE* with the object types fixed. Here:
   edits must refresh), then rolls out and renders segmentation and exact flow with one reused
   :class:`pipeline.render.FrameRenderer`. ``tests/test_search.py`` checks fast == naive
   (rebuild the XML per candidate).
-* :func:`fitness`: ``full_iou − lambda_epe · EPE − prior_weight · prior``.
+* :func:`fitness`: ``IoU − lambda_epe · EPE − prior_weight · prior`` (IoU: strict by default).
 * :func:`best_of_k`: score K sampled scenes (None = parse error, fitness −inf).
 * :func:`cmaes_refine`: CMA-ES (``cma`` library) over a normalised vector of the free fields
   (:class:`SearchConfig`), object types fixed.

@@ -47,8 +47,8 @@ def cmaes_refine(scene: Scene, obs_seg: np.ndarray, obs_flow: np.ndarray | None,
     Returns:
         ``(best_scene, history)``; history has one dict per iteration (0 = the start):
         ``iteration``, ``best_fitness`` (best so far), ``mean_fitness`` (of the iteration's
-        finite scores), ``best_full_iou``, ``best_epe`` (of the best so far), ``evaluations``
-        (cumulative), ``seconds`` (cumulative wall time).
+        finite scores), ``best_full_iou``, ``best_strict_iou``, ``best_epe`` (of the best so
+        far), ``evaluations`` (cumulative), ``seconds`` (cumulative wall time).
     """
     import cma
 
@@ -77,7 +77,8 @@ def cmaes_refine(scene: Scene, obs_seg: np.ndarray, obs_flow: np.ndarray | None,
 
         def log(it: int, mean: float) -> None:
             entry = {"iteration": it, "best_fitness": best["fitness"], "mean_fitness": mean,
-                     "best_full_iou": best["full_iou"], "best_epe": best["epe"],
+                     "best_full_iou": best["full_iou"],
+                     "best_strict_iou": best.get("strict_iou", float("nan")), "best_epe": best["epe"],
                      "evaluations": evaluations, "seconds": round(time.perf_counter() - t0, 3)}
             history.append(entry)
             if callback is not None:

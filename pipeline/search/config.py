@@ -68,6 +68,10 @@ class SearchConfig(BaseModel):
         ranges: the search box (:class:`SearchRanges`).
         penalize_extra: in the fitness, predicted objects that match no observed object count
             as IoU 0 (see :func:`fitness`).
+        fitness_iou: the IoU the fitness uses: ``strict`` (per object over the frames where it
+            or its match is visible, no credit for agreeing on absence; issue 29 item 7) or
+            ``all_frames`` (docs/design.md §7's full-sequence IoU, where a frame with both
+            masks empty counts 1.0).
         splits: dataset splits the best_of_k / cmaes stages process.
 
     Defaults are the small profile: 1 + 8 x 6 = 49 evaluations, ~3-4 s per scene at 96x64 on
@@ -87,4 +91,5 @@ class SearchConfig(BaseModel):
     free: tuple[FreeField, ...] = ("position", "linear_velocity", "yaw", "size", "camera")
     ranges: SearchRanges = SearchRanges()
     penalize_extra: bool = True
+    fitness_iou: Literal["strict", "all_frames"] = "strict"
     splits: tuple[str, ...] = ("test", "test_comp")

@@ -18,38 +18,51 @@ def fitness(pred_seg: np.ndarray, pred_flow: np.ndarray | None, obs_seg: np.ndar
             obs_flow: np.ndarray | None, cfg: SearchConfig, prior: float = 0.0) -> dict[str, float]:
     """Fitness of a re-simulated clip: ``IoU − lambda_epe · EPE − prior_weight · prior``.
 
-    Paper: fitness IoU − EPE. The IoU is the matched full-sequence IoU
-    (:func:`pipeline.metrics.sequence_iou`) when ``obs_seg`` is a label map (int, -1
+    Paper: fitness IoU − EPE. With ``cfg.fitness_iou == "strict"`` (default) the IoU is
+    :func:`pipeline.metrics.sequence_iou`'s ``strict_iou``: per observed object, the IoU with its
+    match over the frames where either is visible, so agreeing that an object is absent earns
+    nothing (issue 29 item 7); with ``"all_frames"`` it is the docs/design.md §7 matched
+    full-sequence IoU, where such a frame counts 1.0. ``obs_seg`` is a label map (int, -1
     background: rendered ground truth, or pseudo masks split into objects by
-    ``pipeline.masks.label_objects``); with ``cfg.penalize_extra`` it is averaged over
-    ``max(n_true, n_pred)`` objects instead of the true ones, so a predicted object that
-    matches nothing costs as much as a missed one (the docs/design.md §7 metric ignores extra objects,
-    which would let Best@K prefer candidates that add objects). For a bool foreground-only
-    ``obs_seg`` it is the foreground IoU (object identities unknown). EPE is in px at the
-    rendered resolution over pixels where either clip is foreground
-    (:func:`pipeline.metrics.flow_epe`). The returned ``initial_iou`` / ``full_iou`` are the
-    docs/design.md §7 metrics, without the extra-object penalty.
+    ``pipeline.masks.label_objects``); with ``cfg.penalize_extra`` the IoU is averaged over
+    ``max(n_true, n_pred)`` objects instead of the true ones (visible ones for ``strict``),
+    so a predicted object that matches nothing costs as much as a missed one (the
+    docs/design.md §7 metric ignores extra objects, which would let Best@K prefer candidates
+    that add objects). For a bool foreground-only ``obs_seg`` it is the foreground IoU
+    (object identities unknown; ``strict``: over the frames where either has foreground).
+    With no observed object visible at all the IoU term is 0. EPE is in px at the rendered
+    resolution over pixels where either clip is foreground (:func:`pipeline.metrics.flow_epe`).
+    The returned ``initial_iou`` / ``full_iou`` are the docs/design.md §7 metrics and
+    ``strict_iou`` the strict one, all without the extra-object penalty.
 
     Args:
         pred_seg: ``(T, H, W)`` int8 re-simulated labels.
         pred_flow: ``(T-1, H, W, 2)`` float re-simulated flow, or None.
         obs_seg: ``(T, H, W)`` observed labels (int) or foreground (bool).
         obs_flow: ``(T-1, H, W, 2)`` observed flow, or None (then EPE is NaN and not used).
-        cfg: weights ``lambda_epe`` and ``prior_weight``.
+        cfg: weights ``lambda_epe`` and ``prior_weight``, ``fitness_iou``, ``penalize_extra``.
         prior: penalty value (e.g. mean squared normalised distance to the model's scene).
     Returns:
-        dict: ``fitness``, ``initial_iou``, ``full_iou``, ``epe`` (px, NaN if not computed),
-        ``prior``.
+        dict: ``fitness``, ``initial_iou``, ``full_iou``, ``strict_iou`` (NaN with no visible
+        observed object), ``epe`` (px, NaN if not computed), ``prior``.
     """
     obs = np.asarray(obs_seg)
-    iou = sequence_iou(obs, pred_seg)
+    strict = cfg.fitness_iou == "strict"
     if obs.dtype == bool:
+        iou = sequence_iou(obs, np.asarray(pred_seg) >= 0)
         initial, full = iou["foreground_iou_initial"], iou["foreground_iou_full"]
-        term = full
+        term = iou["strict_iou"] if strict else full
     else:
+        iou = sequence_iou(obs, pred_seg)
         initial, full = iou["initial_iou"], iou["full_iou"]
-        n_true, n_pred = iou["n_true"], iou["n_pred"]
-        term = full * n_true / max(n_true, n_pred) if cfg.penalize_extra and n_true else full
+        if strict:
+            term, n_true, n_pred = iou["strict_iou"], iou["n_true_visible"], iou["n_pred_visible"]
+        else:
+            term, n_true, n_pred = full, iou["n_true"], iou["n_pred"]
+        if cfg.penalize_extra and n_true:
+            term = term * n_true / max(n_true, n_pred)
+    if math.isnan(term):
+        term = 0.0
     epe = math.nan
     if pred_flow is not None and obs_flow is not None:
         epe = flow_epe(pred_flow, obs_flow, np.asarray(pred_seg)[:-1] >= 0, as_labels(obs)[:-1] >= 0)
@@ -57,12 +70,12 @@ def fitness(pred_seg: np.ndarray, pred_flow: np.ndarray | None, obs_seg: np.ndar
     if cfg.lambda_epe > 0 and not math.isnan(epe):
         f -= cfg.lambda_epe * epe
     return {"fitness": float(f), "initial_iou": float(initial), "full_iou": float(full),
-            "epe": float(epe), "prior": float(prior)}
+            "strict_iou": float(iou["strict_iou"]), "epe": float(epe), "prior": float(prior)}
 
 
 def _invalid_score(error: str) -> dict[str, Any]:
     return {"valid": False, "fitness": -math.inf, "initial_iou": math.nan, "full_iou": math.nan,
-            "epe": math.nan, "prior": 0.0, "error": error}
+            "strict_iou": math.nan, "epe": math.nan, "prior": 0.0, "error": error}
 
 
 def check_observation(obs_seg: np.ndarray, obs_flow: np.ndarray | None) -> tuple[int, int, int]:
@@ -99,7 +112,7 @@ def best_of_k(candidates: Sequence[Scene | None], obs_seg: np.ndarray, obs_flow:
         pool: evaluators to reuse across calls (same render size); default: a private pool.
     Returns:
         ``(scores, best)``: one dict per candidate (``valid``, ``fitness``, ``initial_iou``,
-        ``full_iou``, ``epe``, ``prior``, ``error``) and the index of the highest fitness
+        ``full_iou``, ``strict_iou``, ``epe``, ``prior``, ``error``) and the index of the highest fitness
         (first on ties), or None when no candidate is valid.
     """
     T, H, W = check_observation(obs_seg, obs_flow)

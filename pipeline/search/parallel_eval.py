@@ -200,7 +200,7 @@ class ParallelFitness(_PoolOwner):
     def score(self, scenes: Sequence[Scene], cfg: SearchConfig | None = None,
               priors: Sequence[float] | None = None) -> list[dict[str, float]]:
         """``fitness(...)`` of each scene, in order: dicts ``fitness``, ``initial_iou``,
-        ``full_iou``, ``epe``, ``prior``.
+        ``full_iou``, ``strict_iou``, ``epe``, ``prior``.
 
         Args:
             scenes: candidates (any structures; each worker compiles a structure once).
