@@ -13,7 +13,6 @@ Usage: ``python scripts/pseudo_mask_report.py [--out PATH]``
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path

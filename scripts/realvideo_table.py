@@ -57,7 +57,7 @@ def main(root: str) -> None:
     strict = [v for p in sorted(Path(root).glob("*/metrics.json"))
               if (v := json.loads(p.read_text())["best_of_k_cmaes"].get("strict_full_iou")) is not None]
     if ious:
-        print(f"\nmean full-sequence IoU after CMA-ES (against the observation): "
+        print("\nmean full-sequence IoU after CMA-ES (against the observation): "
               + (f"strict (no free credit) {sum(strict) / len(strict):.3f}, clips >= 0.5: "
                  f"{sum(i >= 0.5 for i in strict)}/{len(strict)}; " if strict else "")
               + f"all frames (docs/design.md §7) {sum(ious) / len(ious):.3f}, clips >= 0.5: "
