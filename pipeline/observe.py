@@ -131,11 +131,13 @@ def choose_window(video, fps: float | None, scene_fps: int, duration: float) -> 
     return float(np.argmax(sums)) / scene_fps, duration
 
 
-MASK_METHODS = ("median", "mog2", "segmenter", "hybrid")
+MASK_METHODS = ("median", "mog2", "segmenter", "hybrid", "anchored")
 """``realvideo.mask_method``: background subtraction (``median``, ``mog2``:
 :func:`pipeline.masks.pseudo_masks`), the learned segmenter alone (``segmenter``,
-:mod:`pipeline.segmenter`) or the segmenter checked by motion (``hybrid``, :func:`hybrid_objects`)."""
-LEARNED = ("segmenter", "hybrid")
+:mod:`pipeline.segmenter`), the segmenter checked by motion (``hybrid``, :func:`hybrid_objects`)
+or the movers of ``median`` completed and joined by the segmenter (``anchored``,
+:func:`anchored_objects`)."""
+LEARNED = ("segmenter", "hybrid", "anchored")
 """Mask methods that see objects at rest (their tracks are kept whether they move or not)."""
 
 FG_THRESHOLD = 0.5
@@ -172,6 +174,8 @@ def segment_objects(frames: np.ndarray, context: np.ndarray, method: str, max_ob
         return label_objects(masks, max_objects=max_objects)
     if method == "hybrid":
         return hybrid_objects(frames, context, max_objects)
+    if method == "anchored":    # needs the flow-checked movers: observe() / observe_frames() run it
+        raise ValueError("segment_objects: 'anchored' runs in observe(), after the median movers are kept")
     fg, contact = shipped()(frames, median_background(context))
     return _segmenter_tracks(fg > FG_THRESHOLD, contact > 0.5, max_objects)
 
@@ -193,7 +197,8 @@ def _segmenter_tracks(fg: np.ndarray, contact: np.ndarray, max_objects: int) -> 
     return out
 
 
-def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int) -> np.ndarray:
+def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
+                   explain: list | None = None) -> np.ndarray:
     """The segmenter first, background subtraction where it misses (``mask_method: hybrid``).
 
     The segmenter (:mod:`pipeline.segmenter`) gives whole silhouettes of objects moving or at
@@ -226,6 +231,8 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int) ->
         frames: ``(T, H, W, 3)`` uint8 RGB; context: ``(N, H, W, 3)`` uint8 frames spread over
             the clip (the background model's).
         max_objects: most objects kept.
+        explain: if given, one dict per kept object is appended: ``kind`` (``mover``,
+            ``mover_bs_only``, ``at_rest``), ``area`` (median px), ``frames`` (seen in).
     Returns:
         ``(T, H, W)`` int8 object ids, -1 background.
     """
@@ -240,11 +247,6 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int) ->
     movers, stills, linked = [], [], set()
     overlap = np.zeros(n_bs)                      # bs px inside segmenter tracks of its size class
 
-    def in_view(m: np.ndarray) -> bool:            # touches the border in at most half its frames
-        seen = m.any(axis=(1, 2))
-        border = m[:, 0, :].any(axis=1) | m[:, -1, :].any(axis=1) | m[:, :, 0].any(axis=1) | m[:, :, -1].any(axis=1)
-        return bool(border[seen].mean() <= 0.5)
-
     for tr in find_tracks(sg, None, min_frames=max(3, int(0.15 * T))):
         m = sg == tr.label
         size_ok = [float(np.median(tr.area)) <= SIZE_CLASS * a for a in bs_area]
@@ -255,7 +257,7 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int) ->
             movers.append((tr, m, fill_in))
             linked.update(fill_in)
         elif _at_rest(m, fg, tr.frames, T) and tr.size[0] <= 3.0 * max(tr.size[1], 1e-6) and tr.fill >= 0.5 \
-                and in_view(m):
+                and _in_view(m):
             stills.append((tr, m))
     unseen = [(None, m, []) for k, m in enumerate(bs_masks)   # movers only background subtraction saw
               if k not in linked and m.any() and overlap[k] <= 0.2 * m.sum()]
@@ -266,12 +268,117 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int) ->
     ranked = sorted(movers, key=lambda x: (not x[2], by_frames(x))) + sorted(unseen, key=by_frames) \
         + [(tr, m, []) for tr, m in sorted(stills, key=lambda x: -float(np.median(x[0].area)))]
     out = np.full((T, H, W), -1, np.int8)
+    kinds = ["mover"] * len(movers) + ["mover_bs_only"] * len(unseen) + ["at_rest"] * len(stills)
     for n, (_, m, fill_in) in enumerate(ranked[:max_objects]):
+        if explain is not None:
+            seen = m.any(axis=(1, 2))
+            explain.append({"kind": kinds[n], "area": float(np.median(m.sum(axis=(1, 2))[seen])) if seen.any() else 0.0,
+                            "frames": int(seen.sum())})
         mask = m.copy()
         missing = ~m.any(axis=(1, 2))
         for k in fill_in:
             mask[missing] |= bs[missing] == k
         out[mask & (out < 0)] = n
+    return out
+
+
+def _in_view(m: np.ndarray) -> bool:
+    """Whether a ``(T, H, W)`` bool track touches the image border in at most half the frames
+    where it is seen (tables, walls, rulers and shelves run out of the frame)."""
+    seen = m.any(axis=(1, 2))
+    border = m[:, 0, :].any(axis=1) | m[:, -1, :].any(axis=1) | m[:, :, 0].any(axis=1) | m[:, :, -1].any(axis=1)
+    return bool(seen.any() and border[seen].mean() <= 0.5)
+
+
+COMPLETE_OVERLAP = 0.5
+""":func:`anchored_objects`: a segmenter component completes a mover's mask in a frame when it
+covers at least this fraction of that mask."""
+
+
+def anchored_objects(frames: np.ndarray, context: np.ndarray, movers: np.ndarray, max_objects: int,
+                     explain: list | None = None) -> np.ndarray:
+    """Movers from background subtraction, made whole and joined by objects at rest from the
+    segmenter (``mask_method: anchored``).
+
+    Which objects move, and how many, is decided by motion alone: ``movers`` are the tracks the
+    ``median`` method keeps (background subtraction, tracks checked by flow, ghosts dropped,
+    resting objects held). That count is right on most real clips, where the segmenter alone
+    also marks scenery (rulers, captions, holders) and its flickering masks pass for motion
+    (``hybrid`` found 4 objects on every shared clip). The segmenter (:mod:`pipeline.segmenter`)
+    then does what background subtraction cannot:
+
+    * **whole silhouettes**: in each frame, a connected component of the segmenter's foreground
+      (its contact pixels removed) that covers at least :data:`COMPLETE_OVERLAP` of one mover's
+      mask, little (10 %) of any other mover's, and is at most :data:`SIZE_CLASS` times that
+      mask's area is added to it: the crescent of a slow object becomes the object;
+    * **objects at rest**: a segmenter track that overlaps no mover (10 % of its pixels at
+      most), does not travel (less than a quarter of its diameter), is seen as a rigid body at
+      rest (:func:`_at_rest`), looks like a whole object in view (rotated box at most 3:1, at
+      least half full, :func:`_in_view`) and, when there are movers, is of their size class
+      (median area 1/16..16 times theirs), is added after the movers, largest first, up to
+      ``max_objects``.
+
+    Args:
+        frames: ``(T, H, W, 3)`` uint8 RGB; context: ``(N, H, W, 3)`` uint8 frames spread over
+            the clip (the background model's).
+        movers: ``(T, H, W)`` int8 ids ``0..n-1`` of the kept background-subtraction tracks
+            (:func:`keep_objects` of :func:`pipeline.masks.hold_resting` masks), -1 background.
+        max_objects: most objects in all.
+        explain: if given, one dict per object is appended: ``kind`` (``mover``, ``at_rest``),
+            ``area`` (median px), ``frames`` (seen in), ``completed`` (frames a segmenter
+            component was added to a mover).
+    Returns:
+        ``(T, H, W)`` int8 object ids (movers first, as numbered in ``movers``), -1 background.
+    """
+    T, H, W = frames.shape[:3]
+    fg, contact = shipped()(frames, median_background(context))
+    fgb, cb = fg > FG_THRESHOLD, contact > 0.5
+    core = fgb & ~cb
+    out = np.asarray(movers, dtype=np.int8).copy()
+    n_mov = int(out.max()) + 1 if out.size else 0
+    completed = np.zeros(max(n_mov, 1), np.int64)
+    for t in range(T if n_mov else 0):
+        ncomp, lab = cv2.connectedComponents(core[t].astype(np.uint8), connectivity=8)
+        if ncomp <= 1 or not (movers[t] >= 0).any():
+            continue
+        code = lab.astype(np.int64) * (n_mov + 1) + (movers[t].astype(np.int64) + 1)
+        cnt = np.bincount(code.ravel(), minlength=ncomp * (n_mov + 1)).reshape(ncomp, n_mov + 1)
+        comp_area, mov_area = cnt.sum(axis=1), cnt[:, 1:].sum(axis=0)
+        for c in range(1, ncomp):
+            ov = cnt[c, 1:]
+            if not ov.any():
+                continue
+            k = int(np.argmax(ov))
+            if ov[k] < COMPLETE_OVERLAP * mov_area[k] or (ov.sum() - ov[k]) > 0.1 * ov[k] \
+                    or comp_area[c] > SIZE_CLASS * mov_area[k]:
+                continue
+            add = (lab == c) & (out[t] < 0)
+            completed[k] += int(add.any())
+            out[t][add] = k
+    moving = out >= 0
+    areas = [np.median((out == k).sum(axis=(1, 2))[(out == k).any(axis=(1, 2))]) for k in range(n_mov)
+             if (out == k).any()]
+    ref = float(np.median(areas)) if areas else None
+    sg = _segmenter_tracks(fgb, cb, 16)
+    stills = []
+    for tr in find_tracks(sg, None, min_frames=max(3, int(0.15 * T))):
+        m = sg == tr.label
+        if (m & moving).sum() > 0.1 * m.sum() or tr.travel >= 0.25 * tr.diameter:
+            continue
+        if ref is not None and not ref / 16 <= float(np.median(tr.area)) <= 16 * ref:
+            continue
+        if _at_rest(m, fg, tr.frames, T) and tr.size[0] <= 3.0 * max(tr.size[1], 1e-6) and tr.fill >= 0.5 \
+                and _in_view(m):
+            stills.append((tr, m))
+    stills.sort(key=lambda x: -float(np.median(x[0].area)))
+    for n, (tr, m) in enumerate(stills[:max(0, max_objects - n_mov)]):
+        out[m & (out < 0)] = n_mov + n
+    if explain is not None:
+        for k in range(int(out.max()) + 1 if out.size else 0):
+            seen = (out == k).any(axis=(1, 2))
+            explain.append({"kind": "mover" if k < n_mov else "at_rest",
+                            "area": float(np.median((out == k).sum(axis=(1, 2))[seen])) if seen.any() else 0.0,
+                            "frames": int(seen.sum()), "completed": int(completed[k]) if k < n_mov else 0})
     return out
 
 
@@ -435,19 +542,23 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
 
     full = (0, 0, W0, H0)
     _, det_frames, det_ctx = window(dsize, full)
-    det_seg = _masks(det_frames, det_ctx, mask_method, max_objects)
+    anchored = mask_method == "anchored"      # movers as median decides them, then the segmenter
+    bs_method = "median" if anchored else mask_method
+    det_seg = _masks(det_frames, det_ctx, bs_method, max_objects)
     det_flow = estimate_flow(det_frames, method="dis", preset="fast")
-    learned = mask_method in LEARNED
+    learned = bs_method in LEARNED
     det_seg, tracks = keep_objects(det_seg if learned else hold_resting(det_seg), det_flow, max_objects, learned)
     scale = W0 / dsize[0]
     diameter = float(np.median([t.diameter for t in tracks])) if tracks else 0.05 * dsize[1]
     crop = motion_crop(det_seg, diameter, scale, (W0, H0))
     size = working_size(crop, diameter * scale)
     clip, frames, ctx = window(size, crop)
-    seg = _masks(frames, ctx, mask_method, max_objects)
+    seg = _masks(frames, ctx, bs_method, max_objects)
     flow = flow or FlowConfig()
     flow_px = flow_of(frames, flow)
     seg, _ = keep_objects(seg if learned else hold_resting(seg), flow_px, max_objects, learned)
+    if anchored:
+        seg = anchored_objects(frames, ctx, seg, max_objects)
     return Observation(frames, seg, flow_px, clip, float(start), auto, clip.crop, size, scene_fps, flow.estimator,
                        mask_method, duration)
 
@@ -508,8 +619,13 @@ def observe_frames(video, fps: float | None, frame_indices, size: tuple[int, int
         raise VideoError(f"{video}: frame_indices {bad} outside 0..{n - 1}")
     tracked = sorted(set(range(0, n, max(1, n // 200))) | set(wanted))
     fit = np.unique(np.linspace(0, n - 1, min(n, 150)).round().astype(int))
-    seg = segment_objects(clip.frames[tracked], clip.frames[fit], mask_method, max_objects)
-    seg, _ = keep_objects(seg, None, max_objects, still=True)
+    if mask_method == "anchored":   # the median method's movers, completed and joined by the segmenter
+        movers = pseudo_ground_truth(video, fps, tracked, work, max_objects=max_objects, keep=objects,
+                                     method="median", crop=(0, 0, *probe.original_size))
+        seg = anchored_objects(clip.frames[tracked], clip.frames[fit], movers, max_objects)
+    else:
+        seg = segment_objects(clip.frames[tracked], clip.frames[fit], mask_method, max_objects)
+        seg, _ = keep_objects(seg, None, max_objects, still=True)
     where = {t: k for k, t in enumerate(tracked)}
     out = seg[[where[i] for i in wanted]]
     return upscale(out, (W, H)) if (W, H) != work else out

@@ -107,6 +107,35 @@ def test_hybrid_finds_the_mover_first_and_the_object_at_rest():
     assert match == {1: 0, 0: 1}                            # the ball (true 1) is object 0
 
 
+@pytest.mark.skipif(not DEFAULT_WEIGHTS.exists(), reason="no shipped segmenter weights")
+def test_anchored_keeps_the_movers_of_motion_makes_them_whole_and_adds_the_object_at_rest():
+    """``mask_method: anchored``: the movers are background subtraction's (here: the ball's
+    true masks cut to a crescent, the part a slow object shows), the segmenter completes them
+    and adds the box at rest after them; scenery-free frames give no extra object."""
+    from pipeline.metrics import observation_scores
+    from pipeline.observe import anchored_objects
+
+    fr = _box_at_rest_and_rolling_ball()
+    ball = fr.seg == 1
+    crescent = ball.copy()
+    for t in range(len(ball)):                  # keep the right (leading) 45 % of the ball's columns
+        cols = np.flatnonzero(ball[t].any(axis=0))
+        if cols.size:
+            crescent[t, :, : cols[0] + int(0.55 * cols.size)] = False
+    movers = np.where(crescent, 0, -1).astype(np.int8)
+    explain = []
+    seg = anchored_objects(fr.rgb, fr.rgb, movers, 4, explain=explain)
+    s = observation_scores(fr.seg, seg, [True, False])
+    before = observation_scores(fr.seg, movers, [True, False])
+    assert s["n_pred"] == 2 and [e["kind"] for e in explain] == ["mover", "at_rest"], explain
+    match = {o["true"]: o["pred"] for o in s["per_object"]}
+    assert match == {1: 0, 0: 1}                            # the mover keeps id 0
+    assert s["moving_iou"] >= before["moving_iou"] + 0.2 and s["moving_iou"] >= 0.7, (before, s)
+    assert s["still_iou"] >= 0.7
+    # one object allowed: the mover only (motion is the stronger evidence)
+    assert int(anchored_objects(fr.rgb, fr.rgb, movers, 1).max()) == 0
+
+
 def test_at_rest_needs_a_steady_confident_silhouette_seen_throughout():
     """An object at rest (hybrid): seen in nearly every frame, the same silhouette, a sure
     segmenter; scenery that flickers, is seen briefly or is marked unsure is not one."""
