@@ -34,7 +34,7 @@ from pipeline.image_tracks import find_tracks, object_tracks, still_tracks
 from pipeline.masks import (drop_ghosts, hold_resting, label_objects, merge_touching, pseudo_ground_truth,
                             pseudo_masks)
 from pipeline.segmenter import median_background, shipped
-from pipeline.video import Clip, VideoError, read_video, resample
+from pipeline.video import Clip, VideoError, declared_length, read_video, resample
 
 DETECT_LONG_SIDE = 320
 """px, long side of the detection pass (whole frame)."""
@@ -487,6 +487,35 @@ def working_size(crop: tuple[int, int, int, int], diameter: float) -> tuple[int,
     L = int(min(max(want, MIN_LONG_SIDE), MAX_LONG_SIDE))
     s = L / long_side
     return max(2, round(w * s / 2) * 2), max(2, round(h * s / 2) * 2)
+
+
+def scene_rate(video, fps: float | None, scene_fps: int) -> int:
+    """The scene's frame rate for a window chosen automatically: ``scene_fps``, or for a clip too
+    short to give :data:`MIN_WINDOW_FRAMES` frames at it (a 0.2 s free fall filmed at 1000 fps),
+    the smallest ``scene_fps * 2**k`` that does, at most the clip's own rate (issue 29).
+
+    The container's frame count decides when the clip is clearly long enough; otherwise the clip
+    is decoded (32 x 32 px) and its frames counted.
+
+    Args:
+        video: video file; fps: true frame rate (overrides the container's), or None;
+        scene_fps: the configured scene rate (``realvideo.fps``), frames per second.
+    Returns:
+        frames per second (int); ``scene_fps`` when no higher rate helps (the window check
+        then reports the clip as too short).
+    Raises:
+        VideoError: unreadable video.
+    """
+    n, container = declared_length(video)
+    rate = fps or container
+    if n > 0 and rate > 0 and n / rate * scene_fps >= 2 * MIN_WINDOW_FRAMES:
+        return int(scene_fps)
+    clip = read_video(video, fps=fps, size=(32, 32))
+    available = clip.duration + 0.5 / clip.fps
+    out = int(scene_fps)
+    while math.floor(available * out + 1e-6) < MIN_WINDOW_FRAMES and out * 2 <= clip.fps + 1e-6:
+        out *= 2
+    return out
 
 
 def window_duration(video, available: float, video_fps: float, scene_fps: int, duration: float) -> float:

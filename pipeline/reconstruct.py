@@ -54,7 +54,8 @@ from pipeline.labels import load_labels, score_against_labels
 from pipeline.npz import NpzWriter
 from pipeline.metrics import flow_epe, sequence_iou
 from pipeline.mjcf import SimOptions
-from pipeline.observe import LEARNED, MASK_METHODS, observe, original_frames, source_frames, upscale
+from pipeline.observe import (LEARNED, MASK_METHODS, MIN_WINDOW_FRAMES, observe, original_frames, scene_rate,
+                              source_frames, upscale)
 from pipeline.params import ParamsError, load_params, path_of, section, typed_section
 from pipeline.render import render_scene
 from pipeline.sanity import PhysicsError, SanityConfig, check_simulation, resolve_overlaps
@@ -297,6 +298,11 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     truth, labels_path = None, labels
     if labels_path is not None:   # read (and checked) before the search, used only after it
         truth = load_labels(labels_path, read_video(video, fps=fps, max_frames=1).original_size)
+    if start is None:   # a clip too short for the window at realvideo.fps gets a higher scene rate
+        scene_fps = scene_rate(video, fps, scene_fps)
+        if scene_fps != rv.fps:
+            print(f"[infer] {video}: too short for {MIN_WINDOW_FRAMES} frames at {rv.fps} fps: "
+                  f"the scene runs at {scene_fps} fps")
     obs = observe(video, fps, start, scene_fps, duration, fcfg,
                   rv.mask_method, max_objects)
     duration = obs.duration   # a clip shorter than the window is its own window, and the scene follows it

@@ -102,6 +102,17 @@ def _open_capture(path: Path) -> cv2.VideoCapture:
         os.close(saved)
 
 
+def declared_length(path: str | Path) -> tuple[int, float]:
+    """``(frames, fps)`` the container declares (either may be 0 when it does not say, and
+    either may be wrong: :func:`read_video` counts what decodes); ``(0, 0.0)`` for a file that
+    does not open. No frame is decoded."""
+    cap = _open_capture(Path(path))
+    try:
+        return int(cap.get(cv2.CAP_PROP_FRAME_COUNT) or 0), float(cap.get(cv2.CAP_PROP_FPS) or 0.0)
+    finally:
+        cap.release()
+
+
 def read_video(
     path: str | Path,
     fps: float | None = None,

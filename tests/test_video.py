@@ -292,6 +292,24 @@ def test_unreadable_and_truncated_videos(tmp_path):
     assert not (tmp_path / "o").exists()
 
 
+def test_a_short_high_speed_clip_gets_a_higher_scene_rate(tmp_path):
+    """50 frames filmed at 240 fps are 0.208 s: 6 frames at the default 30 fps, fewer than the 8 a
+    window needs; the scene rate doubles to 60 fps (12 frames) and the main job runs (issue 29,
+    dev/01: 0.209 s at 1000 fps). The clip's own rate caps it."""
+    from pipeline.observe import MIN_WINDOW_FRAMES, scene_rate
+
+    clip = moving_disc_avi(tmp_path / "fast.avi", n=50)
+    assert scene_rate(clip, 240.0, 30) == 60
+    assert scene_rate(clip, 1000.0, 30) == 240                 # 0.05 s: 8 frames need 160+ fps
+    assert scene_rate(clip, None, 30) == 30                    # 1.67 s at the container's 30 fps
+    assert scene_rate(moving_disc_avi(tmp_path / "tiny.avi", n=5), None, 30) == 30   # nothing helps
+    proc = _dynamics("infer", str(clip), "--fps", "240", "--no-model", "--out", str(tmp_path / "o"))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    window = json.loads((tmp_path / "o" / "metrics.json").read_text())["window"]
+    assert window["fps"] == 60 and window["frames"] == 12 >= MIN_WINDOW_FRAMES
+    assert "fps: 60" in (tmp_path / "o" / "scene.yaml").read_text()
+
+
 @pytest.mark.parametrize("where", [0.3, 0.5, 0.7])
 def test_video_with_broken_frames_is_read_up_to_the_damage(tmp_path, where):
     """10 % of the bytes overwritten with noise at 30/50/70 % of the file: never an exception
