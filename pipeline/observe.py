@@ -290,9 +290,10 @@ def _in_view(m: np.ndarray) -> bool:
     return bool(seen.any() and border[seen].mean() <= 0.5)
 
 
-COMPLETE_OVERLAP = 0.5
+COMPLETE_OVERLAP, COMPLETE_SIZE = 0.5, 1.3
 """:func:`anchored_objects`: a segmenter component completes a mover's mask in a frame when it
-covers at least this fraction of that mask."""
+covers at least ``COMPLETE_OVERLAP`` of that mask and is at most ``COMPLETE_SIZE`` times the
+median area of the components that qualify for that mover over the window."""
 
 
 def anchored_objects(frames: np.ndarray, context: np.ndarray, movers: np.ndarray, max_objects: int,
@@ -309,8 +310,10 @@ def anchored_objects(frames: np.ndarray, context: np.ndarray, movers: np.ndarray
 
     * **whole silhouettes**: in each frame, a connected component of the segmenter's foreground
       (its contact pixels removed) that covers at least :data:`COMPLETE_OVERLAP` of one mover's
-      mask, little (10 %) of any other mover's, and is at most :data:`SIZE_CLASS` times that
-      mask's area is added to it: the crescent of a slow object becomes the object;
+      mask, little (10 %) of any other mover's, is at most :data:`SIZE_CLASS` times that mask's
+      area and at most :data:`COMPLETE_SIZE` times the median area of such components over the
+      window (a rigid object keeps its size; a larger one has merged with a hand, a shadow or
+      the scenery it touches) is added to it: the crescent of a slow object becomes the object;
     * **objects at rest**: a segmenter track that overlaps no mover (10 % of its pixels at
       most), does not travel (less than a quarter of its diameter), is seen as a rigid body at
       rest (:func:`_at_rest`), looks like a whole object in view (rotated box at most 3:1, at
@@ -337,6 +340,7 @@ def anchored_objects(frames: np.ndarray, context: np.ndarray, movers: np.ndarray
     out = np.asarray(movers, dtype=np.int8).copy()
     n_mov = int(out.max()) + 1 if out.size else 0
     completed = np.zeros(max(n_mov, 1), np.int64)
+    found: list[tuple[int, int, np.ndarray]] = []     # (mover, frame, component mask) that qualify
     for t in range(T if n_mov else 0):
         ncomp, lab = cv2.connectedComponents(core[t].astype(np.uint8), connectivity=8)
         if ncomp <= 1 or not (movers[t] >= 0).any():
@@ -349,10 +353,15 @@ def anchored_objects(frames: np.ndarray, context: np.ndarray, movers: np.ndarray
             if not ov.any():
                 continue
             k = int(np.argmax(ov))
-            if ov[k] < COMPLETE_OVERLAP * mov_area[k] or (ov.sum() - ov[k]) > 0.1 * ov[k] \
-                    or comp_area[c] > SIZE_CLASS * mov_area[k]:
-                continue
-            add = (lab == c) & (out[t] < 0)
+            if ov[k] >= COMPLETE_OVERLAP * mov_area[k] and (ov.sum() - ov[k]) <= 0.1 * ov[k] \
+                    and comp_area[c] <= SIZE_CLASS * mov_area[k]:
+                found.append((k, t, lab == c))
+    # a rigid object keeps its size: a component much larger than the mover's typical one has
+    # taken in a hand, a shadow or the scenery it touches in that frame, and is not used
+    typical = {k: float(np.median([m.sum() for j, _, m in found if j == k])) for k in {j for j, _, _ in found}}
+    for k, t, m in found:
+        if m.sum() <= COMPLETE_SIZE * typical[k]:
+            add = m & (out[t] < 0)
             completed[k] += int(add.any())
             out[t][add] = k
     moving = out >= 0
