@@ -9,7 +9,9 @@ clips' sources or read by hand on a frame; the main job never reads them). For e
 * **g** (free-fall clips with a scale): the observed object's image rows over the window, cut
   into flight arcs at bounces and fitted with parabolas (:func:`pipeline.image_measure.fit_gravity`),
   converted with the scale; against 9.81 m/s^2. The written scene has g = 9.81 by construction,
-  so this measures the observation and the timing, not the search.
+  so this measures the observation and the timing, not the search. The same fit on the hand
+  labels' centres (``tests/fixtures/realvideo``, all labelled frames of the clip) checks the
+  scale and the frame rate themselves.
 * **size** (a stated object size): the observation's equivalent diameter (``2 sqrt(area / pi)``,
   median over the window) times the scale, and the matched object of the written scene.
 * **incline** (a stated incline edge in the image): the angle of the observed object's centroid
@@ -39,8 +41,11 @@ from pipeline.atomic import write_json, write_text  # noqa: E402
 from pipeline.image_measure import fit_gravity, image_track, path_angle  # noqa: E402
 from pipeline.metrics import match_tracks, track_iou  # noqa: E402
 from pipeline.scene import load_scene  # noqa: E402
+from pipeline.video import read_video  # noqa: E402
 
-TRUTH = ROOT / "tests" / "fixtures" / "realvideo" / "physical_truth.yaml"
+FIXTURES = ROOT / "tests" / "fixtures" / "realvideo"
+TRUTH = FIXTURES / "physical_truth.yaml"
+REAL = ROOT.parent / "shared" / "data" / "real"
 G = 9.81
 """m/s^2, standard gravity (the scene language's default)."""
 
@@ -55,6 +60,27 @@ def _moving_label(seg: np.ndarray) -> int:
             if d > far:
                 best, far = k, d
     return best
+
+
+def labels_gravity(truth: dict) -> dict | None:
+    """g from the hand labels of ``truth["labels"]`` (a folder of ``<frame>.png`` under
+    :data:`FIXTURES`, 0 background, 1 the object): their centres' rows scaled to the original
+    frame, at ``frame / truth["fps"]`` s; None without labels."""
+    import cv2
+
+    if "labels" not in truth:
+        return None
+    pngs = sorted((FIXTURES / truth["labels"]).glob("*.png"))
+    W0, H0 = read_video(REAL / truth["file"], max_frames=1).original_size
+    t, y = [], []
+    for png in pngs:
+        lab = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+        rr, cc = np.nonzero(lab == 1)
+        if rr.size and rr.min() > 0 and cc.min() > 0 and rr.max() < lab.shape[0] - 1 \
+                and cc.max() < lab.shape[1] - 1:     # cut by the frame's edge: centre biased, left out
+            t.append(int(png.stem) / float(truth["fps"]))
+            y.append((rr.mean() + 0.5) * H0 / lab.shape[0])
+    return fit_gravity(np.array(t), np.array(y), float(truth["m_per_px"]))
 
 
 def measure(folder: Path, truth: dict) -> dict:
@@ -77,6 +103,10 @@ def measure(folder: Path, truth: dict) -> dict:
         row["g"] = None if math.isnan(fit["g"]) else round(fit["g"], 3)
         row["g_error_pct"] = None if math.isnan(fit["g"]) else round(100.0 * (fit["g"] - G) / G, 1)
         row["arcs"] = [{k2: round(v, 4) if isinstance(v, float) else v for k2, v in a.items()} for a in fit["arcs"]]
+        lab = labels_gravity(truth)
+        if lab is not None:
+            row["g_labels"] = None if math.isnan(lab["g"]) else round(lab["g"], 3)
+            row["g_labels_arcs"] = [a["samples"] for a in lab["arcs"]]
     if "object" in truth and "m_per_px" in truth:
         scale_x, scale_y = float(crop[2]) / float(size[0]), float(crop[3]) / float(size[1])
         areas = [(f == k).sum() * scale_x * scale_y for f in seg if (f == k).any()]
@@ -105,13 +135,15 @@ def markdown(rows: list[dict], runs: Path) -> str:
            "`python scripts/realvideo_all.py` (the main job's observation and written scene per clip); truths: "
            "`tests/fixtures/realvideo/physical_truth.yaml` (stated by the sources or read by hand on a frame).", "",
            "## Gravity from a free fall (observation + true frame rate + scale)", "",
-           "| clip | observed frames in window | arcs (samples) | g (m/s^2) | error vs 9.81 | fit rms per arc (px) |",
-           "|---|---|---|---|---|---|"]
+           "| clip | observed frames in window | arcs (samples) | g (m/s^2) | error vs 9.81 | fit rms per arc (px) "
+           "| g from the hand labels (same scale and rate; arcs) |",
+           "|---|---|---|---|---|---|---|"]
     for r in rows:
         if "arcs" in r or "g" in r:
             out.append(f"| {r['clip']} | {r.get('observed_frames', '–')} | "
                        f"{', '.join(str(a['samples']) for a in r.get('arcs', [])) or 'none with 5+'} | {f(r.get('g'))} | "
-                       f"{f(r.get('g_error_pct'), 1) + (' %' if r.get('g_error_pct') is not None else '')} | {', '.join(f(a['rms_px'], 1) for a in r.get('arcs', [])) or '–'} |")
+                       f"{f(r.get('g_error_pct'), 1) + (' %' if r.get('g_error_pct') is not None else '')} | {', '.join(f(a['rms_px'], 1) for a in r.get('arcs', [])) or '–'} | "
+                       f"{f(r.get('g_labels'))} ({', '.join(map(str, r.get('g_labels_arcs', []))) or 'no arc of 5+'}) |")
     out += ["", "## Size against a stated size", "",
             "| clip | true diameter (m) | observation (m) | written scene's matched object |", "|---|---|---|---|"]
     for r in rows:
