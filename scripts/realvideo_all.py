@@ -13,7 +13,14 @@ Markdown table on stdout:
   one-line error;
 * ``resim_iou``: mask IoU of ``dynamics simulate``'s masks against the masks the main job
   scored (``masks.npz`` of the main job's output, when it writes one): 1.0 means the file
-  re-simulates to what was scored.
+  re-simulates to what was scored;
+* against ``tests/fixtures/realvideo/content.yaml`` (what each clip shows, issue 29):
+  ``objects_written`` / ``objects_true``, ``shapes_right`` (the written scene's multiset of
+  shapes equals the clip's), ``support_written`` (``incline`` when a static geom is tilted
+  2-60 deg or the floor is tilted, else ``floor``) against ``support_true``, and the view.
+
+``--table-only`` rebuilds ``table.md`` (and the content columns of ``summary.json``) from an
+earlier run's folders without running anything.
 
 Usage (``OUT/table.md`` and ``OUT/summary.json``; copies of a full run are in
 ``reports/realvideo_all/``)::
@@ -38,6 +45,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from pipeline.atomic import write_text  # noqa: E402
+from pipeline.rotation import quat_to_mat  # noqa: E402
+from pipeline.scene import load_scene  # noqa: E402
 
 REAL = Path(os.environ.get("REAL_ROOT", Path(__file__).resolve().parents[2] / "shared" / "data" / "real"))
 LABELS = Path(__file__).resolve().parents[1] / "tests" / "fixtures" / "realvideo"
@@ -78,6 +87,31 @@ def _mask_iou(a: np.ndarray, b: np.ndarray) -> float:
     return float(same.sum() / union) if union else 0.0
 
 
+CONTENT = LABELS / "content.yaml"
+"""What each clip shows (objects, support, view): written by hand, never read by the main job."""
+
+
+def content_columns(name: str, clip_out: Path) -> dict:
+    """The written scene (``clip_out/scene.yaml``, ``metrics.json``) against :data:`CONTENT`."""
+    import yaml
+
+    truth = yaml.safe_load(CONTENT.read_text()).get(name)
+    if truth is None or not (clip_out / "scene.yaml").exists():
+        return {}
+    scene = load_scene(clip_out / "scene.yaml")
+    shapes = sorted(o.shape for o in scene.objects)
+    tilts = [float(np.degrees(np.arccos(np.clip(quat_to_mat(g.orientation)[2, 2], -1.0, 1.0)))) for g in scene.static]
+    incline = any(2.0 < t < 60.0 for t in tilts) or any(e.effect == "floor_tilt" for e in scene.effects)
+    support = "incline" if incline else "floor"
+    view = json.loads((clip_out / "metrics.json").read_text()).get("view")
+    return {"objects_written": len(shapes), "objects_true": len(truth["objects"]),
+            "shapes_written": shapes, "shapes_true": sorted(truth["objects"]),
+            "shapes_right": shapes == sorted(truth["objects"]),
+            "support_written": support, "support_true": truth["support"],
+            "support_right": None if truth["support"] == "none" else support == truth["support"],
+            "view_written": view, "view_true": truth["view"]}
+
+
 def run_clip(name: str, rel: str, fps: int | None, out: Path) -> dict:
     """Run ``dynamics infer`` then ``dynamics simulate`` on one clip; one summary row."""
     clip_out = out / name
@@ -94,6 +128,7 @@ def run_clip(name: str, rel: str, fps: int | None, out: Path) -> dict:
         return row
     m = json.loads((clip_out / "metrics.json").read_text())
     row["best_of_k"] = m["best_of_k"]["full_iou"]
+    row["best_of_k_strict"] = m["best_of_k"].get("strict_full_iou")
     row["written"] = m["best_of_k_cmaes"]["full_iou"]
     row["written_strict"] = m["best_of_k_cmaes"].get("strict_full_iou")
     row["window_s"] = m["window"]["duration_s"]
@@ -108,24 +143,32 @@ def run_clip(name: str, rel: str, fps: int | None, out: Path) -> dict:
     if p.returncode == 0 and scored.exists():
         with np.load(scored) as a, np.load(sim_out / "masks.npz") as b:
             row["resim_iou"] = round(_mask_iou(a["seg"], b["seg"]), 4)
+    row.update(content_columns(name, clip_out))
     return row
 
 
 def table(rows: list[dict]) -> str:
     """Markdown table of the summary rows."""
-    out = ["| clip | window (s) | Best@K IoU | written IoU | written strict IoU | written - Best@K | simulate "
-           "| re-sim vs scored masks | labelled frames | re-sim vs labels | observation vs labels | s |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    out = ["| clip | window (s) | objects written / true | shapes written (true) | support written / true | "
+           "view written / true | Best@K IoU strict / all frames | written IoU strict / all frames | written - Best@K "
+           "| simulate | re-sim vs scored masks | labelled frames | re-sim vs labels | observation vs labels | s |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    fmt = lambda v: "–" if v is None else f"{v:.3f}"  # noqa: E731
     for r in rows:
         if "error" in r:
-            out.append(f"| {r['clip']} | – | – | – | – | – | main job failed: {r['error']} | – | – | – | – | "
+            out.append(f"| {r['clip']} | – | – | – | – | – | – | – | – | main job failed: {r['error']} | – | – | – | – | "
                        f"{r['seconds']} |")
             continue
         d = r["written"] - r["best_of_k"]
         a = r.get("against_labels") or {}
-        fmt = lambda v: "–" if v is None else f"{v:.3f}"  # noqa: E731
-        out.append(f"| {r['clip']} | {fmt(r.get('window_s'))} | {r['best_of_k']:.4f} | {r['written']:.4f} | "
-                   f"{fmt(r.get('written_strict'))} | {d:+.4f} | {r['simulate']} | "
+        mark = lambda ok: "" if ok is None else (" ✓" if ok else " ✗")  # noqa: E731
+        shapes = ", ".join(r.get("shapes_written", [])) or "–"
+        out.append(f"| {r['clip']} | {fmt(r.get('window_s'))} | {r.get('objects_written', '–')} / {r.get('objects_true', '–')} | "
+                   f"{shapes}{mark(r.get('shapes_right'))} ({', '.join(r.get('shapes_true', []))}) | "
+                   f"{r.get('support_written', '–')} / {r.get('support_true', '–')}{mark(r.get('support_right'))} | "
+                   f"{r.get('view_written', '–')} / {r.get('view_true', '–')} | "
+                   f"{fmt(r.get('best_of_k_strict'))} / {r['best_of_k']:.3f} | {fmt(r.get('written_strict'))} / "
+                   f"{r['written']:.3f} | {d:+.4f} | {r['simulate']} | "
                    f"{r.get('resim_iou', '–')} | {a.get('n_labelled', '–')} | {fmt(a.get('resim_vs_labels'))} | "
                    f"{fmt(a.get('observation_vs_labels'))} | {r['seconds']} |")
     ok = [r for r in rows if "error" not in r]
@@ -137,6 +180,16 @@ def table(rows: list[dict]) -> str:
         out.append(f"clips run: {len(ok)}/{len(rows)}; mean written IoU {np.mean([r['written'] for r in ok]):.4f} "
                    f"(strict, no free credit: {np.mean(strict) if strict else float('nan'):.4f}); "
                    f"written below Best@K: {worse}; `dynamics simulate` accepts the written scene: {sim_ok}/{len(ok)}")
+        with_content = [r for r in ok if "shapes_right" in r]
+        supported = [r for r in with_content if r.get("support_right") is not None]
+        if with_content:
+            out.append(f"against the clips' content (`tests/fixtures/realvideo/content.yaml`): object count right "
+                       f"{sum(r['objects_written'] == r['objects_true'] for r in with_content)}/{len(with_content)}, "
+                       f"shapes right {sum(r['shapes_right'] for r in with_content)}/{len(with_content)}, support right "
+                       f"{sum(r['support_right'] for r in supported)}/{len(supported)} (clips on a floor, table or "
+                       f"incline), view right {sum(r['view_written'] == r['view_true'] for r in with_content)}/"
+                       f"{len(with_content)}; strict IoU >= 0.5: "
+                       f"{sum((r.get('written_strict') or 0) >= 0.5 for r in ok)}/{len(ok)}")
     return "\n".join(out)
 
 
@@ -144,10 +197,19 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, default=Path("outputs/realvideo_all"), help="output folder")
     ap.add_argument("--only", nargs="*", default=None, help="clip names to run (default: all)")
+    ap.add_argument("--table-only", action="store_true",
+                    help="rebuild table.md from OUT/summary.json and the clips' folders; run nothing")
     args = ap.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []
-    for name, rel, fps in CLIPS:
+    if args.table_only:
+        for row in json.loads((args.out / "summary.json").read_text()):
+            if "error" not in row:
+                m = json.loads((args.out / row["clip"] / "metrics.json").read_text())
+                row["best_of_k_strict"] = m["best_of_k"].get("strict_full_iou")
+                row.update(content_columns(row["clip"], args.out / row["clip"]))
+            rows.append(row)
+    for name, rel, fps in ([] if args.table_only else CLIPS):
         if args.only and name not in args.only:
             continue
         row = run_clip(name, rel, fps, args.out)
