@@ -14,7 +14,7 @@ from pipeline.render import render_scene
 from pipeline.scene import Scene
 from pipeline.search import (
     SceneEvaluator, SearchConfig, SearchSpace, baseline_scene, best_of_k, cmaes_refine, evaluate_scene,
-    fitness, floor_height,
+    SHAPE_DOF, fitness, floor_height, simplest_within,
 )
 
 W, H = 48, 32
@@ -183,6 +183,25 @@ def test_fitness_strict_iou_gives_no_credit_for_a_missing_object():
     assert fitness(seg, None, obs, None, SearchConfig(penalize_extra=False))["fitness"] > strict["fitness"]
     with pytest.raises(ValidationError):
         SearchConfig(fitness_iou="both")
+
+
+def test_simplest_within_takes_fewer_shape_parameters_only_when_the_fit_cannot_tell():
+    """Best@K's parsimony rule (the main job): a ball and a disc seen along its axis fit alike; the
+    sphere is taken when within the margin, the fitter shape when clearly better, and candidates of
+    another structure are never swapped in."""
+    ball = Scene.from_dict({"duration": 1.0, "fps": 30, "camera": {"height": 1.0, "pitch": 30.0, "fov": 45.0},
+                            "objects": [{"shape": "sphere", "size": {"radius": 0.05}, "mass": 0.1,
+                                         "position": [0.0, 0.0, 0.05]}]})
+    disc = ball.replace(objects=[{"shape": "cylinder", "size": {"radius": 0.05, "height": 0.02}, "mass": 0.1,
+                                  "position": [0.0, 0.0, 0.05]}])
+    two = ball.replace(objects=[o.model_dump() for o in ball.objects]
+                       + [{"shape": "sphere", "size": {"radius": 0.05}, "mass": 0.1, "position": [0.3, 0.0, 0.05]}])
+    sc = lambda f: {"valid": True, "fitness": f}  # noqa: E731
+    cands = [disc, ball, None, two]
+    assert simplest_within(cands, [sc(0.40), sc(0.39), {"valid": False, "fitness": -math.inf}, sc(0.39)], 0, 0.02) == 1
+    assert simplest_within(cands, [sc(0.40), sc(0.37), {"valid": False, "fitness": -math.inf}, sc(0.40)], 0, 0.02) == 0
+    assert simplest_within(cands, [sc(0.40), sc(0.39), {"valid": False, "fitness": -math.inf}, sc(0.39)], 0, 0.0) == 0
+    assert SHAPE_DOF["sphere"] < SHAPE_DOF["cylinder"] < SHAPE_DOF["box"]
 
 
 def test_search_config_rejects_unknown_keys():

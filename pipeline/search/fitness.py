@@ -140,3 +140,39 @@ def best_of_k(candidates: Sequence[Scene | None], obs_seg: np.ndarray, obs_flow:
     fit = [s["fitness"] for s in scores]
     best = int(np.argmax(fit)) if fit and max(fit) > -math.inf else None
     return scores, best
+
+
+SHAPE_DOF = {"sphere": 1, "cylinder": 4, "box": 6}
+"""Shape parameters of an object that its silhouette must explain: sizes, plus the orientation
+that matters up to the shape's symmetry (a cylinder's axis: 2; a box: 3; a sphere: none)."""
+
+
+def simplest_within(candidates: Sequence[Scene | None], scores: Sequence[dict[str, Any]], best: int,
+                    margin: float) -> int:
+    """The Best@K pick with a parsimony rule for shapes: among the valid candidates of the same
+    structure as the best one (as many objects and static geoms) whose fitness is within
+    ``margin`` of the best, the one with the fewest shape parameters (:data:`SHAPE_DOF` summed
+    over the objects), then the highest fitness. When the re-simulation cannot tell two shapes
+    apart (a ball and a disc seen along its axis give the same silhouette and motion), the one
+    with fewer parameters is taken (Occam's razor; the generic-viewpoint assumption, Freeman,
+    Nature 1994: a disc whose axis points at the camera is an accidental view).
+
+    Args:
+        candidates: the scenes scored (None = invalid); scores: :func:`best_of_k`'s dicts;
+        best: index of the highest fitness; margin: fitness (dimensionless, as the fitness).
+    Returns:
+        the index picked (``best`` when ``margin`` is 0 or no simpler candidate is that close).
+    """
+    if margin <= 0 or candidates[best] is None:
+        return best
+    ref = candidates[best]
+
+    def same_structure(c: Scene) -> bool:
+        return len(c.objects) == len(ref.objects) and len(c.static) == len(ref.static)
+
+    def dof(c: Scene) -> int:
+        return sum(SHAPE_DOF[o.shape] for o in c.objects)
+
+    close = [i for i, (c, s) in enumerate(zip(candidates, scores))
+             if c is not None and s["valid"] and s["fitness"] >= scores[best]["fitness"] - margin and same_structure(c)]
+    return min(close, key=lambda i: (dof(candidates[i]), -scores[i]["fitness"], i))
