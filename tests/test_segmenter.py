@@ -136,6 +136,22 @@ def test_anchored_keeps_the_movers_of_motion_makes_them_whole_and_adds_the_objec
     assert int(anchored_objects(fr.rgb, fr.rgb, movers, 1).max()) == 0
 
 
+@pytest.mark.skipif(not DEFAULT_WEIGHTS.exists(), reason="no shipped segmenter weights")
+def test_observe_with_anchored_keeps_the_median_movers(tmp_path):
+    """``dynamics infer --mask-method anchored`` observes as ``median`` decides what moves: on a
+    clip of one moving disc both find one object, over the same frames."""
+    from conftest import moving_disc_avi
+    from pipeline.observe import observe
+
+    clip = moving_disc_avi(tmp_path / "disc.avi", n=60)
+    med = observe(clip, None, None, 30, 1.0, mask_method="median")
+    anc = observe(clip, None, None, 30, 1.0, mask_method="anchored")
+    assert anc.mask_method == "anchored" and anc.seg.shape == med.seg.shape
+    assert int(med.seg.max()) == int(anc.seg.max()) == 0
+    assert np.array_equal((anc.seg == 0).any(axis=(1, 2)), (med.seg == 0).any(axis=(1, 2)))
+    assert ((anc.seg == 0) & (med.seg == 0)).sum() >= 0.9 * (med.seg == 0).sum()   # completes, never drops
+
+
 def test_at_rest_needs_a_steady_confident_silhouette_seen_throughout():
     """An object at rest (hybrid): seen in nearly every frame, the same silhouette, a sure
     segmenter; scenery that flickers, is seen briefly or is marked unsure is not one."""
