@@ -227,12 +227,7 @@ def sequence_iou(true_seg: np.ndarray, pred_seg: np.ndarray) -> dict[str, Any]:
         fg_t, fg_p = t >= 0, p >= 0
         inter = np.count_nonzero(fg_t & fg_p, axis=(1, 2))
         union = np.count_nonzero(fg_t | fg_p, axis=(1, 2))
-        tiou, _ = track_iou(t, p)
-        vis_t = [k for k in range(tiou.shape[0]) if (t == k).any()]
-        vis_p = [k for k in range(tiou.shape[1]) if (p == k).any()]
-        pairs = match_tracks(tiou, vis_t, vis_p)
-        strict = (float(sum(tiou[i, j] for i, j in pairs.items()) / len(vis_t)), len(vis_t), len(vis_p)) \
-            if vis_t else (math.nan, 0, len(vis_p))
+        strict = _strict_iou(_general_counts(t, p))
     else:  # the same integers as above, from one histogram of (true, pred) label pairs per frame
         iou = _counts_iou(counts)
         inter = counts[:, 1:, 1:].sum(axis=(1, 2))
@@ -311,13 +306,18 @@ def track_iou(true_seg: np.ndarray, pred_seg: np.ndarray) -> tuple[np.ndarray, n
     """
     counts = _label_counts(true_seg, pred_seg)
     if counts is None:
-        t, p = as_labels(true_seg, "true_seg"), as_labels(pred_seg, "pred_seg")
-        nt, npd = n_labels(t), n_labels(p)
-        T = t.shape[0]
-        code = ((t + 1) * (npd + 1) + (p + 1)).reshape(T, -1)
-        counts = np.stack([np.bincount(c, minlength=(nt + 1) * (npd + 1)) for c in code]) \
-            .reshape(T, nt + 1, npd + 1) if T else np.zeros((0, nt + 1, npd + 1), np.int64)
+        counts = _general_counts(as_labels(true_seg, "true_seg"), as_labels(pred_seg, "pred_seg"))
     return _counts_track_iou(counts)
+
+
+def _general_counts(t: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """:func:`_label_counts` for any int64 labels ``t``, ``p`` ``(T, H, W)`` (-1 background):
+    ``(T, n_true + 1, n_pred + 1)`` int64 pixel counts, without the small-integer code."""
+    nt, npd = n_labels(t), n_labels(p)
+    T = t.shape[0]
+    code = ((t + 1) * (npd + 1) + (p + 1)).reshape(T, -1)
+    return np.stack([np.bincount(c, minlength=(nt + 1) * (npd + 1)) for c in code]) \
+        .reshape(T, nt + 1, npd + 1) if T else np.zeros((0, nt + 1, npd + 1), np.int64)
 
 
 def _counts_track_iou(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
