@@ -30,6 +30,7 @@ import math
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 import yaml
 
@@ -38,7 +39,7 @@ if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from pipeline.atomic import write_json, write_text  # noqa: E402
-from pipeline.image_measure import fit_gravity, image_track, path_angle  # noqa: E402
+from pipeline.image_measure import fit_gravity, image_track, moving_label, path_angle  # noqa: E402
 from pipeline.metrics import match_tracks, track_iou  # noqa: E402
 from pipeline.scene import load_scene  # noqa: E402
 from pipeline.video import read_video  # noqa: E402
@@ -50,24 +51,10 @@ G = 9.81
 """m/s^2, standard gravity (the scene language's default)."""
 
 
-def _moving_label(seg: np.ndarray) -> int:
-    """The observed object whose centroid travels farthest (the one the clip's truth is about)."""
-    best, far = 0, -1.0
-    for k in range(int(seg.max()) + 1):
-        c = [np.argwhere(f == k).mean(axis=0) for f in seg if (f == k).any()]
-        if len(c) >= 2:
-            d = float(np.linalg.norm(np.asarray(c) - c[0], axis=1).max())
-            if d > far:
-                best, far = k, d
-    return best
-
-
 def labels_gravity(truth: dict) -> dict | None:
     """g from the hand labels of ``truth["labels"]`` (a folder of ``<frame>.png`` under
     :data:`FIXTURES`, 0 background, 1 the object): their centres' rows scaled to the original
     frame, at ``frame / truth["fps"]`` s; None without labels."""
-    import cv2
-
     if "labels" not in truth:
         return None
     pngs = sorted((FIXTURES / truth["labels"]).glob("*.png"))
@@ -91,7 +78,7 @@ def measure(folder: Path, truth: dict) -> dict:
     row: dict = {"clip": folder.name, "window_s": round(len(seg) / float(obs["fps"]), 3)}
     if not (seg >= 0).any():
         return {**row, "note": "no observed object"}
-    k = _moving_label(seg)
+    k = moving_label(seg)
     t, x, y = image_track(seg, crop, size, frames, fps, label=k)
     row["observed_frames"] = int(len(t))
     resim = np.load(folder / "masks.npz")["seg"]

@@ -30,6 +30,20 @@ MIN_ARC_SAMPLES = 5
 """Fewest frames an arc needs to be fitted (a parabola has 3 parameters; 5 leave 2 for the residual)."""
 
 
+def moving_label(seg: np.ndarray) -> int:
+    """The object of ``seg (T, H, W)`` (int ids, -1 background) whose centroid travels farthest
+    from where it is first seen, px (the one a clip's free fall or incline is about); 0 when none
+    is seen in two frames."""
+    best, far = 0, -1.0
+    for k in range(int(seg.max()) + 1 if seg.size else 0):
+        c = [np.argwhere(f == k).mean(axis=0) for f in seg if (f == k).any()]
+        if len(c) >= 2:
+            d = float(np.linalg.norm(np.asarray(c) - c[0], axis=1).max())
+            if d > far:
+                best, far = k, d
+    return best
+
+
 def image_track(seg: np.ndarray, crop, size, source_frames: np.ndarray, source_fps: float,
                 label: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The centroid of one observed object over the window, in px of the original frame.
@@ -40,7 +54,7 @@ def image_track(seg: np.ndarray, crop, size, source_frames: np.ndarray, source_f
         size: ``[W, H]`` working size, px.
         source_frames: ``(T,)`` int source-frame index of each working frame.
         source_fps: the clip's true frame rate, frames per second.
-        label: the object; None takes the one whose centroid moves most vertically.
+        label: the object; None takes :func:`moving_label`'s.
     Returns:
         ``(t, x, y)``: ``(N,)`` float64 s since the window's first frame (from the source-frame
         indices and the true rate), and the centroid's column and row in original px (pixel
@@ -52,8 +66,7 @@ def image_track(seg: np.ndarray, crop, size, source_frames: np.ndarray, source_f
         ValueError: no object in ``seg``.
     """
     seg = np.asarray(seg)
-    labels = [k for k in range(int(seg.max()) + 1) if (seg == k).any()] if seg.size else []
-    if not labels:
+    if not seg.size or not (seg >= 0).any():
         raise ValueError("seg: no observed object")
     cx0, cy0, cw, ch = (float(v) for v in crop)
     W, H = (float(v) for v in size)
@@ -71,9 +84,7 @@ def image_track(seg: np.ndarray, crop, size, source_frames: np.ndarray, source_f
                 ys.append(cy0 + (rr.mean() + 0.5) * ch / H)
         return np.array(ts), np.array(xs), np.array(ys)
 
-    if label is None:
-        label = max(labels, key=lambda k: float(np.ptp(track(k)[2])) if len(track(k)[2]) else 0.0)
-    return track(label)
+    return track(moving_label(seg) if label is None else label)
 
 
 def flight_arcs(t: np.ndarray, y: np.ndarray) -> list[np.ndarray]:

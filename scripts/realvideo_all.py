@@ -34,6 +34,7 @@ True frame rates are those of ``shared/data/real/*/SOURCES.md`` (240 fps PhysTra
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import os
 import subprocess
@@ -42,6 +43,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from pipeline.atomic import write_text  # noqa: E402
@@ -91,11 +93,15 @@ CONTENT = LABELS / "content.yaml"
 """What each clip shows (objects, support, view): written by hand, never read by the main job."""
 
 
+@functools.lru_cache(maxsize=1)
+def _content() -> dict:
+    """:data:`CONTENT`, read once."""
+    return yaml.safe_load(CONTENT.read_text())
+
+
 def content_columns(name: str, clip_out: Path) -> dict:
     """The written scene (``clip_out/scene.yaml``, ``metrics.json``) against :data:`CONTENT`."""
-    import yaml
-
-    truth = yaml.safe_load(CONTENT.read_text()).get(name)
+    truth = _content().get(name)
     if truth is None or not (clip_out / "scene.yaml").exists():
         return {}
     scene = load_scene(clip_out / "scene.yaml")
