@@ -256,8 +256,7 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
         if tr.travel >= 0.25 * tr.diameter or fill_in:
             movers.append((tr, m, fill_in))
             linked.update(fill_in)
-        elif _at_rest(m, fg, tr.frames, T) and tr.size[0] <= 3.0 * max(tr.size[1], 1e-6) and tr.fill >= 0.5 \
-                and _in_view(m):
+        elif _whole_object_at_rest(tr, m, fg, T):
             stills.append((tr, m))
     unseen = [(None, m, []) for k, m in enumerate(bs_masks)   # movers only background subtraction saw
               if k not in linked and m.any() and overlap[k] <= 0.2 * m.sum()]
@@ -288,6 +287,19 @@ def _in_view(m: np.ndarray) -> bool:
     seen = m.any(axis=(1, 2))
     border = m[:, 0, :].any(axis=1) | m[:, -1, :].any(axis=1) | m[:, :, 0].any(axis=1) | m[:, :, -1].any(axis=1)
     return bool(seen.any() and border[seen].mean() <= 0.5)
+
+
+def _whole_object_at_rest(tr, m: np.ndarray, fg: np.ndarray, T: int) -> bool:
+    """Whether a segmenter track that does not move is an object at rest (``hybrid`` and
+    ``anchored``): seen as a rigid body at rest (:func:`_at_rest`) and looking like a whole object
+    in view (rotated box at most 3:1, at least half full, :func:`_in_view`).
+
+    Args:
+        tr: the :class:`pipeline.image_tracks.Track`; m: its ``(T, H, W)`` bool masks;
+        fg: ``(T, H, W)`` float32 segmenter probabilities; T: frames in the window.
+    """
+    return _at_rest(m, fg, tr.frames, T) and tr.size[0] <= 3.0 * max(tr.size[1], 1e-6) and tr.fill >= 0.5 \
+        and _in_view(m)
 
 
 COMPLETE_OVERLAP, COMPLETE_SIZE = 0.5, 1.3
@@ -376,8 +388,7 @@ def anchored_objects(frames: np.ndarray, context: np.ndarray, movers: np.ndarray
             continue
         if ref is not None and not ref / 16 <= float(np.median(tr.area)) <= 16 * ref:
             continue
-        if _at_rest(m, fg, tr.frames, T) and tr.size[0] <= 3.0 * max(tr.size[1], 1e-6) and tr.fill >= 0.5 \
-                and _in_view(m):
+        if _whole_object_at_rest(tr, m, fg, T):
             stills.append((tr, m))
     stills.sort(key=lambda x: -float(np.median(x[0].area)))
     for n, (tr, m) in enumerate(stills[:max(0, max_objects - n_mov)]):
