@@ -59,7 +59,8 @@ def main(argv: list[str] | None = None) -> int:
         if "error" in r or not (folder / "scene.yaml").exists():
             continue
         m = json.loads((folder / "metrics.json").read_text())
-        obs = observe(m["video"], r["fps"], None, rv.fps, rv.duration, fcfg, rv.mask_method,
+        # the scene rate the main job used (realvideo.fps, or higher for a short clip: observe.scene_rate)
+        obs = observe(m["video"], r["fps"], None, int(m["window"]["fps"]), rv.duration, fcfg, rv.mask_method,
                       rv.max_objects)
         scene = load_scene(folder / "scene.yaml")
         new = score(scene, obs.seg, sim)
