@@ -34,8 +34,8 @@ from pipeline.camera import intrinsics, pixel_to_plane
 from pipeline.errors import UserError
 from pipeline.geometry import volume
 from pipeline.image_tracks import (BOX_FILL, CIRCLE_FILL, Motion, Track, View, gravity_vote, bounce_restitution,
-                                   estimate_view, gravity_motion, initial_motion, initial_state_given, object_tracks,
-                                   still_tracks)
+                                   estimate_view, first_bounce, gravity_motion, initial_motion, initial_state_given, object_tracks,
+                                   still_tracks, whole_frames)
 from pipeline.rotation import axis_angle_quat
 from pipeline.scene import Camera, Scene
 
@@ -137,6 +137,12 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
     main = int(np.argmax([np.median(t.area) for t in tracks]))
     D0 = f / scales[main]
     lowest = max(float(t.bottom.max()) for t in tracks)
+    if kinds[main] == "fall":
+        # a bounce seen puts the floor one radius under the impact, also when the impact
+        # itself is cut off by the image border (the bottom row seen is then only the border)
+        hit = first_bounce(whole_frames(tracks[main]), fps)
+        if hit is not None:
+            lowest = max(lowest, hit.v + 0.5 * tracks[main].diameter)
     v_floor = lowest if kinds[main] == "fall" else max(lowest + 1.0, float(height))
     v_floor = max(v_floor, cv + 0.05 * height)
     cam_h = (v_floor - cv) * D0 / f
@@ -178,7 +184,7 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
                                    1 - 2 * (q[1] ** 2 + q[2] ** 2)])  # local +z of the ramp box
             lifted.angular_velocity = rolling_spin(normal, np.asarray(vel), size["radius"]).tolist()
         elif kind == "fall":
-            e = bounce_restitution(tr, fps)
+            e = bounce_restitution(whole_frames(tr), fps)
             lifted.restitution = e
         objects.append(lifted)
     return cam, objects, notes
@@ -341,14 +347,17 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
     if not tracks:
         raise PerceptionError("no object found (segmenter)" if still else
                               "no moving object found (background subtraction + flow)")
-    motions = [initial_motion(t, fps) for t in tracks]
-    gravity = [gravity_motion(t, fps) for t in tracks]
+    # motion is read from the frames where the whole silhouette is in view (whole_frames): a
+    # part cut by the border biases the centroid
+    whole = [whole_frames(t) for t in tracks]
+    motions = [initial_motion(t, fps) for t in whole]
+    gravity = [gravity_motion(t, fps) for t in whole]
     view, shows = estimate_view(tracks, gravity)
     # a track that shows gravity somewhere takes its acceleration from there (the start of the
     # window may be a release by hand), and its state at t = 0 from its first stretch with
     # that acceleration (initial_state_given)
     side_motions = [initial_state_given(t, fps, g.a) if ok else m
-                    for t, m, g, ok in zip(tracks, motions, gravity, shows)]
+                    for t, m, g, ok in zip(whole, motions, gravity, shows)]
     falls = any(ok and _side_motion_kind(t, m) == "fall" for t, m, ok in zip(tracks, side_motions, shows))
     # a clear fall settles it; a speed-up along a line may also be perspective (an object
     # rolling towards an oblique camera), so the top-down reading is tried as well
