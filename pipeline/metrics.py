@@ -259,7 +259,8 @@ def sequence_iou(true_seg: np.ndarray, pred_seg: np.ndarray) -> dict[str, Any]:
 
 
 # --------------------------------------------------------------------------- flow
-def flow_epe(flow_pred: np.ndarray, flow_obs: np.ndarray, fg_pred: np.ndarray, fg_obs: np.ndarray) -> float:
+def flow_epe(flow_pred: np.ndarray, flow_obs: np.ndarray, fg_pred: np.ndarray, fg_obs: np.ndarray,
+             over: str = "union") -> float:
     """Mean end-point error between re-simulated and observed flow over the foreground.
 
     Args:
@@ -268,11 +269,15 @@ def flow_epe(flow_pred: np.ndarray, flow_obs: np.ndarray, fg_pred: np.ndarray, f
         flow_obs: ``(T-1, H, W, 2)`` float observed flow (float16 from the flow stage is fine).
         fg_pred, fg_obs: ``(T-1, H, W)`` bool foreground of frames ``0..T-2`` (the frames the
             flow starts from), e.g. ``seg[:-1] >= 0``.
+        over: ``"union"`` (the metric, docs/design.md §7): pixels where ``fg_pred | fg_obs``;
+            ``"observed"``: pixels where ``fg_obs`` only (the observed motion left unexplained;
+            a predicted object away from it cannot dilute the mean; the search's
+            ``epe_pixels``).
     Returns:
-        Mean of ``||flow_pred - flow_obs||_2`` over pixels where ``fg_pred | fg_obs``, px;
-        **0.0 if neither has a foreground pixel** (see module docstring).
+        Mean of ``||flow_pred - flow_obs||_2`` over those pixels, px; **0.0 if there is none**
+        (see module docstring).
     Raises:
-        ValueError: shapes disagree.
+        ValueError: shapes disagree, or ``over`` is neither.
     """
     fp, fo = np.asarray(flow_pred), np.asarray(flow_obs)
     mp, mo = np.asarray(fg_pred, dtype=bool), np.asarray(fg_obs, dtype=bool)
@@ -280,7 +285,9 @@ def flow_epe(flow_pred: np.ndarray, flow_obs: np.ndarray, fg_pred: np.ndarray, f
         raise ValueError(f"flow_epe: flows must both be (T-1, H, W, 2), got {fp.shape} and {fo.shape}")
     if mp.shape != fp.shape[:-1] or mo.shape != fp.shape[:-1]:
         raise ValueError(f"flow_epe: masks must be {fp.shape[:-1]}, got {mp.shape} and {mo.shape}")
-    idx = np.flatnonzero(mp | mo)  # the pixels of fp[mask], in the same order
+    if over not in ("union", "observed"):
+        raise ValueError(f"flow_epe: over must be 'union' or 'observed', got {over!r}")
+    idx = np.flatnonzero(mo if over == "observed" else mp | mo)  # the pixels of fp[mask], in order
     if not idx.size:
         return 0.0
     d = fp.reshape(-1, 2)[idx].astype(np.float64) - fo.reshape(-1, 2)[idx].astype(np.float64)

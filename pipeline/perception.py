@@ -26,7 +26,7 @@ from the first frame of the window; world frame z up, SI units.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -355,8 +355,9 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
     view, shows = estimate_view(tracks, gravity)
     # a track that shows gravity somewhere takes its acceleration from there (the start of the
     # window may be a release by hand), and its state at t = 0 from its first stretch with
-    # that acceleration (initial_state_given)
-    side_motions = [initial_state_given(t, fps, g.a) if ok else m
+    # that acceleration (initial_state_given); the acceleration's evidence is the gravity
+    # window's frames, even when only a few frames precede the first bounce
+    side_motions = [replace(initial_state_given(t, fps, g.a), n=g.n, a_sd=g.a_sd) if ok else m
                     for t, m, g, ok in zip(whole, motions, gravity, shows)]
     falls = any(ok and _side_motion_kind(t, m) == "fall" for t, m, ok in zip(tracks, side_motions, shows))
     # a clear fall settles it; a speed-up along a line may also be perspective (an object

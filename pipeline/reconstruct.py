@@ -42,6 +42,7 @@ import shutil
 import sys
 import time
 from pathlib import Path
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -80,7 +81,9 @@ class RealVideoConfig(BaseModel):
     (``mask_method``, one of :data:`pipeline.observe.MASK_METHODS`; ``max_objects`` tracks), the
     staged CMA-ES (``popsize`` and ``iterations`` per stage, ``restarts`` of the first stage,
     ``workers`` scoring processes, fitness ``IoU - lambda_epe * EPE`` with EPE per px at 96 px
-    wide; ``shape_margin``: Best@K takes the proposal with the fewest shape parameters among those
+    wide, averaged over ``epe_pixels``: ``observed`` foreground pixels by default, so that a
+    predicted object away from the motion cannot lower it, :class:`pipeline.search.SearchConfig`;
+    ``shape_margin``: Best@K takes the proposal with the fewest shape parameters among those
     of the best one's structure within this fitness of it, :func:`pipeline.search.simplest_within`) and the figures (``panel_height``, ``sheet_height`` in px). The defaults are the
     default profile's (a test checks that params.yaml agrees).
     """
@@ -96,6 +99,7 @@ class RealVideoConfig(BaseModel):
     restarts: int = Field(2, ge=1)
     workers: int = Field(2, ge=1)
     lambda_epe: float = Field(0.05, ge=0)
+    epe_pixels: Literal["union", "observed"] = "observed"
     shape_margin: float = Field(0.02, ge=0)
     panel_height: int = Field(320, ge=16)
     sheet_height: int = Field(180, ge=16)
@@ -275,7 +279,8 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     rv = realvideo_config(params)
     fcfg = flow_config(params)
     scfg = typed_section(params, "search", SearchConfig, required=True)
-    scfg = scfg.model_copy(update={"popsize": rv.popsize, "iterations": rv.iterations, "lambda_epe": rv.lambda_epe})
+    scfg = scfg.model_copy(update={"popsize": rv.popsize, "iterations": rv.iterations, "lambda_epe": rv.lambda_epe,
+                                   "epe_pixels": rv.epe_pixels})
     sim = typed_section(params, "sim", SimOptions, required=True)
     sanity = typed_section(params, "sanity", SanityConfig)
     scene_fps, duration = rv.fps, rv.duration

@@ -166,6 +166,24 @@ def test_flow_epe_only_foreground_counts():
     assert flow_epe(pred, obs, fg, np.zeros_like(fg)) == pytest.approx(0.5)  # (1 + 0) / 2
 
 
+def test_flow_epe_over_the_observed_foreground():
+    # observed: 2 px moving at (3, 4) px/frame; predicted: absent there, a still 6 px object elsewhere
+    pred = np.zeros((1, 3, 4, 2))
+    obs = np.zeros((1, 3, 4, 2))
+    fg_obs = np.zeros((1, 3, 4), bool)
+    fg_obs[0, 0, :2] = True
+    obs[0, 0, :2] = (3.0, 4.0)
+    fg_pred = np.zeros_like(fg_obs)
+    fg_pred[0, 1:, 1:] = True
+    # union: (5 + 5 + 6 x 0) / 8; the still object far away lowers the mean
+    assert flow_epe(pred, obs, fg_pred, fg_obs) == pytest.approx(10 / 8)
+    # observed: the motion left unexplained, whatever is predicted elsewhere
+    assert flow_epe(pred, obs, fg_pred, fg_obs, over="observed") == pytest.approx(5.0)
+    assert flow_epe(pred, obs, np.zeros_like(fg_obs), fg_obs, over="observed") == pytest.approx(5.0)
+    with pytest.raises(ValueError, match="over"):
+        flow_epe(pred, obs, fg_pred, fg_obs, over="both")
+
+
 def test_flow_epe_no_foreground_is_zero():
     z = np.zeros((2, 3, 3, 2))
     m = np.zeros((2, 3, 3), bool)

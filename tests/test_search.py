@@ -185,6 +185,34 @@ def test_fitness_strict_iou_gives_no_credit_for_a_missing_object():
         SearchConfig(fitness_iou="both")
 
 
+def test_fitness_epe_over_observed_pixels_cannot_be_lowered_by_a_far_still_object():
+    """A real drop (dev/03, issue 29): a candidate that shows a large still object away from the
+    motion got a lower union EPE than one that overlaps the falling object with a rougher flow,
+    and won Best@K at IoU 0. Over the observed pixels its EPE is the whole observed motion."""
+    T, Hh, Ww = 3, 10, 10
+    obs = np.full((T, Hh, Ww), -1, np.int8)
+    obs[:, 0:2, 0:2] = 0                                # 4 px object moving at 4 px/frame
+    obs_flow = np.zeros((T - 1, Hh, Ww, 2), np.float32)
+    obs_flow[:, 0:2, 0:2, 1] = 4.0
+    far = np.full_like(obs, -1)
+    far[:, 4:10, 4:10] = 0                              # 36 px, still, no overlap
+    far_flow = np.zeros_like(obs_flow)
+    near = np.full_like(obs, -1)
+    near[:, 0:2, 0:1] = 0                               # half the object, flow 2 px/frame off
+    near_flow = np.zeros_like(obs_flow)
+    near_flow[:, 0:2, 0:1, 1] = 2.0
+    union, observed = SearchConfig(lambda_epe=0.2), SearchConfig(lambda_epe=0.2, epe_pixels="observed")
+    # union EPE: far (4 x 4) / 40 = 0.4; near (2 x 2 + 2 x 4) / 4 = 3.0
+    assert fitness(far, far_flow, obs, obs_flow, union)["epe"] == pytest.approx(0.4)
+    assert fitness(near, near_flow, obs, obs_flow, union)["epe"] == pytest.approx(3.0)
+    assert fitness(far, far_flow, obs, obs_flow, union)["fitness"] > fitness(near, near_flow, obs, obs_flow, union)["fitness"]
+    # observed EPE: far 4.0 (nothing explained), near 3.0; IoU 0 vs 0.5 decides
+    f_far, f_near = fitness(far, far_flow, obs, obs_flow, observed), fitness(near, near_flow, obs, obs_flow, observed)
+    assert f_far["epe"] == pytest.approx(4.0) and f_near["epe"] == pytest.approx(3.0)
+    assert f_near["fitness"] == pytest.approx(0.5 - 0.2 * 3.0) and f_far["fitness"] == pytest.approx(-0.2 * 4.0)
+    assert f_near["fitness"] > f_far["fitness"]
+
+
 def test_simplest_within_takes_fewer_shape_parameters_only_when_the_fit_cannot_tell():
     """Best@K's parsimony rule (the main job): a ball and a disc seen along its axis fit alike; the
     sphere is taken when within the margin, the fitter shape when clearly better, and candidates of

@@ -72,6 +72,11 @@ class SearchConfig(BaseModel):
             or its match is visible, no credit for agreeing on absence; issue 29 item 7) or
             ``all_frames`` (docs/design.md §7's full-sequence IoU, where a frame with both
             masks empty counts 1.0).
+        epe_pixels: where the fitness's EPE is averaged: ``union`` (docs/design.md §7's
+            :func:`pipeline.metrics.flow_epe`, pixels where either clip is foreground) or
+            ``observed`` (the observed foreground only; a predicted object elsewhere adds
+            pixels of zero error to the union and so lowers its mean: a large still object
+            away from the motion beat every overlapping proposal on a real drop, issue 29).
         splits: dataset splits the best_of_k / cmaes stages process.
 
     Defaults are the small profile: 1 + 8 x 6 = 49 evaluations, ~3-4 s per scene at 96x64 on
@@ -92,4 +97,5 @@ class SearchConfig(BaseModel):
     ranges: SearchRanges = SearchRanges()
     penalize_extra: bool = True
     fitness_iou: Literal["strict", "all_frames"] = "strict"
+    epe_pixels: Literal["union", "observed"] = "union"
     splits: tuple[str, ...] = ("test", "test_comp")

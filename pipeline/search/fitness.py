@@ -31,7 +31,8 @@ def fitness(pred_seg: np.ndarray, pred_flow: np.ndarray | None, obs_seg: np.ndar
     that add objects). For a bool foreground-only ``obs_seg`` it is the foreground IoU
     (object identities unknown; ``strict``: over the frames where either has foreground).
     With no observed object visible at all the IoU term is 0. EPE is in px at the rendered
-    resolution over pixels where either clip is foreground (:func:`pipeline.metrics.flow_epe`).
+    resolution over pixels where either clip is foreground (:func:`pipeline.metrics.flow_epe`),
+    or where the observed clip is (``cfg.epe_pixels == "observed"``).
     The returned ``initial_iou`` / ``full_iou`` are the docs/design.md §7 metrics and
     ``strict_iou`` the strict one, all without the extra-object penalty.
 
@@ -44,7 +45,7 @@ def fitness(pred_seg: np.ndarray, pred_flow: np.ndarray | None, obs_seg: np.ndar
         prior: penalty value (e.g. mean squared normalised distance to the model's scene).
     Returns:
         dict: ``fitness``, ``initial_iou``, ``full_iou``, ``strict_iou`` (NaN with no visible
-        observed object), ``epe`` (px, NaN if not computed), ``prior``.
+        observed object), ``epe`` (px, NaN if not computed; over ``cfg.epe_pixels``), ``prior``.
     """
     obs = np.asarray(obs_seg)
     strict = cfg.fitness_iou == "strict"
@@ -65,7 +66,8 @@ def fitness(pred_seg: np.ndarray, pred_flow: np.ndarray | None, obs_seg: np.ndar
         term = 0.0
     epe = math.nan
     if pred_flow is not None and obs_flow is not None:
-        epe = flow_epe(pred_flow, obs_flow, np.asarray(pred_seg)[:-1] >= 0, as_labels(obs)[:-1] >= 0)
+        epe = flow_epe(pred_flow, obs_flow, np.asarray(pred_seg)[:-1] >= 0, as_labels(obs)[:-1] >= 0,
+                       over=cfg.epe_pixels)
     f = term - cfg.prior_weight * prior
     if cfg.lambda_epe > 0 and not math.isnan(epe):
         f -= cfg.lambda_epe * epe
