@@ -218,22 +218,54 @@ class Motion:
     a_sd: float = 0.0
 
 
+def jitter(track: Track) -> float:
+    """Robust estimate of the noise of a track's centroid, px (Euclidean, both axes).
+
+    From second differences of consecutive frames: a smooth motion (constant acceleration)
+    gives equal ones, white noise of standard deviation ``s`` per axis spreads them with
+    standard deviation ``sqrt(6) s``; the spread is the median absolute deviation (x 1.4826), so
+    a few bounces or hits do not count. 0 with fewer than 5 consecutive frames.
+    """
+    if len(track.frames) < 5:
+        return 0.0
+    run = np.flatnonzero(np.diff(track.frames) != 1)
+    d2 = track.centre[2:] - 2 * track.centre[1:-1] + track.centre[:-2]
+    ok = np.ones(len(d2), bool)
+    for g in run:   # a gap: the second differences across it are not of consecutive frames
+        ok[max(0, g - 1):g + 1] = False
+    d2 = d2[ok]
+    if len(d2) < 3:
+        return 0.0
+    mad = np.median(np.abs(d2 - np.median(d2, axis=0)), axis=0)
+    return float(np.linalg.norm(1.4826 * mad / math.sqrt(6.0)))
+
+
+def fit_tolerance(track: Track) -> float:
+    """RMS residual (px) below which one parabola explains a stretch of a track:
+    ``max(0.75 px, 6 % of the diameter, 2 x jitter)``. The last term (:func:`jitter`) is 0 for
+    clean tracks; a noisy one (a ball bouncing in place on a table seen from above, a blurred
+    silhouette: dev/05) otherwise fits no stretch longer than a few frames, and its velocity
+    would be read from three or four of them."""
+    return max(0.75, 0.06 * track.diameter, 2.0 * jitter(track))
+
+
 def initial_motion(track: Track, fps: float, min_frames: int = 5) -> Motion:
     """Fit ``p(t) = p0 + v0 t + a t^2 / 2`` to the first stretch of a track that one parabola
     explains.
 
     The window starts at the earliest frame (within the first third of the track) from which
-    at least ``min_frames`` frames fit one parabola with an RMS residual below ``max(0.75 px,
-    6 % of the diameter)``, and is the longest such window from there: the fit skips a release
-    by hand at the start and stops at the first bounce or collision. The parabola is then evaluated at the window's ``t = 0``. Fewer than
-    ``min_frames`` frames: a straight line (no acceleration); fewer than 3: at rest.
+    at least ``min_frames`` frames fit one parabola with an RMS residual below
+    :func:`fit_tolerance`, and is the longest such window from there: the fit skips a release
+    by hand at the start and stops at the first bounce or collision. The parabola is then
+    evaluated at the window's ``t = 0``. Fewer than ``min_frames`` frames: a straight line (no
+    acceleration); fewer than 3: at rest.
     """
     t = track.frames / fps
     p = track.centre
     N = len(t)
     if N < 3:
         return Motion(p[0].copy(), np.zeros(2), np.zeros(2), N, float(t[-1]), 0.0)
-    tol = max(0.75, 0.06 * track.diameter)
+    tol = fit_tolerance(track)
 
     def fit(i: int, j: int, degree: int = 2) -> tuple[np.ndarray, float]:
         tt = t[i:j]
@@ -245,43 +277,42 @@ def initial_motion(track: Track, fps: float, min_frames: int = 5) -> Motion:
             coef = np.vstack([coef, np.zeros((1, 2))])
         return coef, rms
 
-    best = None
-    if N >= min_frames:  # a parabola through the very first frames
-        for j in range(N, min_frames - 1, -1):
-            coef, rms = fit(0, j)
-            if rms <= tol:
-                return Motion(coef[0], coef[1], coef[2], j, float(t[j - 1]), rms)
-    if N >= 3 and track.frames[min(N, 4) - 1] - track.frames[0] == min(N, 4) - 1:
-        # too few frames before the first event (a hit, a bounce) for a curvature: a line
-        # through the first 3-4 frames (at rest, or moving steadily) if it explains them
-        n = min(N, 4)
-        coef, rms = fit(0, n, degree=1)
-        if rms > tol and n == 4:
-            n = 3
-            coef, rms = fit(0, n, degree=1)
-        if rms <= tol:
-            return Motion(coef[0], coef[1], coef[2], n, float(t[n - 1]), rms)
-    if N >= min_frames:
-        for i in range(1, max(2, N // 3 + 1)):
-            for j in range(N, i + min_frames - 1, -1):
-                coef, rms = fit(i, j)
+    def search(tol: float) -> Motion | None:
+        if N >= min_frames:  # a parabola through the very first frames
+            for j in range(N, min_frames - 1, -1):
+                coef, rms = fit(0, j)
                 if rms <= tol:
-                    best = (i, j, coef, rms)
-                    break
-            if best is not None:
-                break
-    if best is None:  # no parabola fits 5 frames: a line through the first ones
+                    return Motion(coef[0], coef[1], coef[2], j, float(t[j - 1]), rms)
+        if N >= 3 and track.frames[min(N, 4) - 1] - track.frames[0] == min(N, 4) - 1:
+            # too few frames before the first event (a hit, a bounce) for a curvature: a line
+            # through the first 3-4 frames (at rest, or moving steadily) if it explains them
+            n = min(N, 4)
+            coef, rms = fit(0, n, degree=1)
+            if rms > tol and n == 4:
+                n = 3
+                coef, rms = fit(0, n, degree=1)
+            if rms <= tol:
+                return Motion(coef[0], coef[1], coef[2], n, float(t[n - 1]), rms)
+        if N >= min_frames:
+            for i in range(1, max(2, N // 3 + 1)):
+                for j in range(N, i + min_frames - 1, -1):
+                    coef, rms = fit(i, j)
+                    if rms <= tol:
+                        return Motion(coef[0], coef[1], coef[2], j - i, float(t[j - 1]), rms)
+        return None
+
+    m = search(tol)
+    if m is None:  # no parabola fits 5 frames: a line through the first ones
         n = min(N, 4)
         coef, rms = fit(0, n, degree=1)
-        return Motion(coef[0], coef[1], coef[2], n, float(t[n - 1]), rms)
-    i, j, coef, rms = best
-    return Motion(coef[0], coef[1], coef[2], j - i, float(t[j - 1]), rms)
+        m = Motion(coef[0], coef[1], coef[2], n, float(t[n - 1]), rms)
+    return m
 
 
 def gravity_motion(track: Track, fps: float, min_frames: int = 6) -> Motion | None:
     """The stretch of a track that shows gravity best: among all windows of at least
-    ``min_frames`` consecutive visible frames that one parabola fits (RMS below ``max(0.75 px,
-    6 % of the diameter)``), the one whose downward image acceleration is largest at its lower
+    ``min_frames`` consecutive visible frames that one parabola fits (RMS below
+    :func:`fit_tolerance`), the one whose downward image acceleration is largest at its lower
     95 % bound (a free fall or a roll down a slope anywhere in the window, not only at its
     start; long windows win over short noisy ones). ``v0`` is the
     velocity at the window's middle frame (its direction tells speeding up from slowing down);
@@ -290,7 +321,7 @@ def gravity_motion(track: Track, fps: float, min_frames: int = 6) -> Motion | No
     t = track.frames / fps
     p = track.centre
     N = len(t)
-    tol = max(0.75, 0.06 * track.diameter)
+    tol = fit_tolerance(track)
     best = None
     for i in range(0, N - min_frames + 1):
         for j in range(i + min_frames, N + 1):
@@ -321,19 +352,33 @@ def gravity_motion(track: Track, fps: float, min_frames: int = 6) -> Motion | No
 def initial_state_given(track: Track, fps: float, a: np.ndarray, min_frames: int = 4) -> Motion:
     """Position and velocity at ``t = 0`` when the acceleration ``a (2,)`` px/s^2 is known
     (from :func:`gravity_motion`): ``p - a t^2 / 2`` is fitted by a line on the earliest stretch
-    of at least ``min_frames`` frames that it explains within ``max(0.75 px, 6 %`` of the
-    diameter), grown as far as it goes (skips a release by hand, stops at the first bounce).
+    of at least ``min_frames`` frames that it explains within :func:`fit_tolerance`, grown as far as it goes (skips a release by hand, stops at the first bounce).
+    When a bounce comes before ``min_frames`` frames (the window starts just before an impact),
+    the line goes through the frames before it (2 at least).
     """
     t = track.frames / fps
     q = track.centre - 0.5 * np.outer(t ** 2, a)
     N = len(t)
-    tol = max(0.75, 0.06 * track.diameter)
+    tol = fit_tolerance(track)
 
     def fit(i: int, j: int) -> tuple[np.ndarray, float]:
         A = np.stack([np.ones(j - i), t[i:j]], axis=1)
         coef, *_ = np.linalg.lstsq(A, q[i:j], rcond=None)
         return coef, float(np.sqrt(np.mean(np.sum((A @ coef - q[i:j]) ** 2, axis=1))))
 
+    # a window that starts just before a bounce: the frames down to the first lowest point are
+    # the only ones that hold the state at t = 0 (a later arc, extrapolated back, lies under
+    # the floor). A bounce is a clear turn, faster than a quarter diameter per frame both ways.
+    step = np.diff(track.centre[:, 1])
+    fast = max(1.0, 0.25 * track.diameter)
+    turn = next((i for i in range(1, len(step)) if step[i - 1] > fast and step[i] < -fast), None)
+    if turn is not None and turn + 1 < min_frames and track.frames[turn] - track.frames[0] == turn:
+        n = turn + 1
+        coef, rms = fit(0, n)
+        if rms > tol and n > 2:   # the lowest sample is already after the impact
+            n -= 1
+            coef, rms = fit(0, n)
+        return Motion(coef[0], coef[1], np.asarray(a, dtype=np.float64), n, float(t[n - 1]), rms)
     for i in range(0, max(1, N - min_frames + 1)):
         best = None
         for j in range(i + min_frames, N + 1):
@@ -372,11 +417,13 @@ def bounce_restitution(track: Track, fps: float) -> float | None:
 
 
 def first_bounce(track: Track, fps: float) -> Bounce | None:
-    """The first bounce of a falling track, or None.
+    """The first bounce of a falling track that can be measured, or None.
 
-    The lowest sample ``b`` is the first where the vertical image velocity turns from down (+v)
-    to up. The impact lies next to it, before or after it (frames may be missing around it: a
-    ball cut by the image border, :func:`whole_frames`), so both splits are tried: up to 6
+    A lowest sample ``b`` is one where the vertical image velocity turns from down (+v) to up;
+    bounces are taken in order, and one with too few samples around it (a window that starts
+    just before an impact) is passed over. The impact lies next to ``b``, before or after it
+    (frames may be missing around it: a ball cut by the image border, :func:`whole_frames`),
+    so both splits are tried: up to 6
     samples before the impact and up to 7 after it (until the next bounce) are fitted jointly
     by two parabolas ``v(t)`` with one shared curvature (gravity), and the split with the
     smaller residual is kept. The bounce instant is where the two parabolas meet, and ``e =
@@ -391,33 +438,35 @@ def first_bounce(track: Track, fps: float) -> Bounce | None:
     turns = [i for i in range(1, len(vv)) if vv[i - 1] > 0 and vv[i] < 0]
     if not turns:
         return None
-    b = turns[0]  # index (into the track) of the lowest point seen
-    after_end = next((j for j in turns[1:]), len(v) - 1)
-    best = None
-    for split in (b + 1, b):  # the lowest sample before the impact, or after it
-        pre = np.arange(max(0, split - 6), split)
-        post = np.arange(split, min(after_end + 1, split + 7))
-        if len(pre) < 3 or len(post) < 3:
-            continue
-        tt = np.concatenate([t[pre], t[post]])
-        side = np.concatenate([np.zeros(len(pre)), np.ones(len(post))])
-        A = np.stack([0.5 * tt ** 2, (1 - side) * tt, 1 - side, side * tt, side], axis=1)
-        y = np.concatenate([v[pre], v[post]])
-        coef, *_ = np.linalg.lstsq(A, y, rcond=None)
-        rms = float(np.sqrt(np.mean((A @ coef - y) ** 2)))
-        if best is None or rms < best[0]:
-            best = (rms, coef)
-    if best is None:
-        return None
-    acc, b1, c1, b2, c2 = best[1]
-    if abs(b1 - b2) < 1e-9:
-        return None
-    tb = (c2 - c1) / (b1 - b2)   # where the two arcs meet: the floor
-    before, after = acc * tb + b1, acc * tb + b2
-    if before <= 0 or after >= 0:
-        return None
-    return Bounce(float(np.clip(-after / before, 0.2, 0.95)), float(tb),
-                  float(0.5 * acc * tb ** 2 + b1 * tb + c1))
+    for k, b in enumerate(turns):  # b: index (into the track) of a lowest point seen
+        previous = turns[k - 1] + 1 if k else 0   # after the previous bounce
+        after_end = turns[k + 1] if k + 1 < len(turns) else len(v) - 1
+        best = None
+        for split in (b + 1, b):  # the lowest sample before the impact, or after it
+            pre = np.arange(max(previous, split - 6), split)
+            post = np.arange(split, min(after_end + 1, split + 7))
+            if len(pre) < 3 or len(post) < 3:
+                continue
+            tt = np.concatenate([t[pre], t[post]])
+            side = np.concatenate([np.zeros(len(pre)), np.ones(len(post))])
+            A = np.stack([0.5 * tt ** 2, (1 - side) * tt, 1 - side, side * tt, side], axis=1)
+            y = np.concatenate([v[pre], v[post]])
+            coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+            rms = float(np.sqrt(np.mean((A @ coef - y) ** 2)))
+            if best is None or rms < best[0]:
+                best = (rms, coef)
+        if best is None:
+            continue   # too few samples around this bounce: the next one
+        acc, b1, c1, b2, c2 = best[1]
+        if abs(b1 - b2) < 1e-9:
+            return None
+        tb = (c2 - c1) / (b1 - b2)   # where the two arcs meet: the floor
+        before, after = acc * tb + b1, acc * tb + b2
+        if before <= 0 or after >= 0:
+            return None
+        return Bounce(float(np.clip(-after / before, 0.2, 0.95)), float(tb),
+                      float(0.5 * acc * tb ** 2 + b1 * tb + c1))
+    return None
 
 
 View = Literal["side", "top"]

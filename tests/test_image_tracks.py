@@ -15,7 +15,8 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.image_tracks import find_tracks, first_bounce, initial_motion, whole_frames
+from pipeline.image_tracks import (Track, find_tracks, first_bounce, initial_motion, initial_state_given, jitter,
+                                   whole_frames)
 
 W, H, FPS = 80, 120, 30.0
 R = 6.0                        # disc radius, px
@@ -35,8 +36,9 @@ def _centre_rows(t: np.ndarray) -> tuple[np.ndarray, float]:
     return v, t_hit
 
 
-def _clip(T: int = 22) -> tuple[np.ndarray, float]:
-    t = np.arange(T) / FPS
+def _clip(T: int = 22, t0: float = 0.0) -> tuple[np.ndarray, float]:
+    """Label maps ``(T, H, W)`` int8 of the disc over frames at ``t0 + i / FPS``, and the impact time."""
+    t = t0 + np.arange(T) / FPS
     v, t_hit = _centre_rows(t)
     seg = np.full((T, H, W), -1, np.int8)
     for i in range(T):
@@ -83,3 +85,46 @@ def test_whole_frames_returns_the_track_when_too_few_frames_are_whole():
     (track,) = find_tracks(seg)
     assert track.clipped.all()
     assert whole_frames(track) is track
+
+
+def test_window_starting_just_before_a_bounce_keeps_the_falling_state():
+    """dev/02 (a ping-pong ball bouncing every 8 frames): the window opens 2 frames before an
+    impact. The state at t = 0 comes from those 2 frames with the known acceleration, not from
+    the next arc extrapolated back (which put the ball under the floor, moving up)."""
+    _, t_hit = _centre_rows(np.zeros(1))
+    t0 = t_hit - 1.5 / FPS                      # impact between the 2nd and 3rd frame
+    seg, _ = _clip(T=14, t0=t0)
+    (track,) = find_tracks(seg)
+    m = initial_state_given(whole_frames(track), FPS, np.array([0.0, A]))
+    assert m.n == 2
+    v_start = V0 + VEL0 * t0 + 0.5 * A * t0 ** 2
+    assert m.p0[1] == pytest.approx(v_start, abs=0.75)
+    assert m.v0[1] == pytest.approx(VEL0 + A * t0, rel=0.05)   # still falling
+
+
+def _track(centre: np.ndarray, diameter: float = 25.0) -> Track:
+    n = len(centre)
+    return Track(0, np.arange(n), centre, np.full(n, 400.0), centre[:, 1] + diameter / 2, diameter,
+                 (diameter, diameter), 0.0, math.pi / 4, "circle", 5.0)
+
+
+def test_noisy_track_velocity_is_averaged_over_many_frames():
+    """dev/05 seen from above: a ping-pong ball drifting left while it bounces in place jitters
+    by a few px, more than the fit tolerance (6 % of 25 px). Its velocity then came from a line
+    through 4 frames (noise of ~30 px/s); with the track's own noise as tolerance it comes from
+    all of them."""
+    rng = np.random.default_rng(0)
+    t = np.arange(20) / FPS
+    truth = np.stack([40.0 - 30.0 * t, 96.0 + 8.0 * t], axis=1)
+    noise = rng.normal(0.0, 2.0, truth.shape)
+    tr = _track(truth + noise)
+    assert jitter(tr) == pytest.approx(2.0 * math.sqrt(2.0), rel=0.4)   # 2 px per axis
+    assert jitter(_track(truth + np.outer(t ** 2, [0.0, 600.0]))) < 1e-9   # a parabola is no noise
+    m = initial_motion(tr, FPS)
+    assert m.n >= 15
+    assert np.linalg.norm(m.v0 - [-30.0, 8.0]) < 15.0
+    # a clean track keeps the fine tolerance: the first stretch before a hit, not a long average
+    hit = np.stack([200.0 - 240.0 * t, 96.0 + 8.0 * t], axis=1)
+    hit[10:, 0] = hit[9, 0] + 120.0 * (t[10:] - t[9])     # struck back at frame 10
+    m = initial_motion(_track(hit), FPS)
+    assert m.n == 10 and m.v0[0] == pytest.approx(-240.0, abs=1.0)
