@@ -510,9 +510,11 @@ def working_size(crop: tuple[int, int, int, int], diameter: float) -> tuple[int,
 
 
 def scene_rate(video, fps: float | None, scene_fps: int) -> int:
-    """The scene's frame rate for a window chosen automatically: ``scene_fps``, or for a clip too
-    short to give :data:`MIN_WINDOW_FRAMES` frames at it (a 0.2 s free fall filmed at 1000 fps),
-    the smallest ``scene_fps * 2**k`` that does, at most the clip's own rate (issue 29).
+    """The scene's frame rate for a window chosen automatically: ``scene_fps``; the clip's own
+    rate (rounded) when it is slower (a 25 fps clip: a 30 fps scene would repeat every fifth
+    frame, and the repeats read as stops and jerks in the tracks); or for a clip too short to
+    give :data:`MIN_WINDOW_FRAMES` frames at ``scene_fps`` (a 0.2 s free fall filmed at 1000
+    fps), the smallest ``scene_fps * 2**k`` that does, at most the clip's own rate (issue 29).
 
     The container's frame count decides when the clip is clearly long enough; otherwise the clip
     is decoded (32 x 32 px) and its frames counted.
@@ -528,6 +530,8 @@ def scene_rate(video, fps: float | None, scene_fps: int) -> int:
     """
     n, container = declared_length(video)
     rate = fps or container
+    if 0 < rate < scene_fps - 0.5:   # no frame the camera did not record
+        return max(1, int(round(rate)))
     if n > 0 and rate > 0 and n / rate * scene_fps >= 2 * MIN_WINDOW_FRAMES:
         return int(scene_fps)
     clip = read_video(video, fps=fps, size=(32, 32))

@@ -121,7 +121,8 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
 
     Each object lies in the vertical plane at its own depth ``D = f / ppm`` (:func:`side_scale`);
     the camera height puts the floor ``z = 0`` under the lowest contact seen (the bottom of a
-    falling track) or at the image bottom. Returns ``(camera, objects, notes)``.
+    falling track, one radius under a bounce's impact, and never above the main object's start)
+    or at the image bottom. Returns ``(camera, objects, notes)``.
     """
     K = intrinsics(FOV_PRIOR, width, height)
     f, cu, cv = K[0, 0], K[0, 2], K[1, 2]
@@ -143,6 +144,9 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
         hit = first_bounce(whole_frames(tracks[main]), fps)
         if hit is not None:
             lowest = max(lowest, hit.v + 0.5 * tracks[main].diameter)
+        # nor can a fall start under the floor: a ball thrown up from below the view and seen
+        # landing further back (dev/06) starts where its first arc, extrapolated to t = 0, is
+        lowest = max(lowest, float(motions[main].p0[1]) + 0.5 * tracks[main].diameter)
     v_floor = lowest if kinds[main] == "fall" else max(lowest + 1.0, float(height))
     v_floor = max(v_floor, cv + 0.05 * height)
     cam_h = (v_floor - cv) * D0 / f
@@ -356,9 +360,15 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
     # a track that shows gravity somewhere takes its acceleration from there (the start of the
     # window may be a release by hand), and its state at t = 0 from its first stretch with
     # that acceleration (initial_state_given); the acceleration's evidence is the gravity
-    # window's frames, even when only a few frames precede the first bounce
-    side_motions = [replace(initial_state_given(t, fps, g.a), n=g.n, a_sd=g.a_sd) if ok else m
-                    for t, m, g, ok in zip(whole, motions, gravity, shows)]
+    # window's frames, even when only a few frames precede the first bounce. In a fall the
+    # simulator's only acceleration is gravity, straight down: a sideways curvature fitted to a
+    # noisy track would bend the horizontal velocity read at t = 0.
+    side_motions = []
+    for t, m, g, ok in zip(whole, motions, gravity, shows):
+        if ok:
+            a = np.array([0.0, g.a[1]]) if _side_motion_kind(t, g) == "fall" else g.a
+            m = replace(initial_state_given(t, fps, a), n=g.n, a_sd=g.a_sd)
+        side_motions.append(m)
     falls = any(ok and _side_motion_kind(t, m) == "fall" for t, m, ok in zip(tracks, side_motions, shows))
     # a clear fall settles it; a speed-up along a line may also be perspective (an object
     # rolling towards an oblique camera), so the top-down reading is tried as well

@@ -308,8 +308,9 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     if start is None:   # a clip too short for the window at realvideo.fps gets a higher scene rate
         scene_fps = scene_rate(video, fps, scene_fps)
         if scene_fps != rv.fps:
-            print(f"[infer] {video}: too short for {MIN_WINDOW_FRAMES} frames at {rv.fps} fps: "
-                  f"the scene runs at {scene_fps} fps")
+            why = (f"recorded at a lower rate than {rv.fps} fps" if scene_fps < rv.fps else
+                   f"too short for {MIN_WINDOW_FRAMES} frames at {rv.fps} fps")
+            print(f"[infer] {video}: {why}: the scene runs at {scene_fps} fps")
     obs = observe(video, fps, start, scene_fps, duration, fcfg,
                   rv.mask_method, max_objects)
     duration = obs.duration   # a clip shorter than the window is its own window, and the scene follows it

@@ -292,6 +292,23 @@ def test_unreadable_and_truncated_videos(tmp_path):
     assert not (tmp_path / "o").exists()
 
 
+def test_a_slower_clip_runs_at_its_own_rate_without_repeated_frames(tmp_path):
+    """dev/06 is filmed at 25 fps: a 30 fps scene repeated every fifth frame, and the repeats read
+    as stops in the track (a parabola through them gave 2567 px/s^2 sideways). The scene runs at
+    the clip's rate, and every observed frame is a different recorded one."""
+    from pipeline.flow import FlowConfig
+    from pipeline.observe import observe, scene_rate, source_frames
+
+    clip = moving_disc_avi(tmp_path / "slow.avi", n=60)
+    assert scene_rate(clip, 25.0, 30) == 25
+    assert scene_rate(clip, 29.97, 30) == 30                   # a container's NTSC rate is 30
+    obs = observe(clip, 25.0, None, scene_rate(clip, 25.0, 30), 1.0, FlowConfig())
+    src = source_frames(obs)
+    assert len(src) == 25 and np.all(np.diff(src) == 1)
+    # at 30 fps the same clip repeats frames
+    assert np.any(np.diff(source_frames(observe(clip, 25.0, None, 30, 1.0, FlowConfig()))) == 0)
+
+
 def test_a_short_high_speed_clip_gets_a_higher_scene_rate(tmp_path):
     """50 frames filmed at 240 fps are 0.208 s: 6 frames at the default 30 fps, fewer than the 8 a
     window needs; the scene rate doubles to 60 fps (12 frames) and the main job runs (issue 29,
