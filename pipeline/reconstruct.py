@@ -7,7 +7,9 @@ of motion at the video's aspect ratio (:mod:`pipeline.observe`), and proposes sc
 sources: the model's K samples (when a model is available) and the perception proposals
 (:mod:`pipeline.perception`, no training needed). All proposals are re-simulated and scored
 together (Best@K), and the best is refined by staged CMA-ES (:mod:`pipeline.search.staged`).
-Outputs in DIR:
+:func:`reconstruct` reads as these four steps: observe (:func:`pipeline.observe.observe`) ->
+propose (:func:`propose_candidates`: one list of :class:`Candidate`) -> search
+(:func:`search_scene`) -> report (:func:`pipeline.infer_report.write_outputs`). Outputs in DIR:
 
 * ``scene.yaml``: the refined scene (scene language v1, canonical form): the better, by the
   search's fitness, of the search's result and the Best@K pick it started from, each with
@@ -38,9 +40,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import shutil
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
@@ -48,23 +50,17 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
-from pipeline import infer_tracks, perception, shards, viz
-from pipeline.atomic import publish_dir, remove_stale_temps, temp_dir_for
+from pipeline import infer_report, perception
 from pipeline.flow import flow_config, flow_of
-from pipeline.labels import load_labels, score_against_labels
-from pipeline.npz import NpzWriter
-from pipeline.metrics import flow_epe, sequence_iou
+from pipeline.labels import load_labels
 from pipeline.mjcf import SimOptions
-from pipeline.observe import (LEARNED, MASK_METHODS, MIN_WINDOW_FRAMES, observe, original_frames, scene_rate,
-                              source_frames, upscale)
+from pipeline.observe import LEARNED, MASK_METHODS, MIN_WINDOW_FRAMES, Observation, observe, scene_rate
 from pipeline.params import ParamsError, load_params, path_of, section, typed_section
-from pipeline.render import render_scene
 from pipeline.sanity import PhysicsError, SanityConfig, check_simulation, resolve_overlaps
 from pipeline.scene import Scene, SceneError
 from pipeline.search import EvaluatorPool, SearchConfig, best_of_k, simplest_within
-from pipeline.search.staged import REFERENCE_WIDTH, score_scene, staged_refine
+from pipeline.search.staged import at_width, score_scene, staged_refine
 from pipeline.video import VideoError, read_video
-from pipeline.shard_viewer import camera_dict, scene_objects
 
 
 MAX_WINDOW_FRAMES = 300
@@ -177,15 +173,6 @@ def model_samples(model_dir: Path, frames: np.ndarray, params: dict, k: int | No
     return scenes, errors
 
 
-def _source_summary(scores: list[dict], sources: list[str], name: str) -> dict:
-    mine = [s for s, src in zip(scores, sources) if src == name]
-    valid = [s for s in mine if s["valid"]]
-    best = max(valid, key=lambda s: s["fitness"]) if valid else None
-    return {"proposals": len(mine), "valid": len(valid),
-            "best_full_iou": None if best is None else round(best["full_iou"], 4),
-            "best_fitness": None if best is None else round(best["fitness"], 4)}
-
-
 def writable(scene: Scene, sim: SimOptions, sanity: SanityConfig) -> tuple[Scene, list[str], str | None]:
     """The scene as the main job would write it: objects that start interpenetrating moved
     apart (:func:`pipeline.sanity.resolve_overlaps`), rounded to its canonical text, and checked
@@ -243,10 +230,127 @@ def choose_output(candidates: list[tuple[str, Scene]], obs_seg: np.ndarray, obs_
     return i, scenes[i], report
 
 
+@dataclass
+class Candidate:
+    """One proposal scored by Best@K.
+
+    Attributes:
+        scene: the proposed scene, or None (a model sample that is not a valid scene).
+        source: ``"model"`` or ``"perception"``.
+        label: a short name for people (``model sample 2``, ``perception: side: sphere``).
+        error: why ``scene`` is None (the sample's parse error), else None.
+    """
+
+    scene: Scene | None
+    source: str
+    label: str
+    error: str | None = None
+
+
+def propose_candidates(obs: Observation, mdir: Path | None, params: dict, rv: RealVideoConfig, k: int | None,
+                       seed: int) -> tuple[list[Candidate], perception.Proposals | None, list[str]]:
+    """Step 2 of the main job: the model's K samples (when ``mdir`` is a model folder) and the
+    perception proposals (:func:`pipeline.perception.propose`) for an observation.
+
+    Returns:
+        ``(candidates, proposals, notes)``: ``proposals`` is None when perception found no
+        object (``notes`` then says why).
+    Raises:
+        VideoError: no valid model sample and no object found: nothing to reconstruct.
+    """
+    candidates: list[Candidate] = []
+    if mdir is not None:
+        scenes, errs = model_samples(mdir, obs.frames, params, k, seed, obs.scene_fps, obs.duration)
+        candidates += [Candidate(sc, "model", f"model sample {i}", err) for i, (sc, err) in enumerate(zip(scenes, errs))]
+    proposals, notes = None, []
+    try:
+        proposals = perception.propose(obs.seg, obs.flow, obs.scene_fps, obs.duration, rv.max_objects,
+                                       still=obs.mask_method in LEARNED)
+        candidates += [Candidate(sc, "perception", f"perception: {lab}") for sc, lab in zip(proposals.scenes,
+                                                                                           proposals.labels)]
+        notes = proposals.notes
+    except perception.PerceptionError as exc:
+        notes = [f"perception: {exc}"]
+    if not any(c.scene is not None for c in candidates):
+        raise VideoError(f"{obs.clip.source}: nothing to reconstruct: no valid model sample and {notes[0]}")
+    print(f"[infer] {sum(c.source == 'model' for c in candidates)} model samples, "
+          f"{sum(c.source == 'perception' for c in candidates)} perception proposals")
+    return candidates, proposals, notes
+
+
+@dataclass
+class SearchOutcome:
+    """What step 3 of the main job found.
+
+    Attributes:
+        scores: Best@K's score dict per candidate (:func:`pipeline.search.best_of_k`).
+        fittest: index of the fittest candidate (the paper's Best@K).
+        best: index of the candidate the search started from (the fittest, or the one with the
+            fewest shape parameters within ``realvideo.shape_margin`` of it).
+        written: the scene written to ``scene.yaml``: the better of the staged CMA-ES result and
+            its start, made writable (:func:`choose_output`).
+        history: the staged CMA-ES history (:func:`pipeline.search.staged.staged_refine`).
+        search_gain: for metrics.json: which was written, the gain, the two candidates' scores.
+    """
+
+    scores: list[dict]
+    fittest: int
+    best: int
+    written: Scene
+    history: list[dict]
+    search_gain: dict
+
+
+def search_scene(candidates: list[Candidate], obs: Observation, scfg: SearchConfig, rv: RealVideoConfig,
+                 sim: SimOptions, sanity: SanityConfig, seed: int) -> SearchOutcome:
+    """Step 3 of the main job: Best@K over all candidates, the parsimony rule
+    (:func:`pipeline.search.simplest_within`), staged CMA-ES from the pick, and the choice of
+    what is written (:func:`choose_output`), all with the fitness of ``scfg`` at the
+    observation's width (:func:`pipeline.search.staged.at_width`).
+
+    Raises:
+        VideoError: no candidate could be simulated.
+    """
+    W, H = obs.size
+    scenes = [c.scene for c in candidates]
+    with EvaluatorPool(W, H, sim) as pool:
+        scores, best = best_of_k(scenes, obs.seg, obs.flow, at_width(scfg, W), sim, pool=pool)
+        if best is None:
+            raise VideoError(f"{obs.clip.source}: no proposal could be simulated ({scores[0].get('error')})")
+        fittest = best   # the paper's Best@K; then the simplest shapes the re-simulation cannot tell apart
+        best = simplest_within(scenes, scores, fittest, rv.shape_margin)
+        if best != fittest:
+            print(f"[infer] Best@K: {candidates[best].label} (fitness {scores[best]['fitness']:.4f}) over "
+                  f"{candidates[fittest].label} ({scores[fittest]['fitness']:.4f}): fewer shape parameters within "
+                  f"{rv.shape_margin:g}")
+        refined, history = staged_refine(scenes[best], obs.seg, obs.flow, scfg, sim, seed=seed,
+                                         restarts=rv.restarts, pool=pool, workers=rv.workers)
+        # what scene.yaml holds is what is scored: the better of the search's result and its
+        # start, each as written (overlaps resolved, canonical text) and as `dynamics simulate` checks it
+        chosen, written, choice = choose_output([("cmaes", refined), ("best_of_k", scenes[best])],
+                                                obs.seg, obs.flow, scfg, sim, sanity, pool=pool)
+    gain = choice[0]["fitness"] - choice[1]["fitness"]
+    search_gain = {
+        "written": choice[chosen]["name"], "fitness_gain": round(gain, 6),
+        "full_iou_gain": round(choice[0]["full_iou"] - choice[1]["full_iou"], 6),
+        "candidates": choice,
+        "note": ("the search found a gain over its start: its result is written" if chosen == 0 else
+                 "the search found no gain over its start (the Best@K pick): the start is written"
+                 if choice[0]["simulate_ok"] or not choice[1]["simulate_ok"] else
+                 "the search's result fails dynamics simulate's checks: the start is written"),
+    }
+    if not choice[chosen]["simulate_ok"]:
+        search_gain["note"] += f"; dynamics simulate refuses it: {choice[chosen]['problem']}"
+    print(f"[infer] {search_gain['note']} (fitness {choice[0]['fitness']:.4f} vs start {choice[1]['fitness']:.4f})")
+    return SearchOutcome(scores, fittest, best, written, history, search_gain)
+
+
 def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | None = None,
                 start: float | None = None, model_dir: str | Path | None = None, k: int | None = None,
                 seed: int = 0, use_model: bool = True, labels: str | Path | None = None) -> dict:
-    """Run the main job on one video and write its outputs (see module docstring).
+    """Run the main job on one video and write its outputs (see module docstring): observe
+    (:func:`pipeline.observe.observe`) -> propose (:func:`propose_candidates`) -> search
+    (:func:`search_scene`) -> report (:func:`pipeline.infer_report.write_outputs`).
 
     Args:
         video: video file path.
@@ -275,7 +379,6 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     # (benchmarks/search_eval.py --compare-lp); pixels do not depend on it
     os.environ.setdefault("LP_NUM_THREADS", "0")
     t0 = time.time()
-    out = Path(out)
     rv = realvideo_config(params)
     fcfg = flow_config(params)
     scfg = typed_section(params, "search", SearchConfig, required=True)
@@ -283,13 +386,11 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
                                    "epe_pixels": rv.epe_pixels})
     sim = typed_section(params, "sim", SimOptions, required=True)
     sanity = typed_section(params, "sanity", SanityConfig)
-    scene_fps, duration = rv.fps, rv.duration
-    frames = int(round(scene_fps * duration))
+    frames = int(round(rv.fps * rv.duration))
     if not 2 <= frames <= MAX_WINDOW_FRAMES:   # before any video is decoded
         raise ParamsError(f"{getattr(params, 'source', 'params.yaml')}: realvideo.duration * realvideo.fps: must give "
                           f"2..{MAX_WINDOW_FRAMES} frames (the main job holds the window's frames, flow and masks "
                           f"in memory, ~2.5 MB per frame), got {frames}")
-    max_objects = rv.max_objects
 
     # the model folder is checked first (milliseconds), before decoding the video (seconds)
     model_note, mdir = None, None
@@ -301,184 +402,30 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
             print(f"[infer] {model_note}")
     else:
         model_note = "model not used (--no-model)"
+    truth = None
+    if labels is not None:   # read (and checked) before the search, used only after it
+        truth = load_labels(labels, read_video(video, fps=fps, max_frames=1).original_size)
 
-    truth, labels_path = None, labels
-    if labels_path is not None:   # read (and checked) before the search, used only after it
-        truth = load_labels(labels_path, read_video(video, fps=fps, max_frames=1).original_size)
+    # 1. observe
+    scene_fps = rv.fps
     if start is None:   # a clip too short for the window at realvideo.fps gets a higher scene rate
-        scene_fps = scene_rate(video, fps, scene_fps)
+        scene_fps = scene_rate(video, fps, rv.fps)
         if scene_fps != rv.fps:
             why = (f"recorded at a lower rate than {rv.fps} fps" if scene_fps < rv.fps else
                    f"too short for {MIN_WINDOW_FRAMES} frames at {rv.fps} fps")
             print(f"[infer] {video}: {why}: the scene runs at {scene_fps} fps")
-    obs = observe(video, fps, start, scene_fps, duration, fcfg,
-                  rv.mask_method, max_objects)
-    duration = obs.duration   # a clip shorter than the window is its own window, and the scene follows it
+    obs = observe(video, fps, start, scene_fps, rv.duration, fcfg, rv.mask_method, rv.max_objects)
     W, H = obs.size
-    print(f"[infer] {video}: window {obs.start:.3f}-{obs.start + duration:.3f} s"
+    print(f"[infer] {video}: window {obs.start:.3f}-{obs.start + obs.duration:.3f} s"
           f"{' (chosen automatically)' if obs.auto else ''}, {len(obs.frames)} frames at {scene_fps} fps, "
           f"crop {obs.crop} -> {W}x{H} px")
-
-    candidates: list[Scene | None] = []
-    sources: list[str] = []
-    labels: list[str] = []
-    errors: list[str | None] = []
-    notes: list[str] = []
-    if mdir is not None:
-        scenes, errs = model_samples(mdir, obs.frames, params, k, seed, scene_fps, duration)
-        candidates += scenes
-        sources += ["model"] * len(scenes)
-        labels += [f"model sample {i}" for i in range(len(scenes))]
-        errors += errs
-    proposals = None
-    try:
-        proposals = perception.propose(obs.seg, obs.flow, scene_fps, duration, max_objects,
-                                       still=obs.mask_method in LEARNED)
-        candidates += proposals.scenes
-        sources += ["perception"] * len(proposals.scenes)
-        labels += [f"perception: {l}" for l in proposals.labels]
-        errors += [None] * len(proposals.scenes)
-        notes = proposals.notes
-    except perception.PerceptionError as exc:
-        notes = [f"perception: {exc}"]
-    if not any(c is not None for c in candidates):
-        raise VideoError(f"{video}: nothing to reconstruct: no valid model sample and {notes[0]}")
-    print(f"[infer] {sum(s == 'model' for s in sources)} model samples, "
-          f"{sum(s == 'perception' for s in sources)} perception proposals")
-
-    lam_cfg = scfg.model_copy(update={"lambda_epe": scfg.lambda_epe * REFERENCE_WIDTH / W})
-    with EvaluatorPool(W, H, sim) as pool:
-        scores, best = best_of_k(candidates, obs.seg, obs.flow, lam_cfg, sim, pool=pool)
-        if best is None:
-            raise VideoError(f"{video}: no proposal could be simulated ({scores[0].get('error')})")
-        fittest = best   # the paper's Best@K; then the simplest shapes the re-simulation cannot tell apart
-        best = simplest_within(candidates, scores, fittest, rv.shape_margin)
-        if best != fittest:
-            print(f"[infer] Best@K: {labels[best]} (fitness {scores[best]['fitness']:.4f}) over {labels[fittest]} "
-                  f"({scores[fittest]['fitness']:.4f}): fewer shape parameters within {rv.shape_margin:g}")
-        refined, history = staged_refine(candidates[best], obs.seg, obs.flow, scfg, sim, seed=seed,
-                                         restarts=rv.restarts, pool=pool,
-                                         workers=rv.workers)
-        # what scene.yaml holds is what is scored: the better of the search's result and its
-        # start, each as written (overlaps resolved, canonical text) and as `dynamics simulate` checks it
-        chosen, refined, choice = choose_output([("cmaes", refined), ("best_of_k", candidates[best])],
-                                                obs.seg, obs.flow, scfg, sim, sanity, pool=pool)
-    gain = choice[0]["fitness"] - choice[1]["fitness"]
-    search_gain = {
-        "written": choice[chosen]["name"], "fitness_gain": round(gain, 6),
-        "full_iou_gain": round(choice[0]["full_iou"] - choice[1]["full_iou"], 6),
-        "candidates": choice,
-        "note": ("the search found a gain over its start: its result is written" if chosen == 0 else
-                 "the search found no gain over its start (the Best@K pick): the start is written"
-                 if choice[0]["simulate_ok"] or not choice[1]["simulate_ok"] else
-                 "the search's result fails dynamics simulate's checks: the start is written"),
-    }
-    if not choice[chosen]["simulate_ok"]:
-        search_gain["note"] += f"; dynamics simulate refuses it: {choice[chosen]['problem']}"
-    print(f"[infer] {search_gain['note']} (fitness {choice[0]['fitness']:.4f} vs start {choice[1]['fitness']:.4f})")
-
-    def score(scene: Scene) -> tuple[dict, object]:
-        trace, fr = render_scene(scene, W, H, options=sim)
-        iou = sequence_iou(obs.seg, fr.seg)
-        # strict: per observed object over the frames where it or its match is visible (no free
-        # credit for frames where both are absent; issue 29 item 7; the search's fitness IoU),
-        # reported beside full_iou (docs/design.md §7)
-        strict = iou["strict_iou"]
-        epe = flow_epe(fr.flow, obs.flow, fr.seg[:-1] >= 0, obs.seg[:-1] >= 0)
-        return {"initial_iou": round(iou["initial_iou"], 4), "full_iou": round(iou["full_iou"], 4),
-                "strict_full_iou": None if not np.isfinite(strict) else round(float(strict), 4),
-                "foreground_iou_full": round(iou["foreground_iou_full"], 4), "epe": round(epe, 4)}, (trace, fr)
-
-    first_i = next(i for i, c in enumerate(candidates) if c is not None)
-    m_first, _ = score(candidates[first_i])
-    m_best, _ = score(candidates[best])
-    m_ref, (trace, fr) = score(refined)
-
-    # every file is written into a temporary folder beside OUT and published at the end
-    # (pipeline.atomic.publish_dir): a run killed midway (or out of memory) leaves no OUT that
-    # looks complete, only a hidden temporary folder that the next run removes
-    final = out
-    remove_stale_temps(final)
-    out = temp_dir_for(final)
-    try:
-        shards.write_text(out / "scene.yaml", refined.to_yaml())
-        with NpzWriter(out / "masks.npz") as npz:   # the masks that were scored, as `dynamics simulate` writes them
-            npz.write("seg", fr.seg)
-            npz.write("names", np.asarray(refined.object_names))
-        with NpzWriter(out / "observation.npz") as npz:   # what was fitted, to be checked against truth
-            for key, value in (("seg", obs.seg.astype(np.int8)), ("crop", np.asarray(obs.crop, dtype=np.int64)),
-                               ("size", np.asarray(obs.size, dtype=np.int64)), ("start", np.float64(obs.start)),
-                               ("fps", np.float64(scene_fps)), ("source_fps", np.float64(obs.clip.fps)),
-                               ("source_frames", source_frames(obs))):
-                npz.write(key, value)
-        # for people: original frames at panel height, masks drawn over them
-        ph = rv.panel_height
-        orig = original_frames(obs, video, fps, height=ph)
-        psize = (orig.shape[2], orig.shape[1])
-        _, big = render_scene(refined, psize[0], psize[1], options=sim)
-        obs_overlay = viz.mask_overlay(orig, upscale(obs.seg, psize))
-        pred_overlay = viz.mask_overlay(orig, big.seg)
-        cols = [obs_overlay, pred_overlay, big.rgb]
-        names = ["observed + pseudo-GT masks", "observed + re-simulated masks", "re-simulated"]
-        viz.side_by_side_mp4(out / "side_by_side.mp4", cols, names, fps=scene_fps)
-        sheet_h = rv.sheet_height  # px per tile: six columns of 320 px tiles make a 6 MB PNG
-        small = [np.stack([cv2.resize(f, (max(2, round(f.shape[1] * sheet_h / f.shape[0])), sheet_h),
-                                      interpolation=cv2.INTER_AREA) for f in c]) for c in cols]
-        viz.contact_sheet(out / "contact_sheet.png", small, names,
-                          title=f"{Path(video).name}: full IoU {m_ref['full_iou']:.3f} (pseudo GT), "
-                                f"{len(refined.objects)} objects, window {obs.start:.2f}-{obs.start + duration:.2f} s")
-        clip = obs.clip
-        tracks = proposals.tracks if proposals else []
-        metrics = {
-            "video": str(video), "fps_used": clip.fps, "container_fps": clip.container_fps,
-            "window": {"start_s": round(obs.start, 4), "chosen_automatically": obs.auto, "duration_s": duration,
-                       "frames": len(obs.frames), "fps": scene_fps, "crop": list(obs.crop),
-                       "width": W, "height": H, "original_size": list(clip.original_size)},
-            "ground_truth": "pseudo: masks from background subtraction, flow from the same estimator "
-                            f"({obs.flow_method})",
-            "objects_found": len(tracks),
-            "object_pixels": [round(float(np.median(t.area)), 1) for t in tracks],
-            "view": proposals.view if proposals else None,
-            "perception_notes": notes, "model_note": model_note,
-            "sources": {name: _source_summary(scores, sources, name) for name in ("model", "perception")},
-            "proposals": [{"source": src, "label": lab, "valid": s["valid"],
-                           "full_iou": None if not s["valid"] else round(s["full_iou"], 4),
-                           "fitness": None if not s["valid"] else round(s["fitness"], 4)}
-                          for src, lab, s in zip(sources, labels, scores)],
-            "sample_errors": [e for e in errors if e][:5],
-            "first_sample_source": sources[first_i], "first_sample": m_first,
-            "best_of_k_source": sources[best], "best_of_k_label": labels[best], "best_of_k": m_best,
-            "best_of_k_fittest_label": labels[fittest],
-            "best_of_k_cmaes": m_ref, "search_gain": search_gain,
-            "cmaes_evaluations": int(history[-1]["evaluations"]) if history else 0,
-            "cmaes_seconds": float(history[-1]["seconds"]) if history else 0.0,
-            "seconds": round(time.time() - t0, 1),
-        }
-        if truth is not None:
-            metrics["against_labels"] = {"labels": str(labels_path), **score_against_labels(truth, obs, fr.seg)}
-        if tracks:   # observed tracks in the scene's world frame: input of `dynamics discrepancy OUT`
-            table = infer_tracks.tracks_table(refined, trace.qpos, tracks, scene_fps, W, H, clip=Path(video).stem)
-            infer_tracks.write_tracks(out / "tracks.csv", table)
-            gap = infer_tracks.resimulation_gap(table, infer_tracks.observed_axes(refined)) if table["t"] else None
-            metrics["tracks"] = {"file": "tracks.csv", "rows": len(table["t"]),
-                                 "resimulation_rmse_px": None if gap is None else round(gap["rmse_px"], 3)}
-        shards.write_json(out / "metrics.json", metrics)
-        viz.record_clip(out / "recording.rrd", rgb=obs.frames, seg=fr.seg, flow=obs.flow,
-                        positions=trace.qpos[..., :3], quaternions=trace.qpos[..., 3:],
-                        objects=scene_objects(refined), camera=camera_dict(refined, W, H), fps=scene_fps,
-                        app_id="dynamics_infer",
-                        scalars={"iou/frame": sequence_iou(obs.seg, fr.seg)["per_frame"]})
-        publish_dir(out, final)
-    finally:
-        if out.exists():
-            shutil.rmtree(out, ignore_errors=True)
-    if truth is not None:
-        a = metrics["against_labels"]
-        print(f"[infer] against {labels_path} ({a['n_labelled']} labelled frames in the window): re-simulation "
-              f"{a['resim_vs_labels']}, observation {a['observation_vs_labels']} (matched IoU)")
-    print(f"[infer] wrote {final}: full IoU {m_ref['full_iou']:.3f} (pseudo GT), EPE {m_ref['epe']:.2f} px, "
-          f"{len(refined.objects)} objects, best proposal: {labels[best]}, {metrics['seconds']} s")
-    return metrics
+    # 2. propose
+    candidates, proposals, notes = propose_candidates(obs, mdir, params, rv, k, seed)
+    # 3. search
+    outcome = search_scene(candidates, obs, scfg, rv, sim, sanity, seed)
+    # 4. report
+    return infer_report.write_outputs(out, video, fps, obs, candidates, outcome, proposals, notes, model_note,
+                                      rv, sim, truth=truth, labels_path=labels, started=t0)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

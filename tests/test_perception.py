@@ -189,6 +189,7 @@ def test_dynamics_infer_without_model(tmp_path, capsys, monkeypatch):
 def test_dynamics_infer_killed_midway_leaves_no_output_folder(tmp_path, monkeypatch):
     """Issue 35: the main job stages its files beside OUT and publishes them at the end; failing
     (or killed) at the last file leaves no OUT, and the staging folder is gone."""
+    from pipeline import infer_report
     from pipeline import reconstruct as rec
 
     video, params = _puck_clip_without_model(tmp_path, monkeypatch, iterations=1)
@@ -197,7 +198,7 @@ def test_dynamics_infer_killed_midway_leaves_no_output_folder(tmp_path, monkeypa
         assert (Path(path).parent / "metrics.json").exists()
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(rec.viz, "record_clip", killed)
+    monkeypatch.setattr(infer_report.viz, "record_clip", killed)
     out = tmp_path / "out"
     with pytest.raises(KeyboardInterrupt):
         rec.reconstruct(video, out, params, start=0.0)

@@ -40,6 +40,13 @@ REFERENCE_WIDTH = 96
 """px: ``search.lambda_epe`` is per px of an image this wide (the small profile's renders)."""
 
 
+def at_width(cfg: SearchConfig, width: int) -> SearchConfig:
+    """``cfg`` with ``lambda_epe`` (given per px of a :data:`REFERENCE_WIDTH` px wide image)
+    rescaled to an image ``width`` px wide: the same motion is ``width / 96`` times more px there,
+    so it weighs the same in the fitness at any resolution. The one place this scaling is done."""
+    return cfg.model_copy(update={"lambda_epe": cfg.lambda_epe * REFERENCE_WIDTH / width})
+
+
 def scaled_ranges(scene: Scene) -> SearchRanges:
     """Search box scaled to a scene: with ``L`` the median bounding radius of its objects (m),
     ``D`` the mean camera-to-object distance (m) and ``v`` the largest initial speed (m/s):
@@ -84,7 +91,7 @@ def staged_refine(scene: Scene, obs_seg: np.ndarray, obs_flow: np.ndarray | None
         and ``restart`` added and ``evaluations`` / ``seconds`` cumulative over all stages.
     """
     T, H, W = np.shape(obs_seg)
-    lam = cfg.lambda_epe * REFERENCE_WIDTH / W
+    lam = at_width(cfg, W).lambda_epe
     own = pool is None
     pool = pool or EvaluatorPool(W, H, options)
     scorer = ParallelFitness(obs_seg, obs_flow, cfg, options, workers) if workers > 1 else None
@@ -120,7 +127,5 @@ def staged_refine(scene: Scene, obs_seg: np.ndarray, obs_flow: np.ndarray | None
 def score_scene(scene: Scene, obs_seg: np.ndarray, obs_flow: np.ndarray | None, cfg: SearchConfig,
                 options: SimOptions | None = None, pool: EvaluatorPool | None = None) -> dict[str, Any]:
     """Fitness terms of one scene with the width-scaled ``lambda`` of :func:`staged_refine`."""
-    W = np.shape(obs_seg)[2]
-    c = cfg.model_copy(update={"lambda_epe": cfg.lambda_epe * REFERENCE_WIDTH / W})
-    scores, _ = best_of_k([scene], obs_seg, obs_flow, c, options, pool=pool)
+    scores, _ = best_of_k([scene], obs_seg, obs_flow, at_width(cfg, np.shape(obs_seg)[2]), options, pool=pool)
     return scores[0]

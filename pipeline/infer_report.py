@@ -1,0 +1,174 @@
+"""Step 4 of the main job (:mod:`pipeline.reconstruct`): the outputs of ``dynamics infer``.
+
+:func:`write_outputs` scores the first sample, the Best@K pick and the written scene against the
+observation, renders the figures and writes every file of the output folder (listed in
+:mod:`pipeline.reconstruct`'s docstring) into a temporary folder beside it, published at the end
+(:func:`pipeline.atomic.publish_dir`): a run killed midway leaves no folder that looks complete.
+"""
+
+from __future__ import annotations
+
+import shutil
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+
+from pipeline import infer_tracks, shards, viz
+from pipeline.atomic import publish_dir, remove_stale_temps, temp_dir_for
+from pipeline.labels import score_against_labels
+from pipeline.metrics import flow_epe, sequence_iou
+from pipeline.mjcf import SimOptions
+from pipeline.npz import NpzWriter
+from pipeline.observe import Observation, original_frames, source_frames, upscale
+from pipeline.render import render_scene
+from pipeline.scene import Scene
+from pipeline.shard_viewer import camera_dict, scene_objects
+
+if TYPE_CHECKING:   # the main job's types; importing them here would be circular
+    from pipeline.perception import Proposals
+    from pipeline.reconstruct import Candidate, RealVideoConfig, SearchOutcome
+
+
+def scene_scores(scene: Scene, obs: Observation, sim: SimOptions) -> tuple[dict, tuple]:
+    """Re-simulate ``scene`` at the observation's working size and score it against the
+    observation (docs/design.md §7).
+
+    Returns:
+        ``({initial_iou, full_iou, strict_full_iou, foreground_iou_full, epe}, (trace, frames))``:
+        IoUs in [0, 1] (``strict_full_iou`` None when no observed object is visible: no free
+        credit, issue 29 item 7), EPE in px over the union of foregrounds; the render for reuse.
+    """
+    W, H = obs.size
+    trace, fr = render_scene(scene, W, H, options=sim)
+    iou = sequence_iou(obs.seg, fr.seg)
+    strict = iou["strict_iou"]
+    epe = flow_epe(fr.flow, obs.flow, fr.seg[:-1] >= 0, obs.seg[:-1] >= 0)
+    return {"initial_iou": round(iou["initial_iou"], 4), "full_iou": round(iou["full_iou"], 4),
+            "strict_full_iou": None if not np.isfinite(strict) else round(float(strict), 4),
+            "foreground_iou_full": round(iou["foreground_iou_full"], 4), "epe": round(epe, 4)}, (trace, fr)
+
+
+def source_summary(candidates: list["Candidate"], scores: list[dict], source: str) -> dict:
+    """Per proposal source (``model``, ``perception``): how many, how many valid, and the best
+    one's full IoU and fitness (None when none is valid)."""
+    mine = [s for c, s in zip(candidates, scores) if c.source == source]
+    valid = [s for s in mine if s["valid"]]
+    best = max(valid, key=lambda s: s["fitness"]) if valid else None
+    return {"proposals": len(mine), "valid": len(valid),
+            "best_full_iou": None if best is None else round(best["full_iou"], 4),
+            "best_fitness": None if best is None else round(best["fitness"], 4)}
+
+
+def write_outputs(out: str | Path, video: str | Path, fps: float | None, obs: Observation,
+                  candidates: list["Candidate"], outcome: "SearchOutcome", proposals: "Proposals | None",
+                  notes: list[str], model_note: str | None, rv: "RealVideoConfig", sim: SimOptions,
+                  truth: np.ndarray | None = None, labels_path: str | Path | None = None,
+                  started: float | None = None) -> dict:
+    """Write the main job's output folder and return its metrics.
+
+    Args:
+        out: output folder (replaced as a whole at the end).
+        video: the video file; fps: its true frame rate (overrides the container's), or None.
+        obs: the observation the search fitted.
+        candidates, outcome: the proposals and what the search made of them.
+        proposals, notes, model_note: perception's result and notes, the model's note.
+        rv: the ``realvideo`` section (figure sizes).
+        sim: simulation options.
+        truth: hand labels of the video (:func:`pipeline.labels.load_labels`), or None;
+            ``labels_path`` where they came from.
+        started: ``time.time()`` when the job started (for ``seconds``).
+    Returns:
+        the metrics dict written to ``metrics.json``.
+    """
+    started = time.time() if started is None else started
+    scores, best, written = outcome.scores, outcome.best, outcome.written
+    W, H = obs.size
+    scene_fps, duration = obs.scene_fps, obs.duration
+    first_i = next(i for i, c in enumerate(candidates) if c.scene is not None)
+    m_first, _ = scene_scores(candidates[first_i].scene, obs, sim)
+    m_best, _ = scene_scores(candidates[best].scene, obs, sim)
+    m_ref, (trace, fr) = scene_scores(written, obs, sim)
+    history = outcome.history
+
+    final = Path(out)
+    remove_stale_temps(final)
+    out = temp_dir_for(final)
+    try:
+        shards.write_text(out / "scene.yaml", written.to_yaml())
+        with NpzWriter(out / "masks.npz") as npz:   # the masks that were scored, as `dynamics simulate` writes them
+            npz.write("seg", fr.seg)
+            npz.write("names", np.asarray(written.object_names))
+        with NpzWriter(out / "observation.npz") as npz:   # what was fitted, to be checked against truth
+            for key, value in (("seg", obs.seg.astype(np.int8)), ("crop", np.asarray(obs.crop, dtype=np.int64)),
+                               ("size", np.asarray(obs.size, dtype=np.int64)), ("start", np.float64(obs.start)),
+                               ("fps", np.float64(scene_fps)), ("source_fps", np.float64(obs.clip.fps)),
+                               ("source_frames", source_frames(obs))):
+                npz.write(key, value)
+        # for people: original frames at panel height, masks drawn over them
+        orig = original_frames(obs, video, fps, height=rv.panel_height)
+        psize = (orig.shape[2], orig.shape[1])
+        _, big = render_scene(written, psize[0], psize[1], options=sim)
+        cols = [viz.mask_overlay(orig, upscale(obs.seg, psize)), viz.mask_overlay(orig, big.seg), big.rgb]
+        names = ["observed + pseudo-GT masks", "observed + re-simulated masks", "re-simulated"]
+        viz.side_by_side_mp4(out / "side_by_side.mp4", cols, names, fps=scene_fps)
+        sheet_h = rv.sheet_height  # px per tile: six columns of 320 px tiles make a 6 MB PNG
+        small = [np.stack([cv2.resize(f, (max(2, round(f.shape[1] * sheet_h / f.shape[0])), sheet_h),
+                                      interpolation=cv2.INTER_AREA) for f in c]) for c in cols]
+        viz.contact_sheet(out / "contact_sheet.png", small, names,
+                          title=f"{Path(video).name}: full IoU {m_ref['full_iou']:.3f} (pseudo GT), "
+                                f"{len(written.objects)} objects, window {obs.start:.2f}-{obs.start + duration:.2f} s")
+        clip = obs.clip
+        tracks = proposals.tracks if proposals else []
+        metrics = {
+            "video": str(video), "fps_used": clip.fps, "container_fps": clip.container_fps,
+            "window": {"start_s": round(obs.start, 4), "chosen_automatically": obs.auto, "duration_s": duration,
+                       "frames": len(obs.frames), "fps": scene_fps, "crop": list(obs.crop),
+                       "width": W, "height": H, "original_size": list(clip.original_size)},
+            "ground_truth": "pseudo: masks from background subtraction, flow from the same estimator "
+                            f"({obs.flow_method})",
+            "objects_found": len(tracks),
+            "object_pixels": [round(float(np.median(t.area)), 1) for t in tracks],
+            "view": proposals.view if proposals else None,
+            "perception_notes": notes, "model_note": model_note,
+            "sources": {name: source_summary(candidates, scores, name) for name in ("model", "perception")},
+            "proposals": [{"source": c.source, "label": c.label, "valid": s["valid"],
+                           "full_iou": None if not s["valid"] else round(s["full_iou"], 4),
+                           "fitness": None if not s["valid"] else round(s["fitness"], 4)}
+                          for c, s in zip(candidates, scores)],
+            "sample_errors": [c.error for c in candidates if c.error][:5],
+            "first_sample_source": candidates[first_i].source, "first_sample": m_first,
+            "best_of_k_source": candidates[best].source, "best_of_k_label": candidates[best].label,
+            "best_of_k": m_best, "best_of_k_fittest_label": candidates[outcome.fittest].label,
+            "best_of_k_cmaes": m_ref, "search_gain": outcome.search_gain,
+            "cmaes_evaluations": int(history[-1]["evaluations"]) if history else 0,
+            "cmaes_seconds": float(history[-1]["seconds"]) if history else 0.0,
+            "seconds": round(time.time() - started, 1),
+        }
+        if truth is not None:
+            metrics["against_labels"] = {"labels": str(labels_path), **score_against_labels(truth, obs, fr.seg)}
+        if tracks:   # observed tracks in the scene's world frame: input of `dynamics discrepancy OUT`
+            table = infer_tracks.tracks_table(written, trace.qpos, tracks, scene_fps, W, H, clip=Path(video).stem)
+            infer_tracks.write_tracks(out / "tracks.csv", table)
+            gap = infer_tracks.resimulation_gap(table, infer_tracks.observed_axes(written)) if table["t"] else None
+            metrics["tracks"] = {"file": "tracks.csv", "rows": len(table["t"]),
+                                 "resimulation_rmse_px": None if gap is None else round(gap["rmse_px"], 3)}
+        shards.write_json(out / "metrics.json", metrics)
+        viz.record_clip(out / "recording.rrd", rgb=obs.frames, seg=fr.seg, flow=obs.flow,
+                        positions=trace.qpos[..., :3], quaternions=trace.qpos[..., 3:],
+                        objects=scene_objects(written), camera=camera_dict(written, W, H), fps=scene_fps,
+                        app_id="dynamics_infer",
+                        scalars={"iou/frame": sequence_iou(obs.seg, fr.seg)["per_frame"]})
+        publish_dir(out, final)
+    finally:
+        if out.exists():
+            shutil.rmtree(out, ignore_errors=True)
+    if truth is not None:
+        a = metrics["against_labels"]
+        print(f"[infer] against {labels_path} ({a['n_labelled']} labelled frames in the window): re-simulation "
+              f"{a['resim_vs_labels']}, observation {a['observation_vs_labels']} (matched IoU)")
+    print(f"[infer] wrote {final}: full IoU {m_ref['full_iou']:.3f} (pseudo GT), EPE {m_ref['epe']:.2f} px, "
+          f"{len(written.objects)} objects, best proposal: {candidates[best].label}, {metrics['seconds']} s")
+    return metrics
