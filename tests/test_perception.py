@@ -203,3 +203,27 @@ def test_dynamics_infer_killed_midway_leaves_no_output_folder(tmp_path, monkeypa
     with pytest.raises(KeyboardInterrupt):
         rec.reconstruct(video, out, params, start=0.0)
     assert not out.exists() and not list(tmp_path.glob(".out.*"))
+
+
+def test_drop_entering_at_the_top_and_bouncing_below_the_view(tmp_path):
+    """Issue 29, dev/03: a ball falls into the view through its top edge and bounces on a floor
+    just below its bottom edge (the impact is cut by the border). Read from the whole
+    silhouettes only, the fall gives the metric scale (the ball's size), the bounce the
+    coefficient of restitution, and the floor lies under the impact, not at the image's last
+    row; the proposal then re-simulates what was observed."""
+    from pipeline.metrics import sequence_iou
+
+    truth = Scene.from_dict({"duration": 1.0, "fps": FPS, "camera": {"height": 0.27, "pitch": 0.0, "fov": 45.0},
+                             "objects": [{"shape": "sphere", "size": {"radius": 0.03}, "mass": 0.1,
+                                          "position": [0.0, -1.4, 0.6]}],
+                             "effects": [{"effect": "restitution", "parameters": {"e": 0.6}}]})
+    obs, props = _recover(tmp_path, truth, "drop")
+    assert props.view == "side" and len(props.tracks) == 1
+    first = props.scenes[0]
+    assert first.objects[0].size.radius == pytest.approx(0.03, rel=0.2)
+    (e,) = [fx.parameters["e"] for fx in first.effects if fx.effect == "restitution"]
+    assert e == pytest.approx(0.6, abs=0.12)
+    # the floor: the camera height above it, in metres at the recovered scale
+    assert first.camera.height == pytest.approx(0.27, rel=0.15)
+    _, fr = render_scene(first, obs.size[0], obs.size[1])
+    assert sequence_iou(obs.seg, fr.seg)["strict_iou"] > 0.5
