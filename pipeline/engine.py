@@ -37,7 +37,7 @@ from pipeline.effects import REGISTRY
 from pipeline.mjcf import SimOptions, compile_model, object_ids
 from pipeline.scene import Camera, Scene
 
-__all__ = ["ModelBase", "snapshot", "compile_for_fit", "configure_model", "structure_key", "object_bodies",
+__all__ = ["EDITED_IN_PLACE", "ModelBase", "snapshot", "compile_for_fit", "configure_model", "structure_key", "object_bodies",
            "set_object_size", "set_object_mass", "set_camera", "set_stat", "refresh_constants"]
 
 
@@ -135,15 +135,23 @@ def configure_model(model: mujoco.MjModel, base: ModelBase, geoms: np.ndarray,
 
 
 # --------------------------------------------------------------------------- structure
+EDITED_IN_PLACE = frozenset({"restitution"})
+"""Effects whose parameters :class:`pipeline.search.SceneEvaluator` writes into a compiled model
+per candidate (``restitution``: the objects' ``solref``), so that the search can vary them: only
+their presence is part of :func:`structure_key`."""
+
+
 def structure_key(scene: Scene) -> tuple:
-    """What a compiled model fixes: the shapes in order, the effects with their parameters and
-    the static geometry (``Scene.static``: fixed boxes / planes such as ramps and walls, compiled
-    into the worldbody; absent in scenes without it).
+    """What a compiled model fixes: the shapes in order, the effects with their parameters (of
+    those in :data:`EDITED_IN_PLACE` only the name) and the static geometry (``Scene.static``:
+    fixed boxes / planes such as ramps and walls, compiled into the worldbody; absent in scenes
+    without it).
 
     Scenes with equal keys can share one compiled model (e.g. one
     :class:`pipeline.search.SceneEvaluator`).
     """
-    effects = tuple((e.effect, tuple(sorted(e.parameters.items()))) for e in scene.effects)
+    effects = tuple((e.effect, () if e.effect in EDITED_IN_PLACE else tuple(sorted(e.parameters.items())))
+                    for e in scene.effects)
     static = tuple(g.model_dump_json() if hasattr(g, "model_dump_json") else repr(g)
                    for g in (getattr(scene, "static", None) or ()))
     return tuple(o.shape for o in scene.objects), effects, static

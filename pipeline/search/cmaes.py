@@ -61,6 +61,7 @@ def cmaes_refine(scene: Scene, obs_seg: np.ndarray, obs_flow: np.ndarray | None,
     ev = None if scorer is not None else SceneEvaluator(scene, W, H, options) if pool is None else pool.get(scene)
     try:
         def score_all(xs: list[np.ndarray]) -> list[dict[str, float]]:
+            xs = [np.asarray(x)[: space.dim] for x in xs]   # a padding coordinate (1-D search) is unused
             cands = [space.decode(x) if space.dim else scene for x in xs]
             priors = [space.prior(x) for x in xs]
             if scorer is not None:
@@ -89,7 +90,10 @@ def cmaes_refine(scene: Scene, obs_seg: np.ndarray, obs_flow: np.ndarray | None,
             opts = {"popsize": cfg.popsize, "bounds": [0.0, 1.0], "seed": int(seed) % (2**31 - 2) + 1,
                     "verbose": -9, "maxiter": cfg.iterations, "tolfun": 0.0, "tolfunhist": 0.0,
                     "tolflatfitness": cfg.iterations + 1, "tolx": 0.0}
-            es = cma.CMAEvolutionStrategy(space.x0.tolist(), cfg.sigma, opts)
+            # cma needs 2 dimensions at least: a single free parameter (a restitution alone) gets a
+            # second, unused one
+            x0 = space.x0.tolist() + ([0.5] if space.dim == 1 else [])
+            es = cma.CMAEvolutionStrategy(x0, cfg.sigma, opts)
             for it in range(1, cfg.iterations + 1):
                 xs = es.ask()
                 results = score_all([np.asarray(x) for x in xs])
@@ -104,4 +108,4 @@ def cmaes_refine(scene: Scene, obs_seg: np.ndarray, obs_flow: np.ndarray | None,
     finally:
         if own:
             ev.close()
-    return (space.decode(best_x) if space.dim else scene), history
+    return (space.decode(best_x[: space.dim]) if space.dim else scene), history

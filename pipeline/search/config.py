@@ -9,7 +9,7 @@ from typing import Literal, get_args
 from pydantic import BaseModel, ConfigDict, Field
 
 FreeField = Literal["position", "linear_velocity", "angular_velocity", "yaw", "size", "camera",
-                    "mass", "friction", "damping"]
+                    "mass", "friction", "damping", "restitution"]
 FREE_FIELDS: tuple[str, ...] = get_args(FreeField)
 """Field groups CMA-ES may search (``search.free``)."""
 
@@ -31,6 +31,8 @@ class SearchRanges(BaseModel):
         camera_position: m per coordinate (6-DoF camera form).
         camera_angle: deg, pitch (and yaw/roll of a 6-DoF camera).
         fov: deg, vertical field of view.
+        restitution: coefficient of restitution ``e`` of a ``restitution`` effect (within the
+            effect's bounds, :data:`pipeline.effects.REGISTRY`).
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -47,6 +49,7 @@ class SearchRanges(BaseModel):
     camera_position: float = Field(0.15, ge=0)
     camera_angle: float = Field(5.0, ge=0)
     fov: float = Field(8.0, ge=0)
+    restitution: float = Field(0.2, ge=0)
 
 
 class SearchConfig(BaseModel):

@@ -4,8 +4,8 @@
 (:func:`pipeline.engine.structure_key`: same shapes in the same order, same effects, same
 static geometry) and, for each candidate, edits the ``mjModel`` in place with the engine's
 functions (:mod:`pipeline.engine`: masses, inertias, sizes, bounding volumes, camera, then the
-derived constants and ``mjModel.stat``; here also friction, damping, gravity and the ``init``
-keyframe), then rolls out and renders segmentation and exact flow with one reused
+derived constants and ``mjModel.stat``; here also friction, damping, gravity, the contact
+``solref`` of a ``restitution`` effect and the ``init`` keyframe), then rolls out and renders segmentation and exact flow with one reused
 :class:`pipeline.render.FrameRenderer`. ``tests/test_search.py`` checks fast == naive (rebuild
 the XML per candidate).
 """
@@ -15,8 +15,9 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from pipeline.engine import (object_bodies, refresh_constants, set_camera, set_object_mass, set_object_size,
-                             structure_key)
+from pipeline.effects import REGISTRY, resolve_params
+from pipeline.engine import (EDITED_IN_PLACE, object_bodies, refresh_constants, set_camera, set_object_mass,
+                             set_object_size, structure_key)
 from pipeline.mjcf import SimOptions, compile_model, initial_state
 from pipeline.render import FrameRenderer
 from pipeline.scene import Scene
@@ -93,6 +94,9 @@ class SceneEvaluator:
             m.geom_friction[g, 2] = obj.material.rolling_friction
             dof = m.body_dofadr[b]
             m.dof_damping[dof: dof + 6] = obj.material.damping
+        for fx in scene.effects:   # the effects structure_key leaves out of the structure
+            if fx.effect in EDITED_IN_PLACE:
+                REGISTRY[fx.effect].set_model(m, resolve_params(fx.effect, fx.parameters, "<search>"), self.geoms, None)
         m.qpos0[: len(qpos)] = qpos
         m.qpos_spring[: len(qpos)] = qpos
         m.key_qpos[0, : len(qpos)] = qpos

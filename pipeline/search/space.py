@@ -8,6 +8,7 @@ from typing import Iterable
 
 import numpy as np
 
+from pipeline.effects import REGISTRY
 from pipeline.geometry import support_height
 from pipeline.rotation import quat_mul, quat_to_mat, yaw_quat
 from pipeline.scene import Scene
@@ -110,6 +111,13 @@ class SearchSpace:
             add("camera.pitch", ("camera", "pitch"), v, max(-89.0, v - r.camera_angle), min(89.0, v + r.camera_angle))
             v = cam.fov
             add("camera.fov", ("camera", "fov"), v, max(1.5, v - r.fov), min(178.5, v + r.fov))
+        if "restitution" in free:   # written into the compiled model per candidate (SceneEvaluator)
+            spec = REGISTRY["restitution"].parameters["e"]
+            for j, fx in enumerate(scene.effects):
+                if fx.effect == "restitution":
+                    v = float(fx.parameters.get("e", spec.default))
+                    add(f"effects[{j}].e", ("effects", j, "parameters", "e"), v,
+                        max(spec.low, v - r.restitution), min(spec.high, v + r.restitution))
         self.lo, self.hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
         self.x0 = np.clip(np.asarray(x0, dtype=np.float64), 0.0, 1.0)
 

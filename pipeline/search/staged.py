@@ -30,7 +30,7 @@ from pipeline.search.parallel_eval import ParallelFitness
 
 STAGES: tuple[tuple[str, ...], ...] = (
     ("camera", "position", "yaw"),
-    ("linear_velocity", "angular_velocity"),
+    ("linear_velocity", "angular_velocity", "restitution"),
     ("size", "friction"),
     ("position", "linear_velocity"),
 )
