@@ -174,11 +174,17 @@ def object_tracks(seg: np.ndarray, flow: np.ndarray | None, max_objects: int = 4
     """The tracks that are objects: seen in at least 30 % of the frames (4 at least), moving
     somewhere (:func:`find_tracks`; and the centroid travels at least half a diameter: blobs
     that flicker in place, lighting changes, are not objects), at least 35 % of the largest
-    one's median area (reflections, shadows and flicker are smaller), the ``max_objects``
+    one's median area (reflections, shadows and flicker are smaller), seen whole (not cut by
+    the image border) in 5 frames at least, the fewest a parabola is fitted to
+    (:func:`initial_motion`) — a hand or arm reaching in from outside the view is cut by the
+    border nearly throughout (dev/07) — unless no other track is left; the ``max_objects``
     largest; ordered by first appearance, then left to right."""
     T = len(seg)
     tracks = [t for t in find_tracks(seg, flow, min_frames=max(4, int(0.3 * T)))
               if t.travel >= 0.5 * t.diameter]
+    whole = [t for t in tracks if t.clipped is None or int((~t.clipped).sum()) >= 5]
+    if whole:
+        tracks = whole
     if tracks:
         big = max(float(np.median(t.area)) for t in tracks)
         tracks = [t for t in tracks if float(np.median(t.area)) >= 0.35 * big]

@@ -326,7 +326,10 @@ def hold_resting(seg: np.ndarray, border: int = 1) -> np.ndarray:
     vanishes for good away from the image border is held at its last mask until the end,
     unless an object that was not in the frame where it vanished appears within two of its
     sizes in the next 3 frames (a track the tracker split: the object moved on under another
-    id; an object it hit was there together with it).
+    id; an object it hit was there together with it). A track seen in fewer than 3 frames is
+    not held: a hand that flicks through the view for two frames, held, became a still ghost
+    for the rest of the clip and a third object (dev/07). (Its speed when it vanishes says
+    nothing: a carom striker stops dead at the impact, 05.)
 
     Args:
         seg: ``(T, H, W)`` int8 object ids, -1 background (:func:`label_objects`).
@@ -340,7 +343,7 @@ def hold_resting(seg: np.ndarray, border: int = 1) -> np.ndarray:
     present = (seg.reshape(T, -1)[:, :, None] == np.arange(int(seg.max()) + 1)).any(axis=1)  # (T, n)
     for k in range(int(seg.max()) + 1):
         seen = np.flatnonzero((seg == k).reshape(T, -1).any(axis=1))
-        if not len(seen) or seen[-1] >= T - 1:
+        if len(seen) < 3 or seen[-1] >= T - 1:
             continue
         last = seg[seen[-1]] == k
         vs, us = np.nonzero(last)

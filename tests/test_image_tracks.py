@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from pipeline.image_tracks import (Track, find_tracks, first_bounce, initial_motion, initial_state_given, jitter,
-                                   whole_frames)
+                                   object_tracks, whole_frames)
 
 W, H, FPS = 80, 120, 30.0
 R = 6.0                        # disc radius, px
@@ -128,3 +128,17 @@ def test_noisy_track_velocity_is_averaged_over_many_frames():
     hit[10:, 0] = hit[9, 0] + 120.0 * (t[10:] - t[9])     # struck back at frame 10
     m = initial_motion(_track(hit), FPS)
     assert m.n == 10 and m.v0[0] == pytest.approx(-240.0, abs=1.0)
+
+
+def test_a_track_cut_by_the_border_throughout_is_not_an_object():
+    """dev/07: a hand reaching in at the left edge moves with the toss and is as large as the
+    ball; it is never seen whole, so it cannot be sized or fitted and is not an object while a
+    whole one is there. Alone, it is kept (something must be reconstructed)."""
+    T = 20
+    seg = np.full((T, 60, 80), -1, np.int8)
+    for t in range(T):
+        seg[t, 30 + t // 4: 38 + t // 4, 0:4 + t % 3] = 0             # hand at the left border
+        seg[t, 10 + t: 16 + t, 20 + 2 * t: 26 + 2 * t] = 1             # ball in flight, whole
+    assert [t.label for t in object_tracks(seg, None)] == [1]
+    hand = np.where(seg == 0, 0, -1).astype(np.int8)
+    assert [t.label for t in object_tracks(hand, None)] == [0]

@@ -1,5 +1,6 @@
 """Staged CMA-ES for real videos: camera and pose first, then velocities, then size and material,
-in search boxes that scale with the objects and the camera distance, with restarts (issue 9).
+then pose and velocity again, then a restitution effect's ``e``, in search boxes that scale with
+the objects and the camera distance, with restarts (issue 9).
 
 One joint CMA-ES over every field in a fixed box (:func:`pipeline.search.cmaes.cmaes_refine`
 with the params' ``search.ranges``) suits the synthetic scenes, whose objects are 20-40 cm seen
@@ -27,14 +28,17 @@ from pipeline.search.config import SearchConfig, SearchRanges
 from pipeline.search.evaluator import EvaluatorPool
 from pipeline.search.fitness import best_of_k
 from pipeline.search.parallel_eval import ParallelFitness
+from pipeline.search.space import SearchSpace
 
 STAGES: tuple[tuple[str, ...], ...] = (
     ("camera", "position", "yaw"),
-    ("linear_velocity", "angular_velocity", "restitution"),
+    ("linear_velocity", "angular_velocity"),
     ("size", "friction"),
     ("position", "linear_velocity"),
+    ("restitution",),
 )
-"""Field groups per stage (see :data:`pipeline.search.config.FREE_FIELDS`)."""
+"""Field groups per stage (see :data:`pipeline.search.config.FREE_FIELDS`). A stage with no
+parameter in the scene (``restitution`` without a restitution effect) is skipped."""
 
 REFERENCE_WIDTH = 96
 """px: ``search.lambda_epe`` is per px of an image this wide (the small profile's renders)."""
@@ -102,6 +106,8 @@ def staged_refine(scene: Scene, obs_seg: np.ndarray, obs_flow: np.ndarray | None
         for s, free in enumerate(stages):
             stage_cfg = cfg.model_copy(update={"free": tuple(free), "ranges": scaled_ranges(best),
                                                "lambda_epe": lam})
+            if not SearchSpace(best, stage_cfg.free, stage_cfg.ranges).dim:
+                continue
             runs = []
             for r in range(restarts if s == 0 else 1):
                 refined, hist = cmaes_refine(best, obs_seg, obs_flow, stage_cfg, options,
