@@ -11,7 +11,7 @@ from __future__ import annotations
 import shutil
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Any, Sequence
 
 import cv2
 import numpy as np
@@ -26,10 +26,6 @@ from pipeline.observe import Observation, original_frames, source_frames, upscal
 from pipeline.render import render_scene
 from pipeline.scene import Scene
 from pipeline.shard_viewer import camera_dict, scene_objects
-
-if TYPE_CHECKING:   # the main job's types; importing them here would be circular
-    from pipeline.perception import Proposals
-    from pipeline.reconstruct import Candidate, RealVideoConfig, SearchOutcome
 
 
 def scene_scores(scene: Scene, obs: Observation, sim: SimOptions) -> tuple[dict, tuple]:
@@ -51,9 +47,10 @@ def scene_scores(scene: Scene, obs: Observation, sim: SimOptions) -> tuple[dict,
             "foreground_iou_full": round(iou["foreground_iou_full"], 4), "epe": round(epe, 4)}, (trace, fr)
 
 
-def source_summary(candidates: list["Candidate"], scores: list[dict], source: str) -> dict:
-    """Per proposal source (``model``, ``perception``): how many, how many valid, and the best
-    one's full IoU and fitness (None when none is valid)."""
+def source_summary(candidates: Sequence[Any], scores: list[dict], source: str) -> dict:
+    """Per proposal source (``model``, ``perception``) of the main job's candidates
+    (:class:`pipeline.reconstruct.Candidate`): how many, how many valid, and the best one's full
+    IoU and fitness (None when none is valid)."""
     mine = [s for c, s in zip(candidates, scores) if c.source == source]
     valid = [s for s in mine if s["valid"]]
     best = max(valid, key=lambda s: s["fitness"]) if valid else None
@@ -63,19 +60,21 @@ def source_summary(candidates: list["Candidate"], scores: list[dict], source: st
 
 
 def write_outputs(out: str | Path, video: str | Path, fps: float | None, obs: Observation,
-                  candidates: list["Candidate"], outcome: "SearchOutcome", proposals: "Proposals | None",
-                  notes: list[str], model_note: str | None, rv: "RealVideoConfig", sim: SimOptions,
-                  truth: np.ndarray | None = None, labels_path: str | Path | None = None,
-                  started: float | None = None) -> dict:
+                  candidates: Sequence[Any], outcome: Any, proposals: Any, notes: list[str],
+                  model_note: str | None, rv: Any, sim: SimOptions, truth: np.ndarray | None = None,
+                  labels_path: str | Path | None = None, started: float | None = None) -> dict:
     """Write the main job's output folder and return its metrics.
 
     Args:
         out: output folder (replaced as a whole at the end).
         video: the video file; fps: its true frame rate (overrides the container's), or None.
         obs: the observation the search fitted.
-        candidates, outcome: the proposals and what the search made of them.
-        proposals, notes, model_note: perception's result and notes, the model's note.
-        rv: the ``realvideo`` section (figure sizes).
+        candidates, outcome: the proposals (:class:`pipeline.reconstruct.Candidate`) and what the
+            search made of them (:class:`pipeline.reconstruct.SearchOutcome`; this module does
+            not import the main job's module, which imports it).
+        proposals, notes, model_note: perception's result (:class:`pipeline.perception.Proposals`
+            or None) and notes, the model's note.
+        rv: the ``realvideo`` section (:class:`pipeline.reconstruct.RealVideoConfig`: figure sizes).
         sim: simulation options.
         truth: hand labels of the video (:func:`pipeline.labels.load_labels`), or None;
             ``labels_path`` where they came from.
