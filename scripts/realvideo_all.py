@@ -22,7 +22,9 @@ Markdown table on stdout:
 ``--table-only`` rebuilds ``table.md`` (and the content columns of ``summary.json``) from an
 earlier run's folders without running anything.
 
-Usage (``OUT/table.md`` and ``OUT/summary.json``; copies of a full run are in
+A JPEG copy of every clip's contact sheet goes to ``OUT/contact_sheets/<clip>.jpg``.
+
+Usage (``OUT/table.md``, ``OUT/summary.json`` and ``OUT/contact_sheets/``; copies of a full run are in
 ``reports/realvideo_all/``)::
 
     python scripts/realvideo_all.py --out outputs/realvideo_all [--only dev09_ball_rolling_on_desk]
@@ -199,6 +201,36 @@ def table(rows: list[dict]) -> str:
     return "\n".join(out)
 
 
+SHEET_WIDTH = 1200
+"""px: width of the contact-sheet copies in ``OUT/contact_sheets`` (JPEG), small enough to commit."""
+
+
+def contact_sheets(rows: list[dict], out: Path) -> list[str]:
+    """A JPEG copy of every clip's ``contact_sheet.png`` (observed + pseudo masks | observed +
+    re-simulated masks | re-simulated, six instants) in ``out/contact_sheets/<clip>.jpg``,
+    :data:`SHEET_WIDTH` px wide. Returns the clips that have one."""
+    import cv2
+
+    done = []
+    for row in rows:
+        src = out / row["clip"] / "contact_sheet.png"
+        img = cv2.imread(str(src)) if src.exists() else None
+        if img is None:
+            continue
+        h, w = img.shape[:2]
+        if w > SHEET_WIDTH:
+            img = cv2.resize(img, (SHEET_WIDTH, round(h * SHEET_WIDTH / w)), interpolation=cv2.INTER_AREA)
+        dst = out / "contact_sheets" / f"{row['clip']}.jpg"
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, 85])
+        if ok:
+            tmp = dst.with_suffix(".jpg.tmp")
+            tmp.write_bytes(buf.tobytes())
+            tmp.replace(dst)
+            done.append(row["clip"])
+    return done
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, default=Path("outputs/realvideo_all"), help="output folder")
@@ -222,11 +254,13 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(row), flush=True, file=sys.stderr)
         rows.append(row)
     write_text(args.out / "summary.json", json.dumps(rows, indent=1) + "\n")
+    sheets = contact_sheets(rows, args.out)
     text = (f"# Main job then dynamics simulate on all {len(CLIPS)} real clips\n\n"
             f"Command: `python scripts/realvideo_all.py --out {args.out}` (IoU against pseudo ground truth: "
             "full-sequence IoU as the search reports it, and strict, over the frames where an object or its match "
             "is visible; \"re-sim vs scored masks\": foreground IoU of `dynamics simulate`'s masks against the masks "
-            "the main job scored; labels: the hand labels on the window's labelled frames).\n\n" + table(rows))
+            "the main job scored; labels: the hand labels on the window's labelled frames).\n\n" + table(rows)
+            + f"\n\nContact sheets ({len(sheets)} clips): `contact_sheets/<clip>.jpg`.")
     write_text(args.out / "table.md", text + "\n")
     print(text)
     return 0
