@@ -320,21 +320,25 @@ def split_merged(labels: np.ndarray, n: int, previous: list[np.ndarray], share: 
     return out, n
 
 
-def hold_resting(seg: np.ndarray, border: int = 1) -> np.ndarray:
+def hold_resting(seg: np.ndarray, border: int = 1, min_frames: int = 1) -> np.ndarray:
     """Keep objects that come to rest visible: background subtraction loses an object as soon
     as it stops where it then stays (the background model learns it there), so a track that
     vanishes for good away from the image border is held at its last mask until the end,
     unless an object that was not in the frame where it vanished appears within two of its
     sizes in the next 3 frames (a track the tracker split: the object moved on under another
-    id; an object it hit was there together with it). A track seen in fewer than 3 frames is
-    not held: a hand that flicks through the view for two frames, held, became a still ghost
-    for the rest of the clip and a third object (dev/07). (Its speed when it vanishes says
-    nothing: a carom striker stops dead at the impact, 05.)
+    id; an object it hit was there together with it). A track seen in fewer than
+    ``min_frames`` frames is not held.
 
     Args:
         seg: ``(T, H, W)`` int8 object ids, -1 background (:func:`label_objects`).
         border: a last mask within this many px of the border means the object left the frame
             (not held).
+        min_frames: frames a track must be seen in to be held. The main job's window
+            (consecutive frames at the scene rate, :func:`pipeline.observe.observe`) uses 3: a hand
+            that flicks through the view for two frames, held, became a still ghost for the rest
+            of the clip and a third object (dev/07); its speed when it vanishes would say nothing
+            (a carom striker stops dead at the impact, 05). Sparse frames spread over a whole clip
+            (:func:`pseudo_ground_truth`) keep 1: two samples there can be a second apart.
     Returns:
         ``(T, H, W)`` int8, a copy; held pixels never overwrite another object.
     """
@@ -343,7 +347,7 @@ def hold_resting(seg: np.ndarray, border: int = 1) -> np.ndarray:
     present = (seg.reshape(T, -1)[:, :, None] == np.arange(int(seg.max()) + 1)).any(axis=1)  # (T, n)
     for k in range(int(seg.max()) + 1):
         seen = np.flatnonzero((seg == k).reshape(T, -1).any(axis=1))
-        if len(seen) < 3 or seen[-1] >= T - 1:
+        if len(seen) < max(1, min_frames) or seen[-1] >= T - 1:
             continue
         last = seg[seen[-1]] == k
         vs, us = np.nonzero(last)

@@ -50,6 +50,10 @@ MAX_MOVING_FRACTION = 0.015
 FULL_MOTION_FRACTION = 0.005
 """Moving-area fraction at which a frame counts fully as object motion."""
 
+HELD_MIN_FRAMES = 3
+"""Frames of the window an object must be seen in before :func:`pipeline.masks.hold_resting`
+holds it where it vanished (a 2-frame blob is a hand flicking through, dev/07)."""
+
 
 @dataclass
 class Observation:
@@ -600,7 +604,8 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     det_seg = _masks(det_frames, det_ctx, bs_method, max_objects)
     det_flow = estimate_flow(det_frames, method="dis", preset="fast")
     learned = bs_method in LEARNED
-    det_seg, tracks = keep_objects(det_seg if learned else hold_resting(det_seg), det_flow, max_objects, learned)
+    det_seg, tracks = keep_objects(det_seg if learned else hold_resting(det_seg, min_frames=HELD_MIN_FRAMES),
+                                   det_flow, max_objects, learned)
     scale = W0 / dsize[0]
     diameter = float(np.median([t.diameter for t in tracks])) if tracks else 0.05 * dsize[1]
     crop = motion_crop(det_seg, diameter, scale, (W0, H0))
@@ -609,7 +614,8 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     seg = _masks(frames, ctx, bs_method, max_objects)
     flow = flow or FlowConfig()
     flow_px = flow_of(frames, flow)
-    seg, _ = keep_objects(seg if learned else hold_resting(seg), flow_px, max_objects, learned)
+    seg, _ = keep_objects(seg if learned else hold_resting(seg, min_frames=HELD_MIN_FRAMES), flow_px,
+                          max_objects, learned)
     if anchored:
         seg = anchored_objects(frames, ctx, seg, max_objects)
     return Observation(frames, seg, flow_px, clip, float(start), auto, clip.crop, size, scene_fps, flow.estimator,

@@ -219,11 +219,14 @@ def test_hold_resting_keeps_an_object_that_stops_inside_the_frame():
         assert (held[t] == 0).sum() == (seg[2] == 0).sum()
         assert (held[t] == 1).sum() == 0
     np.testing.assert_array_equal(held[:3], seg[:3])
-    # a blob seen in 2 frames only (a hand flicking through the view, dev/07) is not held: held,
-    # it was a still ghost for the rest of the clip, and a third object
+    # the main job's window holds only what it saw in 3 frames (HELD_MIN_FRAMES): a blob seen in
+    # 2 (a hand flicking through the view, dev/07) was a still ghost for the rest of the clip
+    from pipeline.observe import HELD_MIN_FRAMES
+
     flick = np.full((6, 20, 30), -1, dtype=np.int8)
     flick[1:3, 8:12, 5:9] = 0
-    np.testing.assert_array_equal(hold_resting(flick), flick)
+    np.testing.assert_array_equal(hold_resting(flick, min_frames=HELD_MIN_FRAMES), flick)
+    assert (hold_resting(flick)[3:] == 0).sum() == 3 * 16   # sparse frames (the default) still hold it
 
 
 def _dynamics(*args: str) -> "subprocess.CompletedProcess":
