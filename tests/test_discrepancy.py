@@ -241,7 +241,7 @@ def hidden_trials():
     """All hidden-effect trials, two worker processes (the file's budget is about a minute)."""
     import multiprocessing as mp
 
-    args = [(seed, effect, FAST_CFG, FAST_HIDDEN, OPTS) for effect, seed in PLAN.items()]
+    args = [(seed, effect, FAST_CFG, FAST_HIDDEN, OPTS, "mujoco", None) for effect, seed in PLAN.items()]
     with mp.get_context("spawn").Pool(2) as pool:
         results = pool.map(_trial_job, args)
     return {effect: r for effect, r in zip(PLAN, results)}

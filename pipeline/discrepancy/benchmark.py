@@ -12,6 +12,7 @@ import numpy as np
 from pipeline import effects as fx
 from pipeline.discrepancy.config import DiscrepancyConfig
 from pipeline.discrepancy.hidden import HiddenConfig, generate_hidden
+from pipeline.discrepancy.independent import IndependentConfig, generate_independent
 from pipeline.discrepancy.intervals import interval_coverage
 from pipeline.discrepancy.readers import clips_from_columns
 from pipeline.discrepancy.report import table_lines
@@ -20,25 +21,78 @@ from pipeline.mjcf import SimOptions
 from pipeline.parallel import ComputeConfig, parallel_map
 
 
+ENGINES = ("mujoco", "independent")
+"""Generators of hidden-effect data: ``mujoco`` (the project's own scene -> MJCF -> MuJoCo
+bridge, :func:`generate_hidden`) and ``independent`` (a hand-written integrator sharing nothing
+with it, with outliers and dropped frames, :func:`generate_independent`)."""
+
+
+def null_value(effect: str) -> dict[str, float]:
+    """``{parameter: value}`` at which ``effect`` vanishes or is weakest: the first value of
+    each fitted parameter's profile grid (:class:`pipeline.effects.ParamSpec`)."""
+    return {p: spec.grid[0] for p, spec in fx.REGISTRY[effect].parameters.items() if spec.fit and spec.grid}
+
+
+def null_valued(named: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The named effects that sit at their null value (:func:`null_value`): every fitted
+    coefficient within 1e-3 of its scale of it, or inside its reported interval (an open side
+    reaches the bound). Such a name adds nothing the data ask for.
+
+    Args:
+        named: ``Result.named`` entries (``effect``, ``parameters``, ``ci``).
+    """
+    out = []
+    for n in named:
+        specs = fx.REGISTRY[n["effect"]].parameters
+        at_null = []
+        for p, v0 in null_value(n["effect"]).items():
+            v = n["parameters"].get(p, v0)
+            lo, hi = (n.get("ci") or {}).get(p) or (None, None)
+            inside = (lo is None or lo <= v0) and (hi is None or v0 <= hi) and (n.get("ci") or {}).get(p) is not None
+            at_null.append(abs(v - v0) <= 1e-3 * specs[p].scale or inside)
+        if at_null and all(at_null):
+            out.append(n["effect"])
+    return out
+
+
 def run_trial(seed: int, effect: str, cfg: DiscrepancyConfig | None = None, hidden: HiddenConfig | None = None,
-              options: SimOptions | None = None) -> dict[str, Any]:
+              options: SimOptions | None = None, engine: str = "mujoco",
+              independent: IndependentConfig | None = None) -> dict[str, Any]:
     """One hidden-effect trial: generate data with ``effect`` (``none`` or a name) at a
     random strength, run the workflow on the measurements only, compare with the truth.
 
+    Args:
+        seed: data seed. effect: ``none`` or an effect name.
+        cfg: workflow settings. options: simulation options of the workflow (and of the
+            ``mujoco`` generator).
+        engine: ``mujoco`` (data from :func:`generate_hidden` with ``hidden``) or
+            ``independent`` (:func:`generate_independent` with ``independent``).
+
     Returns:
-        ``{seed, truth, truth_parameters, named, named_parameters, named_ci,
-        named_ci_gauss_newton, correct, gap_before, gap_after, shrink, noise, excess_shrink,
-        runtime_s}`` (intervals ``{effect: {parameter: [low|None, high|None]}}``, ``None`` an
-        open side).
+        ``{seed, engine, truth, truth_parameters, named, named_parameters, named_ci,
+        named_ci_gauss_newton, null_valued, correct, gap_before, gap_after, shrink, noise,
+        excess_shrink, outliers_dropped, runtime_s}`` (intervals ``{effect: {parameter:
+        [low|None, high|None]}}``, ``None`` an open side; ``null_valued``: named effects at
+        their null value, :func:`null_valued`).
+
+    Raises:
+        ValueError: unknown ``engine``.
     """
     t0 = time.perf_counter()
-    cols, truth = generate_hidden(seed, hidden, options, effect=effect)
+    if engine == "mujoco":
+        cols, truth = generate_hidden(seed, hidden, options, effect=effect)
+    elif engine == "independent":
+        cols, truth = generate_independent(seed, independent, effect=effect)
+    else:
+        raise ValueError(f"engine: must be one of {', '.join(ENGINES)}, got {engine!r}")
     clips = clips_from_columns(cols, f"<hidden seed {seed}>")
     result = run_workflow(clips, cfg, options)                  # never sees ``truth``
     named = [n["effect"] for n in result.named]
     expected = [truth["effect"]] if truth["effect"] else []
     gap = result.gap
-    return {"seed": seed, "truth": truth["effect"], "truth_parameters": truth["parameters"], "named": named,
+    return {"seed": seed, "engine": engine, "truth": truth["effect"], "truth_parameters": truth["parameters"],
+            "named": named, "null_valued": null_valued(result.named),
+            "outliers_dropped": sum(len(v) for o in result.outliers.values() for v in o.values()),
             "named_parameters": {n["effect"]: n["parameters"] for n in result.named},
             "named_ci": {n["effect"]: n["ci"] for n in result.named},
             "named_ci_gauss_newton": {n["effect"]: n.get("ci_gauss_newton") or {} for n in result.named},
@@ -48,15 +102,17 @@ def run_trial(seed: int, effect: str, cfg: DiscrepancyConfig | None = None, hidd
 
 
 def _trial_job(args: tuple) -> dict[str, Any]:
-    """:func:`run_trial` of ``(seed, effect, cfg, hidden, options)`` (one picklable task)."""
-    seed, effect, cfg, hidden, options = args
-    return run_trial(seed, effect, cfg, hidden, options)
+    """:func:`run_trial` of ``(seed, effect, cfg, hidden, options, engine, independent)`` (one
+    picklable task)."""
+    seed, effect, cfg, hidden, options, engine, independent = args
+    return run_trial(seed, effect, cfg, hidden, options, engine, independent)
 
 
 def run_benchmark(trials: int, null_trials: int, seed: int = 1000, jobs: int | ComputeConfig = 1,
                   cfg: DiscrepancyConfig | None = None, hidden: HiddenConfig | None = None,
                   options: SimOptions | None = None, log=None, single_trials: int = 0,
-                  single_duration: float = 1.5) -> dict[str, Any]:
+                  single_duration: float = 1.5, engine: str = "mujoco",
+                  independent: IndependentConfig | None = None) -> dict[str, Any]:
     """Naming accuracy over hidden-effect trials and false-positive rate over no-effect trials.
 
     Effect trials cycle through the library (so each effect gets ``trials / 6`` trials), each
@@ -73,6 +129,8 @@ def run_benchmark(trials: int, null_trials: int, seed: int = 1000, jobs: int | C
         single_trials: further trials with a hidden effect (cycling the library) on ONE clip
             of ``single_duration`` s (the shown gap is then the forward gap), seeds after the
             no-effect trials; scored apart (``summary["single"]``, ``per_effect_single``).
+        engine: data generator (:data:`ENGINES`); ``independent`` uses ``independent``'s
+            settings (clips, noise, outliers, dropped frames) instead of ``hidden``'s.
 
     Naming is scored as the exact set: a trial is correct when the named effects are exactly
     the hidden one (or none), so an extra effect is a miss. ``gap_within_1p5_noise`` is the
@@ -83,17 +141,22 @@ def run_benchmark(trials: int, null_trials: int, seed: int = 1000, jobs: int | C
         ``{summary: {...}, per_effect: {...}, per_effect_single: {...}, trials: [...]}``
         (each trial has ``group``: ``effect``, ``null`` or ``single``).
     """
+    if engine not in ENGINES:
+        raise ValueError(f"engine: must be one of {', '.join(ENGINES)}, got {engine!r}")
     names = list(fx.REGISTRY)
     hidden = hidden or HiddenConfig()
-    single = hidden.model_copy(update={"n_clips": 1, "duration": single_duration})
-    plan = [(seed + i, names[i % len(names)], hidden) for i in range(trials)]
-    plan += [(seed + trials + i, "none", hidden) for i in range(null_trials)]
+    independent = independent or IndependentConfig()
+    data = hidden if engine == "mujoco" else independent
+    single = data.model_copy(update={"n_clips": 1, "duration": single_duration})
+    plan = [(seed + i, names[i % len(names)], data) for i in range(trials)]
+    plan += [(seed + trials + i, "none", data) for i in range(null_trials)]
     plan += [(seed + trials + null_trials + i, names[i % len(names)], single) for i in range(single_trials)]
     cfg = cfg or DiscrepancyConfig()
     compute = jobs if isinstance(jobs, ComputeConfig) else ComputeConfig(workers=jobs)
     if compute.backend == "ray" or compute.n_workers > 1:  # one rollout thread per worker process
         cfg = cfg.model_copy(update={"threads": 1, "workers": 1})
-    args = [(s, e, cfg, h, options) for s, e, h in plan]
+    args = [(s, e, cfg, h if engine == "mujoco" else None, options, engine, h if engine == "independent" else None)
+            for s, e, h in plan]
     t0 = time.perf_counter()
     results = []
     for r in parallel_map(_trial_job, args, compute):  # one trial per task: each takes seconds
@@ -110,12 +173,14 @@ def run_benchmark(trials: int, null_trials: int, seed: int = 1000, jobs: int | C
     one = [r for r in results if r["group"] == "single"]
     summary = {**_bench_summary(eff), "effect_trials": len(eff), "null_trials": len(null),
                "false_positive_rate": sum(bool(r["named"]) for r in null) / len(null) if null else None,
+               "null_valued_names": sum(len(r["null_valued"]) for r in results),
+               "engine": engine,
                "runtime_s": time.perf_counter() - t0, "jobs": jobs if isinstance(jobs, int) else compute.model_dump(),
                "first_seed": seed,
                "single": {**_bench_summary(one), "trials": len(one), "duration_s": single_duration}}
     return {"summary": summary, "per_effect": _per_effect(eff, names), "per_effect_single": _per_effect(one, names),
             "trials": results, "config": json.loads(cfg.model_dump_json()),
-            "hidden": json.loads(hidden.model_dump_json())}
+            "hidden": json.loads(data.model_dump_json())}
 
 
 def _bench_summary(rs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
@@ -153,14 +218,21 @@ def benchmark_markdown(bench: Mapping[str, Any], command: str = "") -> str:
     trials; ``command`` is shown in a code block when given."""
     s = bench["summary"]
     pct = lambda x: "—" if x is None else f"{100 * x:.1f} %"  # noqa: E731
-    lines = ["# Discrepancy workflow: hidden-effect benchmark", "",
-             f"Each trial generates measured trajectories ({bench['hidden']['n_clips']} clips of {bench['hidden']['duration']:g} s, "
-             f"noise {bench['hidden']['noise_position'] * 1e3:g} mm / {bench['hidden']['noise_angle']:g}°) with one effect from the library "
+    h = bench["hidden"]
+    engine = s.get("engine", "mujoco")
+    source = ("the project's own MuJoCo model" if engine == "mujoco" else
+              f"an independent hand-written integrator (`pipeline/discrepancy/independent.py`: step "
+              f"{h['timestep'] * 1e3:g} ms, impulse bounces, isotropic drag; {100 * h['outlier_rate']:g} % outliers of "
+              f"{h['outlier_size'][0] * 1e3:g}-{h['outlier_size'][1] * 1e3:g} mm, {100 * h['drop_rate']:g} % dropped frames)")
+    lines = [f"# Discrepancy workflow: hidden-effect benchmark ({engine})", "",
+             f"Each trial generates measured trajectories ({h['n_clips']} clips of {h['duration']:g} s, "
+             f"noise {h['noise_position'] * 1e3:g} mm / {h['noise_angle']:g}°) with {source}, with one effect from the library "
              "at a random strength (or none), runs the workflow without telling it, and checks what it names.", ""]
     if command:
         lines += ["```", command, "```", ""]
     rows = [[f"naming accuracy ({s['effect_trials']} trials with a hidden effect)", pct(s['naming_accuracy'])],
             [f"false-positive rate ({s['null_trials']} trials without)", pct(s['false_positive_rate'])],
+            ["named effects at their null value (all trials)", str(s.get('null_valued_names', '—'))],
             ["held-out gap shrink >= 50 % (effect trials)", pct(s['shrink_at_least_50pct'])],
             ["held-out gap above the noise shrink >= 50 %", pct(s.get('excess_shrink_at_least_50pct'))],
             ["median held-out gap shrink", pct(s['median_shrink'])],

@@ -52,6 +52,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--objects", default=None,
                         help="object sizes/masses: YAML/JSON file or inline YAML "
                              "'{CLIP: {OBJECT: {shape: sphere, radius: 0.02, mass: 0.0027}}}' ('*' = any)")
+    parser.add_argument("--scale", type=float, default=1.0,
+                        help="metres per unit of the files' coordinates (0.001: millimetres; a table in pixels: "
+                             "its calibration)")
+    parser.add_argument("--up", choices=("z", "y"), default="z",
+                        help="vertical axis of 3-D tables (y: a y-up export, world x, y, z = file x, -z, y); "
+                             "2-D Tracker exports are always y up")
     parser.add_argument("--candidates", default=None,
                         help=f"comma-separated effects to try (default: all: {','.join(fx.REGISTRY)})")
     parser.add_argument("--max-effects", type=int, default=None, help="most effects named (greedy forward selection)")
@@ -109,7 +115,7 @@ def main_cli(args: argparse.Namespace) -> int:
               f"{g['rmse_m'] * 1e3:.2f} mm ({g['rmse_px']:.1f} px) RMSE on the observed tracks "
               f"(axes {video['camera_axes']})")
     else:
-        clips = read_trajectories(args.trajectories, args.objects, cfg.default_object)
+        clips = read_trajectories(args.trajectories, args.objects, cfg.default_object, args.scale, args.up)
     result = run_workflow(clips, cfg, sim, gravity=gravity, log=None)
     rep = write_report(result, args.out, video=video)
     named = ", ".join(f"{n['effect']} ({', '.join(f'{k}={v:.4g}' for k, v in n['parameters'].items())})"
@@ -137,8 +143,12 @@ def add_benchmark_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--jobs", type=int, default=1, help="worker processes (Ray: tasks in flight)")
     parser.add_argument("--backend", choices=("local", "ray"), default="local", help="pipeline.parallel backend")
     parser.add_argument("--address", default=None, help="Ray address (auto, ray://host:port); default: local Ray")
-    parser.add_argument("--out", default="reports/discrepancy_benchmark.json",
-                        help="JSON output (.md written beside it)")
+    parser.add_argument("--engine", choices=("mujoco", "independent"), default="mujoco",
+                        help="data generator: the project's MuJoCo model (default) or an independent hand-written "
+                             "integrator with outliers and dropped frames (pipeline/discrepancy/independent.py)")
+    parser.add_argument("--out", default=None,
+                        help="JSON output (.md written beside it; default reports/discrepancy_benchmark.json, "
+                             "with --engine independent reports/discrepancy_benchmark_independent.json)")
     parser.add_argument("--params", default=None, help="params.yaml (sections discrepancy, measure_hidden, sim)")
 
 
@@ -153,15 +163,19 @@ def benchmark_cli(args: argparse.Namespace) -> int:
     cfg, hidden, sim = _config_from_args(args)
     jobs = args.jobs if args.backend == "local" else ComputeConfig(backend="ray", address=args.address,
                                                                         workers=args.jobs)
+    if args.out is None:
+        args.out = ("reports/discrepancy_benchmark.json" if args.engine == "mujoco"
+                    else "reports/discrepancy_benchmark_independent.json")
     bench = run_benchmark(args.trials, args.null_trials, args.seed, jobs, cfg, hidden, sim,
                           log=logger.info, single_trials=args.single_trials,
-                          single_duration=args.single_duration)
+                          single_duration=args.single_duration, engine=args.engine)
     out = Path(args.out)
     command = "dynamics discrepancy-benchmark " + " ".join(
         f"--{k.replace('_', '-')} {v}" for k, v in (("trials", args.trials), ("null_trials", args.null_trials),
                                                    ("single_trials", args.single_trials),
                                                    ("single_duration", args.single_duration),
-                                                   ("seed", args.seed), ("jobs", args.jobs), ("out", args.out)))
+                                                   ("seed", args.seed), ("jobs", args.jobs), ("engine", args.engine),
+                                                   ("out", args.out)))
     bench["command"] = command
     write_json(out, bench)
     write_text(out.with_suffix(".md"), benchmark_markdown(bench, command))

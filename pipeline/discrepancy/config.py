@@ -99,6 +99,19 @@ class DiscrepancyConfig(StrictModel):
             ``Effect.replaces_damping`` stands in for the linear damping).
         diff_step: finite-difference step, in units of each parameter's scale.
         ci_level: confidence level of the coefficient intervals.
+        null_test: an eligible effect must also beat its own null value: every clip refitted
+            from the candidate's joint fit with the effect removed (its other effects held at
+            the joint fit's values) must be worse by at least the chi-square quantile of
+            ``ci_level`` with as many degrees of freedom as the effect has coefficients,
+            times the candidate's residual variance factor s^2 = chi2 / dof (the profile
+            likelihood's test that the interval excludes the null value; Venzon & Moolgavkar
+            1988). An effect whose gain comes from refitting the rest (its fitted value at or
+            near its null value) is not named.
+        outlier_sigma: before anything is fitted, a sample is dropped as an outlier when it
+            lies more than this many prediction standard deviations from a quadratic through
+            its six nearest neighbours while those fit it within the noise (a spike in smooth
+            motion; a bounce is kept), with the noise estimated robustly from the data
+            (:func:`pipeline.discrepancy.noise.find_outliers`); 0: keep every sample.
         default_object: size and mass assumed when the input has none.
         recording: write the rerun recording.
     """
@@ -129,6 +142,8 @@ class DiscrepancyConfig(StrictModel):
     hold_damping: bool = False
     diff_step: float = Field(1e-2, gt=0)
     ci_level: float = Field(0.95, gt=0, lt=1)
+    null_test: bool = True
+    outlier_sigma: float = Field(6.0, ge=0)
     default_object: DefaultObject = DefaultObject()
     recording: bool = True
 

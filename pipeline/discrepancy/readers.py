@@ -15,14 +15,16 @@ import yaml
 
 from pipeline import infer_tracks
 from pipeline.discrepancy.config import DefaultObject
+from pipeline.rotation import quat_mul
 from pipeline.discrepancy.trajectories import (MIN_SAMPLES, QUAT_COLUMNS, SPEC_COLUMNS, TABLE_COLUMNS, Clip,
                                                DiscrepancyInputError, ObjectSpec, Track)
 
 
 TWO_D_FLOOR_CLEARANCE = 0.05
-"""m. Two-dimensional Tracker exports have an arbitrary vertical origin and no floor (the
-ball drops end before the impact): the reader lifts such a clip so that every object's
-lowest point stays at least this far above z = 0, i.e. the clip is free flight."""
+"""m. Two-dimensional Tracker exports have an arbitrary vertical origin. Where a track bounces,
+the floor goes under the impact (:func:`bounce_floor`); otherwise (a drop that ends before the
+impact) the reader lifts the clip so that every object's lowest point stays at least this far
+above z = 0, i.e. the clip is free flight."""
 MAX_ABS_COORDINATE = 100.0
 """m; larger values are taken for pixels (a one-line error names the column)."""
 
@@ -110,6 +112,72 @@ def _check_supported(path: Path, c: str, tracks: Sequence["Track"], rows_of: Map
                                   f"floor (z = 0) or on the other objects (lowest point <= {support:.3g} m), got "
                                   f"{height:.4g} m above the floor for {tr.t[-1] - tr.t[0]:.3g} s at row "
                                   f"{rows_of[tr.object][i]} (positions in millimetres, or the floor not at z = 0?)")
+
+
+def _arc(t: np.ndarray, z: np.ndarray, g: float) -> tuple[float, float] | None:
+    """``(a, b)`` of the free-flight arc ``z(t) = a + b t - g t^2 / 2`` fitted by least squares
+    to the samples ``(t, z)`` (at least 2), else ``None``."""
+    if len(t) < 2:
+        return None
+    A = np.stack([np.ones(len(t)), t], 1)
+    coef, *_ = np.linalg.lstsq(A, z + 0.5 * g * t * t, rcond=None)
+    return float(coef[0]), float(coef[1])
+
+
+def bounce_floor(t: np.ndarray, z: np.ndarray, radius: float, g: float = GRAVITY_CHECK,
+                 noise: float | None = None) -> float | None:
+    """Height of the floor under a vertical track that bounces, in the track's own frame.
+
+    A bounce is the lowest sample ``k`` of the track, inside it, where the second difference
+    ``z[k+1] - 2 z[k] + z[k-1]`` is positive by more than ``2 g dt^2`` plus 6 standard
+    deviations of the noise (free flight has ``-g dt^2``; only a contact pushes up). The impact
+    is where the free-flight arcs (gravity ``g`` known) through up to 4 samples before and
+    after it meet; ``k`` goes to the side whose arcs fit better. The centre is then one
+    ``radius`` above the floor. With one sample after the bounce the lowest sample stands in
+    for the impact (a bounce seen in the last frames: the floor is then at most one frame's
+    travel too low).
+
+    Args:
+        t: ``(T,)`` s, increasing. z: ``(T,)`` m, vertical coordinate, up.
+        radius: m, height of the centre above the floor at contact (bounding radius).
+        g: m/s^2. noise: m, standard deviation of ``z`` (default: the robust scale of the
+            second differences / sqrt(6)).
+
+    Returns:
+        The floor height (m, the track's frame), or ``None`` when the track does not bounce.
+    """
+    T = len(t)
+    if T < 3:
+        return None
+    k = int(np.argmin(z))
+    if k == 0 or k == T - 1:
+        return None
+    d2 = np.diff(z, 2)
+    dt = float(np.median(np.diff(t)))
+    if noise is None:
+        noise = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0)
+    if d2[k - 1] <= 2 * g * dt * dt + 6 * np.sqrt(6.0) * noise:
+        return None
+    best = None
+    for split in (k, k + 1):            # samples [.., split) before the impact, [split, ..) after
+        lo, hi = max(0, split - 4), min(T, split + 4)
+        tb, zb, ta, za = t[lo:split], z[lo:split], t[split:hi], z[split:hi]
+        before, after = _arc(tb - t[k], zb, g), _arc(ta - t[k], za, g)
+        if before is None or after is None:
+            continue
+        # impact: where the arcs meet (the same -g t^2/2, so linear in t)
+        if abs(after[1] - before[1]) < 1e-9:
+            continue
+        ti = (before[0] - after[0]) / (after[1] - before[1])
+        if not (t[split - 1] - t[k] - 1e-9 <= ti <= t[split] - t[k] + 1e-9):
+            continue
+        res = sum(float(np.sum((a + b * (tt - t[k]) - 0.5 * g * (tt - t[k]) ** 2 - zz) ** 2))
+                  for (a, b), tt, zz in ((before, tb, zb), (after, ta, za)))
+        zi = before[0] + before[1] * ti - 0.5 * g * ti * ti
+        if best is None or res < best[0]:
+            best = (res, zi)
+    contact = float(z[k]) if best is None else min(best[1], float(z[k]))
+    return contact - radius
 
 
 def _err(path: Any, column: str, message: str) -> DiscrepancyInputError:
@@ -250,20 +318,26 @@ def _quat_norm_check(path: Path, q: np.ndarray, rows: np.ndarray) -> None:
 
 
 def read_trajectory_file(path: str | Path, objects: Mapping | None = None,
-                         default: DefaultObject | None = None) -> list[Clip]:
+                         default: DefaultObject | None = None, scale: float = 1.0, up: str = "z") -> list[Clip]:
     """Read one trajectory file into clips.
 
     Table files (CSV or Parquet, columns ``clip, object, t, x, y, z`` + optional ``qw..qz``
     and object columns) may hold many clips and objects. Two-dimensional files (header with
     ``t`` and two of ``x``, ``y``, y up; e.g. Tracker exports) hold one clip named after the
     file stem with one object ``sphere_0`` (shape from ``objects`` if given); they map to the
-    world frame as x -> x, y -> z, with world y unobserved, lifted by ``Clip.z_offset`` so that
-    the floor (unknown in these files) stays out of reach.
+    world frame as x -> x, y -> z, with world y unobserved, shifted by ``Clip.z_offset`` so that
+    the floor (unknown in these files) is at z = 0 under a bounce (:func:`bounce_floor`) or,
+    without one, out of reach.
 
     Args:
         path: ``.csv``, ``.parquet``, ``.txt`` or ``.tsv`` file.
         objects: objects mapping (:func:`parse_objects`).
         default: size/mass assumed when neither the file nor ``objects`` gives them.
+        scale: metres per unit of the file's coordinates (e.g. 0.001 for millimetres, the
+            calibration of a table in pixels); applied before the checks.
+        up: the file's vertical axis for 3-D tables: ``z`` (default) or ``y`` (a y-up export,
+            right-handed: world x, y, z = file x, -z, y; orientations rotated likewise).
+            Two-dimensional files are always y up.
 
     Returns:
         Clips in order of first appearance.
@@ -280,12 +354,16 @@ def read_trajectory_file(path: str | Path, objects: Mapping | None = None,
     path = Path(path)
     if not path.is_file():
         raise DiscrepancyInputError(f"{path}: cannot read: no such file")
+    if not (scale > 0 and math.isfinite(scale)):
+        raise DiscrepancyInputError(f"{path}: scale: must be a positive number of metres per unit, got {scale!r}")
+    if up not in ("z", "y"):
+        raise DiscrepancyInputError(f"{path}: up: must be z or y, got {up!r}")
     cols, two_d, first = _load_table(path)
-    return _clips_from_columns(path, cols, two_d, first, objects or {}, default or DefaultObject())
+    return _clips_from_columns(path, cols, two_d, first, objects or {}, default or DefaultObject(), scale, up)
 
 
 def _clips_from_columns(path: Path, cols: Mapping[str, Any], two_d: bool, first: int,
-                        objects: Mapping, default: DefaultObject) -> list[Clip]:
+                        objects: Mapping, default: DefaultObject, scale: float = 1.0, up: str = "z") -> list[Clip]:
     """Validate table columns and group them into clips (see :func:`read_trajectory_file`)."""
     if two_d:
         _check_required(path, cols, ("t", "x", "y"))
@@ -316,6 +394,10 @@ def _clips_from_columns(path: Path, cols: Mapping[str, Any], two_d: bool, first:
         xyz = np.stack([_column_floats(path, c, cols[c], first) for c in "xyz"], axis=1)
         axes = np.array([True, True, True])
         file_col = {0: "x", 1: "y", 2: "z"}
+        if up == "y":   # world (x, y, z) = file (x, -z, y)
+            xyz = np.stack([xyz[:, 0], -xyz[:, 2], xyz[:, 1]], axis=1)
+            file_col = {0: "x", 1: "z", 2: "y"}
+    xyz = xyz * scale
     if n == 0:
         raise _err(path, "t", "no rows")
     rows = np.arange(n) + first
@@ -327,7 +409,7 @@ def _clips_from_columns(path: Path, cols: Mapping[str, Any], two_d: bool, first:
         big = np.flatnonzero(np.abs(xyz[:, a]) > MAX_ABS_COORDINATE)
         if big.size:
             raise _err(path, name, f"must be metres (|value| <= {MAX_ABS_COORDINATE:g}), got "
-                                   f"{xyz[big[0], a]:g} at row {rows[big[0]]} (pixels?)")
+                                   f"{xyz[big[0], a]:g} at row {rows[big[0]]} (pixels? give the metres per unit: --scale)")
     quat = None
     present = [c for c in QUAT_COLUMNS if c in cols]
     if present and not two_d:
@@ -341,6 +423,8 @@ def _clips_from_columns(path: Path, cols: Mapping[str, Any], two_d: bool, first:
                 raise _err(path, c, f"NaN or missing value at row {rows[bad[0]]}")
         _quat_norm_check(path, quat, rows)
         quat = quat / np.linalg.norm(quat, axis=1, keepdims=True)
+        if up == "y":   # the file frame turned +90 deg about x into the world frame
+            quat = quat_mul(np.array([math.sqrt(0.5), math.sqrt(0.5), 0.0, 0.0]), quat)
     spec_cols = {c: cols[c] for c in SPEC_COLUMNS if c in cols and not two_d}
 
     clips: dict[str, dict[str, np.ndarray]] = {}
@@ -378,9 +462,14 @@ def _clips_from_columns(path: Path, cols: Mapping[str, Any], two_d: bool, first:
             _check_supported(path, c, tracks, {o: rows[np.asarray(idx)] for o, idx in objs.items()})
         t0 = min(float(tr.t[0]) for tr in tracks)
         z_offset = 0.0
-        if two_d:  # the file's vertical origin is arbitrary and has no floor: keep clear of z = 0
-            lowest = min(float(np.min(tr.pos[:, 2]) - tr.spec.bounding_radius) for tr in tracks)
-            z_offset = max(0.0, TWO_D_FLOOR_CLEARANCE - lowest)
+        if two_d:  # the file's vertical origin is arbitrary: the floor where the object bounces, else none
+            floors = [bounce_floor(tr.t, tr.pos[:, 2], tr.spec.bounding_radius) for tr in tracks]
+            floors = [f for f in floors if f is not None]
+            if floors:
+                z_offset = -min(floors)
+            else:  # free flight: keep clear of z = 0
+                lowest = min(float(np.min(tr.pos[:, 2]) - tr.spec.bounding_radius) for tr in tracks)
+                z_offset = max(0.0, TWO_D_FLOOR_CLEARANCE - lowest)
         for tr in tracks:
             tr.t = tr.t - t0
             tr.pos[:, 2] += z_offset
@@ -389,9 +478,9 @@ def _clips_from_columns(path: Path, cols: Mapping[str, Any], two_d: bool, first:
 
 
 def read_trajectories(paths: Sequence[str | Path] | str | Path, objects: Any = None,
-                      default: DefaultObject | None = None) -> list[Clip]:
+                      default: DefaultObject | None = None, scale: float = 1.0, up: str = "z") -> list[Clip]:
     """Read trajectory files and/or directories (``*.parquet``, ``*.csv``, ``*.txt``,
-    ``*.tsv``, sorted by name) into clips; see :func:`read_trajectory_file`.
+    ``*.tsv``, sorted by name) into clips; see :func:`read_trajectory_file` (``scale``, ``up``).
 
     Raises:
         DiscrepancyInputError: a missing path, an empty directory, bad content, or the same
@@ -414,7 +503,7 @@ def read_trajectories(paths: Sequence[str | Path] | str | Path, objects: Any = N
     clips: list[Clip] = []
     seen: dict[str, str] = {}
     for f in files:
-        for clip in read_trajectory_file(f, objects, default):
+        for clip in read_trajectory_file(f, objects, default, scale, up):
             if clip.name in seen:
                 raise _err(f, "clip", f"clip id {clip.name!r} also in {seen[clip.name]}")
             seen[clip.name] = str(f)

@@ -48,6 +48,7 @@ def report_dict(result: Result, files: Mapping[str, Any] | None = None) -> dict[
         clips.append({
             "clip": clip.name, "source": clip.source, "t0": clip.t0, "z_offset": clip.z_offset,
             "n_samples": int(len(clip.times)),
+            "outliers_dropped": result.outliers.get(clip.name, {}),
             "duration": float(clip.times[-1]), "orientation_measured": clip.has_orientation,
             "objects": [{"object": tr.object, "shape": tr.spec.shape, "size": tr.spec.size, "mass": tr.spec.mass,
                          "assumed": tr.spec.assumed, "observed_axes": "".join(a for a, o in zip("xyz", tr.axes) if o)}
@@ -204,7 +205,8 @@ def report_markdown(rep: Mapping[str, Any]) -> str:
     for c in rep["clips"]:
         objs = ", ".join(f"{o['object']} ({o['shape']}, {o['mass'] * 1e3:.3g} g{', assumed ' + '/'.join(o['assumed']) if o['assumed'] else ''})"
                          for o in c["objects"])
-        rows.append([c['clip'], objs, c['n_samples'], _fmt(c['noise']['position'], mm, 3), _fmt(c['noise']['angle_deg']),
+        n_out = sum(map(len, c.get("outliers_dropped", {}).values()))
+        rows.append([c['clip'], objs, f"{c['n_samples']}" + (f" ({n_out} outliers dropped)" if n_out else ""), _fmt(c['noise']['position'], mm, 3), _fmt(c['noise']['angle_deg']),
                      _fmt(c['rmse_base'], mm), _fmt(c['rmse_final'], mm),
                      f"{_fmt(c['heldout_rmse_before'], mm)} / {_fmt(c['heldout_rmse_after'], mm)}"])
     lines += ["## Clips", "", *table_lines(["clip", "objects", "samples", "noise (mm)", "noise (deg)", "base RMSE (mm)",

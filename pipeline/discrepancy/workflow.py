@@ -7,10 +7,11 @@ import copy
 import logging
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
 import numpy as np
+from scipy.stats import chi2 as chi2_dist
 
 from pipeline import effects as fx
 from pipeline.discrepancy.config import DiscrepancyConfig
@@ -18,7 +19,7 @@ from pipeline.discrepancy.find import motion_phases, residual_segments
 from pipeline.discrepancy.fit import (Fit, bounded_effect_values, coefficient_keys, initial_nuisance,
                                       newton_leave_one_out, single_threaded_blas)
 from pipeline.discrepancy.forward import forward_gap
-from pipeline.discrepancy.noise import Noise
+from pipeline.discrepancy.noise import Noise, drop_outliers
 from pipeline.discrepancy.intervals import profile_intervals
 from pipeline.discrepancy.profile import CHI2_1_95, parabola_min, profile_candidate, refit_from_data
 from pipeline.discrepancy.screen import second_chance_point, screen_candidates
@@ -44,6 +45,35 @@ def _gate(cand: dict[str, Any], cfg: DiscrepancyConfig) -> tuple[bool, str]:
     if cand["heldout_rmse"] >= cand["heldout_rmse_before"]:
         return False, "held-out RMSE does not shrink"
     return True, "clears BIC and held-out gates"
+
+
+def _null_test(ws: "Workspace", idx: Sequence[int], f: Fit, e: str, cfg: DiscrepancyConfig
+               ) -> dict[str, Any]:
+    """Whether candidate ``e``'s joint fit ``f`` beats the effect's own null value.
+
+    Every clip is refitted to the tolerance from ``f``'s per-clip parameters with ``e``
+    removed and the other effects held at ``f``'s values (for a nested effect that is the
+    effect at its null value; for ``wind``, no wind and no air). The likelihood-ratio
+    statistic ``(chi2_null - chi2_f) / s^2``, with the residual variance factor
+    ``s^2 = chi2_f / (n - k)`` of ``f`` (at least 1: a fit below the noise does not narrow
+    the test), is compared with the chi-square quantile of
+    ``cfg.ci_level`` with as many degrees of freedom as ``e`` has fitted coefficients: the
+    null value lies outside the effect's profile-likelihood interval exactly when the
+    statistic exceeds it (Venzon & Moolgavkar 1988). A gain that the effect's coefficients do
+    not carry (a fit that moved the other parameters, the effect itself at or near its null
+    value: hidden floor tilt named with Magnus lift 0 on independent data) does not pass.
+
+    Returns:
+        ``{chi2_null, statistic, threshold, passed}``.
+    """
+    others = {k: dict(v) for k, v in f.effects.items() if k != e}
+    refits = ws.refit_each(idx, list(f.nuisance), others, converge=True)
+    chi2_null = float(sum(r.rss for r in refits))
+    s2 = max(f.rss / max(f.n - f.k, 1), 1.0)
+    stat = (chi2_null - f.rss) / s2
+    threshold = float(chi2_dist.ppf(cfg.ci_level, len(coefficient_keys([e]))))
+    return {"chi2_null": chi2_null, "statistic": float(stat), "threshold": threshold,
+            "passed": bool(stat >= threshold)}
 
 
 def _at_noise_floor(fit: Fit, cfg: DiscrepancyConfig) -> bool:
@@ -226,6 +256,8 @@ class Result:
     runtime_s: float = 0.0
     forward: dict[str, Any] | None = None
     """Single clip: the forward split (:func:`forward_gap`), or ``None``."""
+    outliers: dict[str, dict[str, list[float]]] = field(default_factory=dict)
+    """``{clip: {object: [times of the samples dropped as outliers, s]}}`` (:func:`drop_outliers`)."""
 
     @property
     def gap(self) -> dict[str, Any]:
@@ -275,6 +307,8 @@ def run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None = None,
     pool of ``cfg.workers`` processes (default: every available core) for the per-clip fits
     (:meth:`Workspace.start_pool`; same result to the last bit as without).
 
+    0. **Outliers.** Isolated spikes in smooth motion are dropped (``cfg.outlier_sigma``,
+       :func:`drop_outliers`; ``Result.outliers``).
     1. **Base.** The noise of each clip is estimated from the data (:func:`estimate_noise`).
        Each clip's base parameters (:data:`NUISANCE`) are fitted on their own from the data
        (:func:`initial_nuisance`, then continuation over ``cfg.horizons`` with a friction
@@ -290,7 +324,8 @@ def run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None = None,
        predicted gain and the rest (with the second chances) are deferred once an eligible
        one fits every clip to the noise floor and none left is predicted to gain
        ``race_margin`` of its realised gain (``deferred`` in the step; they stay candidates
-       at the next step). Each remaining candidate gets its profile over its strength (every
+       at the next step). With ``null_test`` an eligible candidate must also beat its own
+       null value (:func:`_null_test`). Each remaining candidate gets its profile over its strength (every
        clip refitted from the data at each point), a converged joint fit (coefficients shared,
        every clip's parameters free) and leave-one-clip-out held-out scores
        (:func:`profile_candidate`). It is eligible when BIC drops by at least
@@ -329,10 +364,20 @@ def _run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None, options:
     options = (options or SimOptions()).model_copy(update={"textured": False})
     say = log or logger.info  # progress lines: logging (configured by the entry point) unless a callable is given
     t_start = time.perf_counter()
-    ws = Workspace(clips, cfg, options, gravity)
+    cleaned, outliers = [], {}
+    for clip in clips:
+        kept, dropped = drop_outliers(clip, cfg.outlier_sigma)
+        cleaned.append(kept)
+        if dropped:
+            outliers[clip.name] = dropped
+            say(f"clip {clip.name}: {sum(map(len, dropped.values()))} outlier sample(s) dropped "
+                f"(> {cfg.outlier_sigma:g} sigma from a quadratic through their neighbours)")
+    ws = Workspace(cleaned, cfg, options, gravity)
     try:
         ws.start_pool(cfg.workers or available_cores())
-        return _select(ws, cfg, say, t_start)
+        result = _select(ws, cfg, say, t_start)
+        result.outliers = outliers
+        return result
     finally:
         ws.close()
 
@@ -392,6 +437,13 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
             else:
                 ho = None
             cand["eligible"], cand["reason"] = _gate(cand, cfg)
+            if cand["eligible"] and cfg.null_test:
+                cand["null_test"] = _null_test(ws, idx, f, e, cfg)
+                if not cand["null_test"]["passed"]:
+                    cand["eligible"] = False
+                    cand["reason"] = (f"null value not excluded: likelihood ratio "
+                                      f"{cand['null_test']['statistic']:.1f} < {cand['null_test']['threshold']:.2f} "
+                                      f"(effect removed, every clip refitted)")
             cand["at_noise_floor"] = False
             if cand["eligible"] and cfg.race and screened:
                 # as the model would stand if named: the joint fit, each clip refitted from the

@@ -1,0 +1,188 @@
+"""Discrepancy workflow on data it was not built on (issue 31): outliers dropped before the fit
+(never a bounce), the null-value test that keeps an effect fitted at its null value from being
+named, and the benchmark's count of such names."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from pipeline import discrepancy as D
+from pipeline.discrepancy.benchmark import null_value, null_valued
+from pipeline.discrepancy.noise import drop_outliers, find_outliers
+from pipeline.discrepancy.trajectories import Clip, ObjectSpec, Track
+from pipeline.discrepancy.workflow import _null_test
+from pipeline.mjcf import SimOptions
+
+OPTS = SimOptions(textured=False)
+G = 9.81
+
+
+def _bouncing_ball(fps: int = 60, duration: float = 1.2, e: float = 0.6, seed: int = 0, noise: float = 0.001):
+    """``(t (T,), pos (T, 2), bounce sample indices)``: a ball thrown sideways, falling from 0.6 m
+    and bouncing on z = 0.03 with restitution ``e`` (closed-form arcs), plus Gaussian noise."""
+    t = np.arange(int(round(duration * fps)) + 1) / fps
+    z, vz, t0, bounces = 0.6, 0.0, 0.0, []
+    out = np.empty(len(t))
+    k = 0
+    while k < len(t):
+        # time of the next impact of the arc starting at (t0, z, vz)
+        disc = vz * vz + 2 * G * (z - 0.03)
+        t_hit = t0 + (vz + np.sqrt(disc)) / G
+        while k < len(t) and t[k] <= t_hit:
+            dt = t[k] - t0
+            out[k] = z + vz * dt - 0.5 * G * dt * dt
+            k += 1
+        bounces.append(k - 1)
+        vz = e * (G * (t_hit - t0) - vz)          # rebound: -e times the impact velocity
+        z, t0 = 0.03, t_hit
+    rng = np.random.default_rng(seed)
+    pos = np.stack([0.8 * t, out], 1) + rng.normal(0.0, noise, (len(t), 2))
+    return t, pos, bounces[:-1]
+
+
+def test_outliers_are_found_and_bounces_kept():
+    """Spikes of 10-30 mm (10-30 sigma) in smooth flight are found; the samples around each
+    bounce (a kink, not a spike) and the clean samples are kept, over 5 noise seeds."""
+    for seed in range(5):
+        t, pos, bounces = _bouncing_ball(seed=seed)
+        assert len(bounces) >= 2
+        assert not find_outliers(t, pos, 0.001, 6.0).any(), seed      # nothing on clean data
+        bad = pos.copy()
+        spikes = [12, 40, 55]
+        rng = np.random.default_rng(100 + seed)
+        for k in spikes:
+            d = rng.normal(size=2)
+            bad[k] += d / np.linalg.norm(d) * rng.uniform(0.01, 0.03)
+        found = np.flatnonzero(find_outliers(t, bad, 0.001, 6.0))
+        near_bounce = {b + d for b in bounces for d in range(-3, 4)}
+        assert set(found) <= set(spikes), (seed, found, bounces)
+        assert set(spikes) - near_bounce <= set(found), (seed, found, bounces)
+
+
+def test_drop_outliers_returns_a_new_clip_without_them():
+    t, pos, _ = _bouncing_ball(seed=1)
+    xyz = np.zeros((len(t), 3))
+    xyz[:, 0], xyz[:, 2] = pos[:, 0], pos[:, 1]
+    xyz[32, 2] += 0.02                                       # mid-arc (bounces at 20, 44)
+    spec = ObjectSpec("sphere", {"radius": 0.03}, 0.01)
+    clip = Clip("c", "<test>", [Track("sphere_0", t, xyz, None, np.array([True, False, True]), spec)])
+    kept, dropped = drop_outliers(clip, 6.0)
+    assert dropped == {"sphere_0": [pytest.approx(t[32])]}
+    assert len(kept.tracks[0].t) == len(t) - 1 and t[32] not in kept.tracks[0].t
+    assert len(clip.tracks[0].t) == len(t)                       # the input is untouched
+    same, none = drop_outliers(clip, 0.0)
+    assert same is clip and none == {}
+
+
+def test_null_valued_names():
+    assert null_value("magnus_lift") == {"lift": 0.0}
+    assert null_value("wind") == {"wind_x": 0.0, "wind_y": 0.0}
+    named = [{"effect": "magnus_lift", "parameters": {"lift": 0.0}, "ci": {"lift": [0.0, 0.02]}},
+             {"effect": "floor_tilt", "parameters": {"tilt_x": 1.2, "tilt_y": 0.0},
+              "ci": {"tilt_x": [1.0, 1.4], "tilt_y": [-0.1, 0.1]}},
+             {"effect": "quadratic_drag", "parameters": {"density": 0.3}, "ci": {"density": [None, 0.9]}},
+             {"effect": "wind", "parameters": {"wind_x": 0.0, "wind_y": 0.0}, "ci": {}}]
+    # lift 0 inside its interval; the tilt is not null on x; drag's open lower side holds 0;
+    # the wind sits exactly at 0 without an interval
+    assert null_valued(named) == ["magnus_lift", "quadratic_drag", "wind"]
+
+
+@pytest.fixture(scope="module")
+def drag_workspace():
+    cols, truth = D.generate_hidden(3101, D.HiddenConfig(n_clips=2, duration=0.8), OPTS, effect="quadratic_drag")
+    ws = D.Workspace(D.clips_from_columns(cols, "hidden"), D.DiscrepancyConfig(workers=1, threads=1), OPTS)
+    idx = list(range(len(ws.clips)))
+    with D.single_threaded_blas():
+        base = ws.fit_each(idx, [D.initial_nuisance(c) for c in ws.clips], {}, converge=True)
+    return ws, idx, base, truth
+
+
+def test_null_test_passes_a_real_effect_and_fails_one_at_its_null_value(drag_workspace):
+    """On data with strong air drag: the drag fitted jointly beats its null value by far
+    (likelihood ratio above the chi2_1 quantile); Magnus lift held at 0 (its null) on top
+    of the base fit gains nothing the effect carries, so it fails, as does drag held at 0."""
+    ws, idx, base, truth = drag_workspace
+    cfg = ws.cfg
+    with D.single_threaded_blas():
+        drag = ws.fit(idx, list(base.nuisance), {"quadratic_drag": {"density": 3.0}}, converge=True)
+        assert drag.rss < base.rss
+        ok = _null_test(ws, idx, drag, "quadratic_drag", cfg)
+        assert ok["passed"] and ok["statistic"] > 10 * ok["threshold"], ok
+        assert ok["threshold"] == pytest.approx(3.841, abs=1e-3)
+        lift0 = ws.fit(idx, list(base.nuisance), {"magnus_lift": {"lift": 0.0, "density": 1.2}},
+                       fit_effects=False, converge=True)
+        nul = _null_test(ws, idx, lift0, "magnus_lift", cfg)
+        assert not nul["passed"] and abs(nul["statistic"]) < nul["threshold"], nul
+        drag0 = ws.fit(idx, list(base.nuisance), {"quadratic_drag": {"density": 0.0}}, fit_effects=False,
+                       converge=True)
+        nul = _null_test(ws, idx, drag0, "quadratic_drag", cfg)
+        assert not nul["passed"], nul
+
+
+# --------------------------------------------------------------------- what measured data look like
+def _drop_with_bounce(fps=60, h=1.0, e=0.5, r=0.0155, floor=-0.009, noise=0.001, seed=0, dur=0.75, t_off=0.0):
+    """``(t, z)`` of a ball dropped from ``h`` onto a floor at ``floor`` (m, the data's frame),
+    bouncing with restitution ``e`` (closed form), plus Gaussian noise."""
+    t = np.arange(int(dur * fps) + 1) / fps + t_off
+    th = np.sqrt(2 * h / G)
+    z = np.where(t < th, floor + r + h - 0.5 * G * t * t, floor + r + e * G * th * (t - th) - 0.5 * G * (t - th) ** 2)
+    return t - t[0], z + np.random.default_rng(seed).normal(0.0, noise, len(t))
+
+
+def test_bounce_floor_is_found_under_the_impact():
+    """The floor under a bounce is recovered from the arcs before and after it (truth -9 mm):
+    within 3 mm for 1 mm noise at 60 fps and within 5 mm for 3 mm noise at 30 fps, whatever
+    the phase of the frames; a drop that ends before the impact has no floor."""
+    from pipeline.discrepancy.readers import bounce_floor
+    for fps, noise, tol in ((60, 0.001, 0.003), (30, 0.003, 0.005)):
+        for seed in range(4):
+            for off in (0.0, 0.3 / fps, 0.7 / fps):
+                t, z = _drop_with_bounce(fps=fps, noise=noise, seed=seed, t_off=off)
+                floor = bounce_floor(t, z, 0.0155)
+                assert floor is not None and abs(floor + 0.009) <= tol, (fps, seed, off, floor)
+    t, z = _drop_with_bounce(dur=0.4)
+    assert bounce_floor(t, z, 0.0155) is None
+
+
+def test_tracker_export_with_a_bounce_puts_the_floor_under_it(tmp_path):
+    from pipeline.discrepancy.readers import read_trajectory_file
+    t, z = _drop_with_bounce(seed=2)
+    path = tmp_path / "foam.txt"
+    path.write_text("t\ty\tx\n" + "".join(f"{a}\t{b}\t0.003\n" for a, b in zip(t, z)))
+    clip = read_trajectory_file(path, {"foam": {"*": {"shape": "sphere", "radius": 0.0155, "mass": 0.0004}}})[0]
+    assert clip.z_offset == pytest.approx(0.009, abs=0.003)
+    # the lowest sample sits between the contact height r and one frame's travel above it
+    assert 0.0155 - 0.003 <= float(np.min(clip.tracks[0].pos[:, 2])) <= 0.0155 + np.sqrt(2 * G) / 60
+    free = tmp_path / "free.txt"
+    keep = t < 0.4
+    free.write_text("t\ty\tx\n" + "".join(f"{a}\t{b}\t0.003\n" for a, b in zip(t[keep], z[keep])))
+    clip = read_trajectory_file(free)[0]
+    assert float(np.min(clip.tracks[0].pos[:, 2])) >= 0.05       # no bounce: clear of the floor
+
+
+def test_y_up_table_in_millimetres_reads_as_the_z_up_table_in_metres(tmp_path):
+    from pipeline.discrepancy.readers import read_trajectory_file
+    from pipeline.rotation import quat_to_mat
+    t = np.arange(12) / 60
+    x, y, z = 0.1 + 0.5 * t, 0.2 - 0.3 * t, 0.6 - 0.5 * G * t * t
+    ang = 0.3 * t
+    qz = np.stack([np.cos(ang / 2), 0 * t, 0 * t, np.sin(ang / 2)], 1)       # spin about world z
+    rows_z = [("c", "sphere_0", a, b, c, d, *q) for a, b, c, d, q in zip(t, x, y, z, qz)]
+    # the same motion in a y-up frame (file x, y, z = world x, z, -y), in millimetres; the
+    # spin about world z is a spin about the file's y
+    qy = np.stack([np.cos(ang / 2), 0 * t, np.sin(ang / 2), 0 * t], 1)        # about file +y = world z
+    rows_y = [("c", "sphere_0", a, 1e3 * b, 1e3 * d, -1e3 * c, *q) for a, b, c, d, q in zip(t, x, y, z, qy)]
+    head = "clip,object,t,x,y,z,qw,qx,qy,qz\n"
+    (tmp_path / "z.csv").write_text(head + "".join(",".join(map(str, r)) + "\n" for r in rows_z))
+    (tmp_path / "y.csv").write_text(head + "".join(",".join(map(str, r)) + "\n" for r in rows_y))
+    spec = {"*": {"*": {"shape": "sphere", "radius": 0.02, "mass": 0.01}}}
+    a = read_trajectory_file(tmp_path / "z.csv", spec)[0].tracks[0]
+    b = read_trajectory_file(tmp_path / "y.csv", spec, scale=1e-3, up="y")[0].tracks[0]
+    np.testing.assert_allclose(b.pos, a.pos, atol=1e-12)
+    # the rotation since the first sample, in the world frame, is the same spin about world z
+    rel_a = [quat_to_mat(q) @ quat_to_mat(a.quat[0]).T for q in a.quat]
+    rel_b = [quat_to_mat(q) @ quat_to_mat(b.quat[0]).T for q in b.quat]
+    np.testing.assert_allclose(np.array(rel_b), np.array(rel_a), atol=1e-9)
+    with pytest.raises(D.DiscrepancyInputError, match="--scale"):
+        read_trajectory_file(tmp_path / "y.csv", spec, up="y")
