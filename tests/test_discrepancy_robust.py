@@ -186,3 +186,24 @@ def test_y_up_table_in_millimetres_reads_as_the_z_up_table_in_metres(tmp_path):
     np.testing.assert_allclose(np.array(rel_b), np.array(rel_a), atol=1e-9)
     with pytest.raises(D.DiscrepancyInputError, match="--scale"):
         read_trajectory_file(tmp_path / "y.csv", spec, up="y")
+
+
+# --------------------------------------------------------------------------- calibrated intervals
+def test_jackknife_interval_by_hand():
+    """Three leave-one-out densities 4.0, 4.2, 4.4 around an estimate of 4.1: SE =
+    sqrt(2/3 * 0.08) = 0.2309, t_2(0.975) = 4.3027, so 4.1 +- 0.9935; fewer than three clips:
+    none; the union keeps an open side open."""
+    from pipeline.discrepancy.intervals import interval_union, jackknife_intervals
+    reps = [{"quadratic_drag": {"density": v}} for v in (4.0, 4.2, 4.4)]
+    ci = jackknife_intervals({"quadratic_drag": {"density": 4.1}}, reps, 0.95)
+    lo, hi = ci["quadratic_drag"]["density"]
+    half = 4.302652729749464 * np.sqrt(2 / 3 * 0.08)
+    assert lo == pytest.approx(4.1 - half, rel=1e-9) and hi == pytest.approx(4.1 + half, rel=1e-9)
+    assert jackknife_intervals({"quadratic_drag": {"density": 4.1}}, reps[:2] + [None], 0.95) == {}
+    wind = [{"wind": {"wind_x": x, "wind_y": 0.0, "density": 1.2}} for x in (1.0, 1.1, 1.2)]
+    ci = jackknife_intervals({"wind": {"wind_x": 1.1, "wind_y": 0.0, "density": 1.2}}, wind)
+    assert set(ci["wind"]) == {"wind_x", "wind_y"}                 # the fixed air density has none
+    assert ci["wind"]["wind_y"] == [0.0, 0.0]
+    assert interval_union([1.0, 2.0], [1.5, 3.0]) == [1.0, 3.0]
+    assert interval_union([None, 2.0], [1.5, 3.0]) == [None, 3.0]
+    assert interval_union(None, [1.5, 3.0]) == [1.5, 3.0] and interval_union(None, None) is None

@@ -96,6 +96,8 @@ def run_trial(seed: int, effect: str, cfg: DiscrepancyConfig | None = None, hidd
             "named_parameters": {n["effect"]: n["parameters"] for n in result.named},
             "named_ci": {n["effect"]: n["ci"] for n in result.named},
             "named_ci_gauss_newton": {n["effect"]: n.get("ci_gauss_newton") or {} for n in result.named},
+            "named_ci_profile": {n["effect"]: n.get("ci_profile", n["ci"]) for n in result.named},
+            "named_ci_jackknife": {n["effect"]: n.get("ci_jackknife") or {} for n in result.named},
             "correct": named == expected, "gap_before": gap["before"], "gap_after": gap["after"],
             "shrink": gap["shrink"], "noise": gap["noise"], "excess_shrink": gap["excess_shrink"],
             "runtime_s": time.perf_counter() - t0}
@@ -245,7 +247,8 @@ def benchmark_markdown(bench: Mapping[str, Any], command: str = "") -> str:
                  ["single clip: median forward-gap shrink / above the noise",
                   f"{pct(one['median_shrink'])} / {pct(one['median_excess_shrink'])}"],
                  ["single clip: forward gap after naming within 1.5x the noise floor", pct(one['gap_within_1p5_noise'])]]
-    for kind, label in (("profile", "profile likelihood"), ("gauss_newton", "Gauss-Newton")):
+    for kind, label in (("reported", "reported: profile widened to the jackknife"), ("profile", "profile likelihood"),
+                        ("gauss_newton", "Gauss-Newton"), ("jackknife", "leave-one-clip-out jackknife")):
         c = (s.get("ci_coverage") or {}).get(kind) or {}
         if c.get("coefficients"):
             rows.append([f"95 % intervals ({label}) holding the truth, correctly named effect trials",

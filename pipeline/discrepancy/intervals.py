@@ -14,6 +14,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 from scipy.stats import chi2 as chi2_dist
+from scipy.stats import t as student_t
 
 from pipeline import effects as fx
 from pipeline.discrepancy.fit import Fit
@@ -315,6 +316,59 @@ def _curvature(cache: Mapping[float, float]) -> tuple[float, float] | None:
     return float(A), float(xs[b] - B / (2 * A))
 
 
+JACKKNIFE_MIN_CLIPS = 3
+"""Fewest clips for a jackknife interval (with two, Student's t_1 makes it ~13 standard errors
+wide and rests on one difference)."""
+
+
+def jackknife_intervals(estimate: Mapping[str, Mapping[str, float]],
+                        replicates: Sequence[Mapping[str, Mapping[str, float]] | None],
+                        level: float = 0.95) -> dict[str, dict[str, list[float]]]:
+    """Leave-one-clip-out jackknife intervals of the named coefficients.
+
+    With ``n`` clips and ``theta_(i)`` the coefficient fitted without clip ``i`` (the shown
+    gap's held-out coefficients), the jackknife standard error is
+    ``sqrt((n-1)/n sum_i (theta_(i) - mean)^2)`` (Quenouille 1956, Tukey 1958; Efron & Stein
+    1981) and the interval ``estimate +- t_{n-1}(1 - (1-level)/2) SE``. It measures how much
+    the estimate moves with the data clip by clip, which the profile likelihood does not:
+    per-clip refits that land in different basins (bounces between samples) make the profile
+    scatter and its interval hug a stalled estimate (docs/discrepancy.md, "Known limit").
+
+    Args:
+        estimate: ``{effect: {parameter: value}}`` of the fit on all clips.
+        replicates: per clip, the same fitted without that clip (``None``: not available).
+        level: confidence level.
+
+    Returns:
+        ``{effect: {parameter: [low, high]}}`` for the fitted parameters of every effect of
+        ``estimate`` (none with fewer than :data:`JACKKNIFE_MIN_CLIPS` replicates).
+    """
+    reps = [r for r in replicates if r]
+    n = len(reps)
+    out: dict[str, dict[str, list[float]]] = {}
+    if n < JACKKNIFE_MIN_CLIPS:
+        return out
+    q = float(student_t.ppf(1.0 - (1.0 - level) / 2.0, n - 1))
+    for e, params in estimate.items():
+        for p, spec in fx.REGISTRY[e].parameters.items():
+            if not spec.fit or p not in params or any(p not in r.get(e, {}) for r in reps):
+                continue
+            vals = np.array([float(r[e][p]) for r in reps])
+            se = math.sqrt((n - 1) / n * float(np.sum((vals - vals.mean()) ** 2)))
+            out.setdefault(e, {})[p] = [float(params[p]) - q * se, float(params[p]) + q * se]
+    return out
+
+
+def interval_union(a: Sequence[float | None] | None, b: Sequence[float | None] | None) -> list[float | None] | None:
+    """The smallest interval holding both ``a`` and ``b`` (``[low, high]``, ``None`` an open
+    side, which stays open); either may be ``None`` (absent)."""
+    if a is None or b is None:
+        return list(a if b is None else b) if (a is not None or b is not None) else None
+    lo = None if a[0] is None or b[0] is None else min(a[0], b[0])
+    hi = None if a[1] is None or b[1] is None else max(a[1], b[1])
+    return [lo, hi]
+
+
 def format_interval(ci: Sequence[float | None] | None, nd: int = 4) -> str:
     """An interval as text: ``[lo, hi]`` with ``nd`` significant digits, an open side
     (``None``) shown as ``(open`` / ``open)``, and ``"fixed"`` for no interval (``None`` or
@@ -339,18 +393,25 @@ def interval_coverage(rs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     its side.
 
     Returns:
-        ``{"ci_coverage": {"profile": {"held", "coefficients", "fraction"},
-        "gauss_newton": {...}}}`` (``fraction`` ``None`` where nothing was counted). A
-        calibrated 95 % interval holds the truth in ~95 % of coefficients.
+        ``{"ci_coverage": {"reported": {"held", "coefficients", "fraction"}, "profile": {...},
+        "gauss_newton": {...}, "jackknife": {...}}}`` (``fraction`` ``None`` where nothing was
+        counted; trials from before the jackknife, without ``named_ci_profile``, count their
+        ``named_ci`` as the profile's). A calibrated 95 % interval holds the truth in ~95 %
+        of coefficients.
     """
     out = {}
-    for kind, column in (("profile", "named_ci"), ("gauss_newton", "named_ci_gauss_newton")):
+    for kind, column in (("reported", "named_ci"), ("profile", "named_ci_profile"),
+                         ("gauss_newton", "named_ci_gauss_newton"), ("jackknife", "named_ci_jackknife")):
         held = total = 0
         for r in rs:
-            if not (r.get("correct") and r.get("named")) or column not in r:
+            if column == "named_ci_profile" and column not in r:
+                column_r = "named_ci"          # reports from before the jackknife
+            else:
+                column_r = column
+            if not (r.get("correct") and r.get("named")) or column_r not in r:
                 continue
             truths = r.get("truth_parameters") or {}
-            for p, ci in ((r[column] or {}).get(r["truth"]) or {}).items():
+            for p, ci in ((r[column_r] or {}).get(r["truth"]) or {}).items():
                 if truths.get(p) is None or ci is None:
                     continue
                 lo, hi = ci

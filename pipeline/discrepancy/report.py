@@ -76,6 +76,7 @@ def report_dict(result: Result, files: Mapping[str, Any] | None = None) -> dict[
         "steps": result.steps,
         "named": [{"effect": n["effect"], "parameters": n["parameters"], "ci": n["ci"],
                    "ci_gauss_newton": n.get("ci_gauss_newton", {}), "ci_method": n.get("ci_method", {}),
+                   "ci_profile": n.get("ci_profile", n["ci"]), "ci_jackknife": n.get("ci_jackknife", {}),
                    "units": n["units"],
                    "fitted": n["fitted"], "mechanism": n["mechanism"]} for n in result.named],
         "gap": result.gap,
@@ -164,8 +165,10 @@ def report_markdown(rep: Mapping[str, Any]) -> str:
              *_gap_lines(rep),
              "## Named effects", ""]
     if rep["named"]:
-        lines += table_lines(["effect", "mechanism", "parameter", "value", "95 % CI", "unit"],
+        lines += table_lines(["effect", "mechanism", "parameter", "value", "95 % CI", "profile", "jackknife", "unit"],
                         [[n['effect'], n['mechanism'], p, f"{v:.4g}", format_interval(n["ci"].get(p)),
+                          format_interval((n.get("ci_profile") or n["ci"]).get(p)),
+                          format_interval((n.get("ci_jackknife") or {}).get(p)) if n.get("ci_jackknife") else "—",
                           n['units'].get(p, '')] for n in rep["named"] for p, v in n["parameters"].items()])
     else:
         lines.append("None: no candidate cleared the noise floor (BIC and held-out gates).")
@@ -237,12 +240,18 @@ def report_markdown(rep: Mapping[str, Any]) -> str:
               "rotation increments), robust scale 1.4826·MAD. Residuals are divided by it.",
               f"- Naming: ΔBIC ≤ −{rep['config']['bic_threshold']:g}, profile Δχ² (every clip refitted from the data "
               f"with the effect vs. without) ≥ {rep['config']['heldout_threshold']:g}, held-out Δχ² ≥ "
-              f"{rep['config']['heldout_threshold']:g} and a smaller held-out RMSE; among eligible candidates the lowest "
+              f"{rep['config']['heldout_threshold']:g} and a smaller held-out RMSE, and (null test) the effect removed "
+              "with every clip refitted must be worse by the χ² quantile × χ²/dof (its interval excludes its null "
+              "value); among eligible candidates the lowest "
               "BIC is named; greedy forward selection until nothing is eligible or every clip is at the noise floor.",
+              "- Outliers: samples more than `outlier_sigma` prediction SDs from a quadratic through their six "
+              "neighbours (which fit it within the noise) are dropped before any fit (counted per clip above).",
               "- Confidence intervals: profile likelihood (the coefficient fixed, everything else refitted; threshold "
               "χ²₁ quantile × χ²/dof), where the Gauss-Newton interval s²(JᵀJ)⁻¹ (Student-t, "
               "`mujoco.sysid.calculate_intervals`) is accepted when the profile confirms its ends within 25 %; a side "
-              "the data cannot bound before the search bound is shown open.",
+              "the data cannot bound before the search bound is shown open. With >= 3 clips the reported interval "
+              "is widened to hold the leave-one-clip-out jackknife interval (estimate ± t·SE over the held-out "
+              "coefficients).",
               f"- Runtime: {rep['runtime_s']:.0f} s."]
     return "\n".join(lines) + "\n"
 
