@@ -12,7 +12,7 @@ Every effect works through MuJoCo's own mechanism:
 ============================  =====================================================  =========
 effect                        mechanism                                              parameters
 ============================  =====================================================  =========
-``quadratic_drag``            ``option/density`` (inertia-box fluid model)           density kg/m^3
+``quadratic_drag``            ``option/density`` (ellipsoid blunt drag on spheres)   density kg/m^3
 ``wind``                      ``option/wind`` (+ ``density`` of air if none is set)  wind_x, wind_y m/s
 ``restitution``               object geoms' ``solref`` (timeconst, dampratio)       e (1)
 ``floor_tilt``                direction of ``option/gravity``                        tilt_x, tilt_y deg
@@ -55,6 +55,12 @@ SPHERE_ADDED_MASS_LIFT = 0.5
 ``rho V (omega x v)``: it pushes *against* the Magnus direction (MuJoCo docs, "Fluid forces",
 ellipsoid model example: added mass + Magnus = ``(C_M - 1/2) rho V omega x v`` for a sphere;
 measured in ``tests/test_effects.py``)."""
+
+
+SPHERE_BLUNT_DRAG = 1.2 / math.pi
+"""Ellipsoid-model blunt-drag coefficient that reproduces the inertia-box drag of a solid
+sphere along a body axis (``1.2 rho R^2 v^2 = C pi R^2 rho v^2``): used by ``quadratic_drag``
+and ``wind`` on spheres (isotropic drag) and by ``magnus_lift`` when either is present."""
 
 
 @dataclass(frozen=True)
@@ -134,41 +140,74 @@ def _object_geoms(root) -> list:
 
 
 # --------------------------------------------------------------------------- drag and wind
+def _sphere_geoms(root) -> list:
+    """MJCF sphere geoms of the scene's objects."""
+    return [g for g in _object_geoms(root) if g.type == "sphere"]
+
+
+def _isotropic_drag_mjcf(root) -> None:
+    """Give the objects' sphere geoms MuJoCo's ellipsoid fluid model with only the blunt drag
+    (:data:`SPHERE_BLUNT_DRAG`) and the Magnus entry that cancels the added-mass lift
+    (:data:`SPHERE_ADDED_MASS_LIFT`): the drag of a sphere is then ``-1.2 rho R^2 |v| v`` in
+    every direction. (The inertia-box model applies ``-1.2 rho R^2 |v_i| v_i`` per body axis:
+    a sphere moving along a body diagonal gets 58 % of that, along a face diagonal 71 %;
+    measured in ``tests/test_effects.py``.) Other shapes keep the inertia-box model."""
+    for geom in _sphere_geoms(root):
+        geom.fluidshape = "ellipsoid"
+        geom.fluidcoef = [SPHERE_BLUNT_DRAG, 0.0, 0.0, 0.0, SPHERE_ADDED_MASS_LIFT]
+
+
+def _isotropic_drag_model(model: mujoco.MjModel, geoms: np.ndarray) -> None:
+    """In place: :func:`_isotropic_drag_mjcf`'s coefficients on the object geoms compiled with
+    the ellipsoid model (their ``geom_fluid[:, 0] > 0``: the spheres)."""
+    ell = geoms[model.geom_fluid[geoms, 0] > 0]
+    model.geom_fluid[ell, 1:6] = [SPHERE_BLUNT_DRAG, 0.0, 0.0, 0.0, SPHERE_ADDED_MASS_LIFT]
+
+
 @register
 class QuadraticDrag(Effect):
-    """Quadratic air drag through MuJoCo's inertia-box fluid model (option ``density``).
-
-    MuJoCo docs, "Fluid forces", inertia model: ``f_i = -2 rho r_j r_k |v_i| v_i`` in the
-    body frame, with ``r`` the half-sizes of the body's equivalent inertia box. For a solid
-    sphere of radius R, ``r = sqrt(3/5) R``, so ``f = -1.2 rho R^2 |v_i| v_i``; a smooth
-    sphere (``C_D ~ 0.47``, area ``pi R^2``) in air of 1.2 kg/m^3 corresponds to an effective
-    ``density`` of ``1.2 * 0.47 * pi / 2.4 ~ 0.74`` kg/m^3.
+    """Quadratic air drag ``f = -1.2 rho R^2 |v| v`` on a sphere of radius R (option
+    ``density`` = rho), isotropic: MuJoCo's ellipsoid fluid model with only its blunt drag
+    (MuJoCo docs, "Fluid forces": ``-rho C_blunt A |v| v`` with the projected area ``A = pi
+    R^2`` and ``C_blunt = 1.2 / pi``, :func:`_isotropic_drag_mjcf`). That is the inertia-box
+    model's drag of a solid sphere along a body axis (``f_i = -2 rho r_j r_k |v_i| v_i`` with
+    ``r = sqrt(3/5) R``), so a smooth sphere (``C_D ~ 0.47``, ``1/2 rho_air C_D pi R^2``) in air
+    of 1.2 kg/m^3 corresponds to an effective ``density`` of ``1.2 * 0.47 * pi / 2.4 ~ 0.74``
+    kg/m^3. Boxes and cylinders keep the inertia-box model (drag per body axis, which is
+    what a box's faces give). Until 2026-11-25 spheres used the inertia-box model too: a ball
+    thrown at 45 deg got 71 % of its drag, and data with real (isotropic) drag were fitted
+    with a spurious wind (issue 31, independent benchmark).
     """
 
     name = "quadratic_drag"
-    mechanism = "option density (inertia-box model)"
+    mechanism = "option density (ellipsoid model blunt drag on spheres, inertia-box on other shapes)"
     replaces_damping = True  # air resistance: quadratic in speed instead of linear
+    structural = True        # spheres are compiled with the ellipsoid model
     parameters = {"density": ParamSpec(0.0, 50.0, "kg/m^3", AIR_DENSITY, scale=1.0,
                                       grid=(0.0, AIR_DENSITY, 3.0, 8.0, 20.0))}
 
     @classmethod
     def apply(cls, root, params):
         root.option.density = params["density"]
+        _isotropic_drag_mjcf(root)
 
     @classmethod
     def set_model(cls, model, params, geoms, base):
         model.opt.density = params["density"]
+        _isotropic_drag_model(model, geoms)
 
 
 @register
 class Wind(Effect):
     """Steady horizontal wind through MuJoCo's option ``wind`` (subtracted from each body's
-    velocity in the fluid model). The fluid needs a density: air (``density`` = 1.2 kg/m^3,
-    not fitted) unless ``quadratic_drag`` sets one, which then wins."""
+    velocity in the fluid model), with the drag law of ``quadratic_drag`` (isotropic on
+    spheres). The fluid needs a density: air (``density`` = 1.2 kg/m^3, not fitted) unless
+    ``quadratic_drag`` sets one, which then wins."""
 
     name = "wind"
     mechanism = "option wind, with option density (air unless quadratic_drag sets it)"
     nested = False  # no wind still leaves air drag
+    structural = True
     parameters = {
         "wind_x": ParamSpec(-20.0, 20.0, "m/s", 0.0, scale=1.0, grid=(0.0, -5.0, -2.5, 2.5, 5.0)),
         "wind_y": ParamSpec(-20.0, 20.0, "m/s", 0.0, scale=1.0, grid=(0.0, -5.0, -2.5, 2.5, 5.0)),
@@ -180,12 +219,14 @@ class Wind(Effect):
         root.option.wind = [params["wind_x"], params["wind_y"], 0.0]
         if not root.option.density:
             root.option.density = params["density"]
+        _isotropic_drag_mjcf(root)
 
     @classmethod
     def set_model(cls, model, params, geoms, base):
         model.opt.wind[:] = [params["wind_x"], params["wind_y"], 0.0]
         if not model.opt.density:
             model.opt.density = params["density"]
+        _isotropic_drag_model(model, geoms)
 
 
 # --------------------------------------------------------------------------- restitution
@@ -318,12 +359,6 @@ class FloorTilt(Effect):
 
 
 # --------------------------------------------------------------------------- Magnus lift
-SPHERE_BLUNT_DRAG = 1.2 / math.pi
-"""Ellipsoid-model blunt-drag coefficient that reproduces the inertia-box drag of a solid
-sphere along a body axis (``1.2 rho R^2 v^2 = C pi R^2 rho v^2``): used when ``magnus_lift``
-switches a body to the ellipsoid model while ``quadratic_drag`` or ``wind`` is present."""
-
-
 def magnus_fluidcoef(lift: float, density: float, drag: bool) -> list[float]:
     """``fluidcoef`` (blunt, slender, angular, Kutta, Magnus) for a lift coefficient.
 
@@ -341,8 +376,8 @@ class MagnusLift(Effect):
     """Magnus lift on spinning objects through MuJoCo's ellipsoid fluid model: each object
     geom gets ``fluidshape="ellipsoid"`` with only the Magnus coefficient set
     (:func:`magnus_fluidcoef`). The ellipsoid model replaces the inertia-box model for the
-    body, so when ``quadratic_drag``/``wind`` are present the drag moves to the ellipsoid's
-    blunt-drag term (:data:`SPHERE_BLUNT_DRAG`; exact along body axes for spheres). The
+    body, so when ``quadratic_drag``/``wind`` are present the drag is the ellipsoid's
+    blunt-drag term (:data:`SPHERE_BLUNT_DRAG`, as those effects use on spheres). The
     added-mass correction is exact for spheres only."""
 
     name = "magnus_lift"

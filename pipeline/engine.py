@@ -126,9 +126,12 @@ def configure_model(model: mujoco.MjModel, base: ModelBase, geoms: np.ndarray,
     model.geom_friction[:] = base.geom_friction
     model.geom_fluid[:] = base.geom_fluid
     ellipsoid = bool(model.geom_fluid.size and np.any(model.geom_fluid[geoms, 0] > 0))
-    if ellipsoid != ("magnus_lift" in effects):
+    if "magnus_lift" in effects and not ellipsoid:
         raise ValueError("configure_model: magnus_lift is structural: the model must be "
-                         "compiled with it exactly when it is among the effects")
+                         "compiled with it when it is among the effects")
+    if ellipsoid and not any(REGISTRY[n].structural for n in effects if n in REGISTRY):
+        raise ValueError("configure_model: the model was compiled with a structural effect "
+                         "(ellipsoid fluid model) that is not among the effects")
     for name in REGISTRY:
         if name in effects:
             REGISTRY[name].set_model(model, effects[name], geoms, base)

@@ -70,6 +70,8 @@ class SimOptions(BaseModel):
 
     timestep: float = Field(DEFAULT_TIMESTEP, gt=0, le=0.1, allow_inf_nan=False, description="s")
     integrator: str = "implicitfast"
+    cone: str = Field("pyramidal", pattern="^(pyramidal|elliptic)$",
+                      description="MuJoCo friction cone: pyramidal (the default) or elliptic (isotropic Coulomb friction)")
     floor_friction: float = Field(0.5, ge=0)
     floor_solref: tuple[float, float] = (0.02, 1.0)
     object_solref: tuple[float, float] = (0.02, 1.0)
@@ -210,6 +212,8 @@ def build_mjcf(scene: Scene, options: SimOptions | None = None,
     root.compiler.angle = "radian"
     root.option.timestep = frame_timestep(scene.fps, opt.timestep)  # frames fall on steps
     root.option.integrator = opt.integrator
+    if opt.cone != "pyramidal":   # the default stays out of the MJCF text
+        root.option.cone = opt.cone
     root.option.gravity = [0.0, 0.0, -scene.gravity]
     glob = getattr(root.visual, "global")
     glob.offwidth = opt.offscreen_size

@@ -15,9 +15,9 @@ from pipeline.params import load_params, path_of
 
 def main() -> None:
     p = load_params()
-    _, hidden, sim = load_config(p)
+    cfg, hidden, sim = load_config(p)
     seed = int(p.get("seed", 0))
-    columns, truth = generate_hidden(seed, hidden, sim)
+    columns, truth = generate_hidden(seed, hidden, sim, fit=cfg)   # with the fits' base contact
     out, truth_dir = shards.reset_dir(path_of(p, "hidden")), shards.reset_dir(path_of(p, "hidden_truth"))
     meta = {"params": hidden.model_dump(), "seed": seed,
             "units": {"t": "s", "x": "m", "y": "m", "z": "m", "radius": "m", "width": "m", "depth": "m",

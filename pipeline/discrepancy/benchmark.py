@@ -79,8 +79,8 @@ def run_trial(seed: int, effect: str, cfg: DiscrepancyConfig | None = None, hidd
         ValueError: unknown ``engine``.
     """
     t0 = time.perf_counter()
-    if engine == "mujoco":
-        cols, truth = generate_hidden(seed, hidden, options, effect=effect)
+    if engine == "mujoco":   # the generator's base contact is the fits' (fit_options)
+        cols, truth = generate_hidden(seed, hidden, options, effect=effect, fit=cfg)
     elif engine == "independent":
         cols, truth = generate_independent(seed, independent, effect=effect)
     else:

@@ -8,6 +8,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field
 
 from pipeline import effects as fx
+from pipeline.mjcf import SimOptions
 from pipeline.scene import Decimals
 
 
@@ -99,6 +100,17 @@ class DiscrepancyConfig(StrictModel):
             ``Effect.replaces_damping`` stands in for the linear damping).
         diff_step: finite-difference step, in units of each parameter's scale.
         ci_level: confidence level of the coefficient intervals.
+        contact_timeconst: s, ``solref`` time constant of the base model's object and floor
+            contacts in the workflow's fits (critically damped); the params ``sim`` value
+            (0.02 s, the scenes' default) lets a 5 g ball that lands at 4 m/s sink 16-23 mm
+            into the floor and creep out over 0.2 s, which turns its spin into the wrong rolling
+            speed (0.23 m/s for 0.35 by angular momentum about the contact point); at 0.005 s it
+            sinks 3 mm. Stiffer still (0.0034 s, twice the 1/600 s step) launches a ball that
+            starts sliding by ~1 cm. The base fits of independent data (impulse bounces, no
+            effect) reach chi2/n 0.9-4 instead of up to 900 (:func:`fit_options`).
+        friction_cone: MuJoCo friction cone of the fits: ``elliptic`` (isotropic Coulomb
+            friction) or ``pyramidal`` (the scenes' default; 4 edges: a sphere sliding off the
+            edges' axes feels a different friction, 10 mm over 0.2 s on independent data).
         ci_jackknife: with >= 3 clips, widen each reported interval to hold the
             leave-one-clip-out jackknife interval too
             (:func:`pipeline.discrepancy.intervals.jackknife_intervals`; the profile's own is
@@ -147,6 +159,8 @@ class DiscrepancyConfig(StrictModel):
     hold_damping: bool = False
     diff_step: float = Field(1e-2, gt=0)
     ci_level: float = Field(0.95, gt=0, lt=1)
+    contact_timeconst: float = Field(0.005, gt=0)
+    friction_cone: str = Field("elliptic", pattern="^(pyramidal|elliptic)$")
     ci_jackknife: bool = True
     null_test: bool = True
     outlier_sigma: float = Field(6.0, ge=0)
@@ -158,3 +172,13 @@ class DiscrepancyConfig(StrictModel):
             if name not in fx.REGISTRY:
                 raise ValueError(f"candidates: unknown effect {name!r}, must be one of "
                                  f"{', '.join(fx.REGISTRY)}")
+
+
+def fit_options(options: SimOptions | None, cfg: DiscrepancyConfig) -> SimOptions:
+    """The simulation options of the workflow's fits: ``options`` (params ``sim``) untextured,
+    with the base contact of ``cfg`` (``contact_timeconst``, critically damped, on objects and
+    floor; ``friction_cone``). Hidden-effect data made for a benchmark of the workflow use the
+    same options, so that its base model is the generator's."""
+    solref = (float(cfg.contact_timeconst), 1.0)
+    return (options or SimOptions()).model_copy(update={"textured": False, "object_solref": solref,
+                                                        "floor_solref": solref, "cone": cfg.friction_cone})

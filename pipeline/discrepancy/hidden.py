@@ -11,7 +11,7 @@ import numpy as np
 from pydantic import Field
 
 from pipeline import effects as fx
-from pipeline.discrepancy.config import DISCREPANCY_DECIMALS, StrictModel
+from pipeline.discrepancy.config import DISCREPANCY_DECIMALS, DiscrepancyConfig, StrictModel, fit_options
 from pipeline.discrepancy.trajectories import QUAT_COLUMNS, SPEC_COLUMNS, TABLE_COLUMNS
 from pipeline.mjcf import SimOptions, compile_model
 from pipeline.rotation import quat_mul, rotvec_to_quat
@@ -134,7 +134,8 @@ def _hidden_object(rng: np.random.Generator, kind: str, index: int) -> dict[str,
 
 
 def generate_hidden(seed: int, cfg: HiddenConfig | None = None, options: SimOptions | None = None,
-                    effect: str | None = None) -> tuple[dict[str, list], dict[str, Any]]:
+                    effect: str | None = None, fit: DiscrepancyConfig | None = None
+                    ) -> tuple[dict[str, list], dict[str, Any]]:
     """Measured trajectories generated with one hidden effect (or none) plus noise.
 
     Every clip is simulated by the same MuJoCo bridge as the workflow (scene -> MJCF ->
@@ -144,8 +145,11 @@ def generate_hidden(seed: int, cfg: HiddenConfig | None = None, options: SimOpti
     Args:
         seed: random seed (clips, effect, strength, noise).
         cfg: settings.
-        options: simulation options (params ``sim``).
+        options: simulation options (params ``sim``), with the base contact of the workflow's
+            fits (:func:`pipeline.discrepancy.config.fit_options` of ``fit``, default
+            settings when ``None``): the data's base model is the one the workflow fits.
         effect: overrides ``cfg.effect`` (``none``, a name, or ``random``).
+        fit: the workflow settings whose contact the data share.
 
     Returns:
         ``(columns, truth)``: ``columns`` maps each table column (:data:`TABLE_COLUMNS`,
@@ -154,7 +158,7 @@ def generate_hidden(seed: int, cfg: HiddenConfig | None = None, options: SimOpti
         stored apart from the measurements.
     """
     cfg = cfg or HiddenConfig()
-    options = (options or SimOptions()).model_copy(update={"textured": False})
+    options = fit_options(options, fit or DiscrepancyConfig())
     rng = np.random.default_rng(seed)
     name, params = draw_effect(rng, cfg, effect)
     cols: dict[str, list] = {c: [] for c in TABLE_COLUMNS + (QUAT_COLUMNS if cfg.orientation else ()) + SPEC_COLUMNS}

@@ -14,7 +14,7 @@ import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
 from pipeline import effects as fx
-from pipeline.discrepancy.config import DiscrepancyConfig
+from pipeline.discrepancy.config import DiscrepancyConfig, fit_options
 from pipeline.discrepancy.find import motion_phases, residual_segments
 from pipeline.discrepancy.fit import (Fit, bounded_effect_values, coefficient_keys, initial_nuisance,
                                       newton_leave_one_out, single_threaded_blas)
@@ -346,7 +346,8 @@ def run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None = None,
     Args:
         clips: measured clips (:func:`read_trajectories`), objects in scene order.
         cfg: settings (default :class:`DiscrepancyConfig`).
-        options: simulation options (params ``sim``; ``textured`` is switched off).
+        options: simulation options (params ``sim``; ``textured`` is switched off and the
+            base contact is ``cfg``'s, :func:`fit_options`).
         gravity: m/s^2.
         log: optional ``print``-like callable for progress lines (default: this module's
             logger at INFO, shown by the ``dynamics`` CLI unless ``--quiet``).
@@ -361,7 +362,7 @@ def run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None = None,
 def _run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None, options: SimOptions | None,
                   gravity: float, log) -> Result:
     cfg = cfg or DiscrepancyConfig()
-    options = (options or SimOptions()).model_copy(update={"textured": False})
+    options = fit_options(options, cfg)
     say = log or logger.info  # progress lines: logging (configured by the entry point) unless a callable is given
     t_start = time.perf_counter()
     cleaned, outliers = [], {}

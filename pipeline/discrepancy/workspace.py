@@ -16,7 +16,7 @@ import numpy as np
 
 from pipeline import effects as fx
 from pipeline.discrepancy.clip_model import NUISANCE_FRICTION, ClipModel, Weights, clip_residuals_many
-from pipeline.discrepancy.config import DiscrepancyConfig
+from pipeline.discrepancy.config import DiscrepancyConfig, fit_options
 from pipeline.discrepancy.fit import Fit, fit_clips, free_mask, single_threaded_blas
 from pipeline.discrepancy.noise import estimate_noise
 from pipeline.discrepancy.trajectories import Clip, truncate_clip
@@ -82,7 +82,7 @@ class Workspace:
     def __init__(self, clips: Sequence[Clip], cfg: DiscrepancyConfig, options: SimOptions, gravity: float = 9.81):
         self.clips = list(clips)
         self.cfg = cfg
-        self.options = options
+        self.options = fit_options(options, cfg)   # the base contact of the fits
         self.gravity = gravity
         self.noise = [estimate_noise(c) for c in self.clips]
         self.weights = [Weights(n.position, n.angle) for n in self.noise]
