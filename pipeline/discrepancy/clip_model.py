@@ -45,8 +45,8 @@ NUISANCE_FRICTION = 13
 
 def clip_scene(clip: Clip, nuis: np.ndarray | None = None, effects: Mapping[str, Mapping[str, float]] | None = None,
                qref: np.ndarray | None = None) -> Scene:
-    """Scene of a clip: its objects with the initial state and material of ``nuis`` and the
-    given effects.
+    """Scene of a clip: its objects with the initial state and material of ``nuis``, its static
+    geometry (``clip.static``: ramps of a ``dynamics infer`` scene) and the given effects.
 
     Args:
         clip: the clip (objects, duration, frame rate).
@@ -78,7 +78,7 @@ def clip_scene(clip: Clip, nuis: np.ndarray | None = None, effects: Mapping[str,
                      "material": {"sliding_friction": friction, "rolling_friction": 0.0, "damping": damping}})
     duration = float(min(max(clip.times[-1], 1e-3), 60.0))
     data = {"duration": duration, "fps": min(clip.fps, 10000), "gravity": 9.81,
-            "camera": {"height": 1.2, "pitch": 35.0, "fov": 45.0}, "objects": objs,
+            "camera": {"height": 1.2, "pitch": 35.0, "fov": 45.0}, "objects": objs, "static": list(clip.static),
             "effects": [{"effect": k, "parameters": dict(v)} for k, v in (effects or {}).items()]}
     return Scene.from_dict(data, source=f"clip {clip.name}")
 

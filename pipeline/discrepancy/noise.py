@@ -184,4 +184,4 @@ def drop_outliers(clip: Clip, threshold: float) -> tuple[Clip, dict[str, list[fl
                             tr.axes, tr.spec))
     if not dropped:
         return clip, {}
-    return Clip(clip.name, clip.source, tracks, clip.t0, clip.z_offset), dropped
+    return Clip(clip.name, clip.source, tracks, clip.t0, clip.z_offset, clip.static), dropped

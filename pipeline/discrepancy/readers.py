@@ -15,6 +15,7 @@ import yaml
 
 from pipeline import infer_tracks
 from pipeline.discrepancy.config import DefaultObject
+from pipeline.discrepancy.noise import local_quadratic
 from pipeline.rotation import quat_mul
 from pipeline.discrepancy.trajectories import (MIN_SAMPLES, QUAT_COLUMNS, SPEC_COLUMNS, TABLE_COLUMNS, Clip,
                                                DiscrepancyInputError, ObjectSpec, Track)
@@ -128,20 +129,25 @@ def bounce_floor(t: np.ndarray, z: np.ndarray, radius: float, g: float = GRAVITY
                  noise: float | None = None) -> float | None:
     """Height of the floor under a vertical track that bounces, in the track's own frame.
 
-    A bounce is the lowest sample ``k`` of the track, inside it, where the second difference
-    ``z[k+1] - 2 z[k] + z[k-1]`` is positive by more than ``2 g dt^2`` plus 6 standard
-    deviations of the noise (free flight has ``-g dt^2``; only a contact pushes up). The impact
+    A bounce is where the change of velocity over three steps (``z[j+2] - z[j+1] - z[j] +
+    z[j-1]``, the sum of two second differences: an impact between samples spreads over two) is
+    largest, when that is positive by more than ``2 g dt^2`` plus 6 of its noise standard
+    deviations (``2 sigma``; free flight gives ``-2 g dt^2``, rest 0: only a contact pushes up);
+    ``k`` is the lower of its two middle samples, and ``k`` or a neighbour is at the bottom of
+    the track (within 6 noise standard deviations and ``g dt^2`` of its lowest
+    sample). The impact
     is where the free-flight arcs (gravity ``g`` known) through up to 4 samples before and
-    after it meet; ``k`` goes to the side whose arcs fit better. The centre is then one
-    ``radius`` above the floor. With one sample after the bounce the lowest sample stands in
+    after it meet, or, where the samples after it fit a constant better than an arc (a dead
+    ball that stays down), at that resting height; ``k`` goes to the side that fits better.
+    The centre is then one ``radius`` above the floor. With one sample after the bounce the lowest sample stands in
     for the impact (a bounce seen in the last frames: the floor is then at most one frame's
     travel too low).
 
     Args:
         t: ``(T,)`` s, increasing. z: ``(T,)`` m, vertical coordinate, up.
         radius: m, height of the centre above the floor at contact (bounding radius).
-        g: m/s^2. noise: m, standard deviation of ``z`` (default: the robust scale of the
-            second differences / sqrt(6)).
+        g: m/s^2. noise: m, standard deviation of ``z`` (default: 1.4826 x the median absolute
+            residual of local quadratic fits, :func:`pipeline.discrepancy.noise.local_quadratic`).
 
     Returns:
         The floor height (m, the track's frame), or ``None`` when the track does not bounce.
@@ -149,14 +155,23 @@ def bounce_floor(t: np.ndarray, z: np.ndarray, radius: float, g: float = GRAVITY
     T = len(t)
     if T < 3:
         return None
-    k = int(np.argmin(z))
-    if k == 0 or k == T - 1:
-        return None
     d2 = np.diff(z, 2)
     dt = float(np.median(np.diff(t)))
-    if noise is None:
-        noise = 1.4826 * float(np.median(np.abs(d2 - np.median(d2)))) / np.sqrt(6.0)
-    if d2[k - 1] <= 2 * g * dt * dt + 6 * np.sqrt(6.0) * noise:
+    if noise is None:   # robust scale of local quadratic residuals (flight and rest alike)
+        _, res, _ = local_quadratic(t, z[:, None])
+        noise = 1.4826 * float(np.median(np.abs(res))) if res.size else 0.0
+    if T < 4:
+        return None
+    # the change of velocity over three steps, z[k+2] - z[k+1] - z[k] + z[k-1]: an impact between
+    # samples spreads over two second differences (noise 2 sigma; free flight -2 g dt^2)
+    dv = d2[:-1] + d2[1:]
+    j = int(np.argmax(dv))
+    if dv[j] <= 2 * g * dt * dt + 6 * 2.0 * noise:
+        return None
+    k = j + 1 + int(np.argmin(z[j + 1:j + 3]))     # the lower of its two middle samples
+    if k >= T - 1:
+        return None
+    if float(np.min(z[k - 1:k + 2])) > float(np.min(z)) + 6.0 * noise + g * dt * dt:   # not at the bottom
         return None
     best = None
     for split in (k, k + 1):            # samples [.., split) before the impact, [split, ..) after
@@ -165,17 +180,34 @@ def bounce_floor(t: np.ndarray, z: np.ndarray, radius: float, g: float = GRAVITY
         before, after = _arc(tb - t[k], zb, g), _arc(ta - t[k], za, g)
         if before is None or after is None:
             continue
-        # impact: where the arcs meet (the same -g t^2/2, so linear in t)
-        if abs(after[1] - before[1]) < 1e-9:
-            continue
-        ti = (before[0] - after[0]) / (after[1] - before[1])
-        if not (t[split - 1] - t[k] - 1e-9 <= ti <= t[split] - t[k] + 1e-9):
-            continue
-        res = sum(float(np.sum((a + b * (tt - t[k]) - 0.5 * g * (tt - t[k]) ** 2 - zz) ** 2))
-                  for (a, b), tt, zz in ((before, tb, zb), (after, ta, za)))
-        zi = before[0] + before[1] * ti - 0.5 * g * ti * ti
-        if best is None or res < best[0]:
-            best = (res, zi)
+        res_before = float(np.sum((before[0] + before[1] * (tb - t[k]) - 0.5 * g * (tb - t[k]) ** 2 - zb) ** 2))
+        res_after = float(np.sum((after[0] + after[1] * (ta - t[k]) - 0.5 * g * (ta - t[k]) ** 2 - za) ** 2))
+        rest = float(np.mean(za))                       # or the object stays down (a dead ball)
+        res_rest = float(np.sum((za - rest) ** 2))
+        # a rebound arc must fit better per degree of freedom and leave the floor faster than a
+        # hop of 6 noise standard deviations (an arc's vertex can fit a bump of noise at rest)
+        hop = float(np.sqrt(2.0 * g * 6.0 * noise))
+        rises = after[1] - g * (ta[0] - t[k]) > hop
+        if not (rises and len(ta) > 2 and res_after / (len(ta) - 2) < res_rest / (len(ta) - 1)):
+            # the impact is where the arc before it comes down to the resting height
+            a, b = before[0] - rest, before[1]
+            disc = b * b + 2.0 * g * a
+            if disc < 0:
+                continue
+            ti = (b + np.sqrt(disc)) / g
+            if ti < tb[-1] - t[k] - 1e-9 or ti > t[split] - t[k] + 1e-9:
+                continue
+            cand = (res_before + res_rest, rest)
+        else:
+            # impact: where the arcs meet (the same -g t^2/2, so linear in t)
+            if abs(after[1] - before[1]) < 1e-9:
+                continue
+            ti = (before[0] - after[0]) / (after[1] - before[1])
+            if not (t[split - 1] - t[k] - 1e-9 <= ti <= t[split] - t[k] + 1e-9):
+                continue
+            cand = (res_before + res_after, before[0] + before[1] * ti - 0.5 * g * ti * ti)
+        if best is None or cand[0] < best[0]:
+            best = cand
     contact = float(z[k]) if best is None else min(best[1], float(z[k]))
     return contact - radius
 
@@ -532,7 +564,8 @@ def clips_from_infer_dir(path: str | Path, default: DefaultObject | None = None
                          ) -> tuple[list[Clip], dict[str, Any], float]:
     """Clips from a ``dynamics infer`` output folder (``scene.yaml`` + ``tracks.csv``,
     :mod:`pipeline.infer_tracks`): the observed tracks in the scene's world frame, objects
-    (shape, size, mass) from the scene, only the axes the camera sees face-on observed.
+    (shape, size, mass) and static geometry (ramps, ``Clip.static``) from the scene, only the
+    axes the camera sees face-on observed.
 
     Returns:
         ``(clips, video, gravity)``: ``video`` = ``{folder, camera_axes, resimulation_gap}``
@@ -547,7 +580,9 @@ def clips_from_infer_dir(path: str | Path, default: DefaultObject | None = None
         raise DiscrepancyInputError(str(exc)) from None
     clips = clips_from_columns({c: cols[c] for c in TABLE_COLUMNS + SPEC_COLUMNS}, str(Path(path) / "tracks.csv"),
                                default=default)
+    static = [g.model_dump(mode="json") for g in scene.static]   # ramps: simulated in the fits
     for clip in clips:
+        clip.static = static
         for tr in clip.tracks:
             tr.axes = axes.copy()
     video = {"folder": str(path), "camera_axes": "".join(a for a, on in zip("xyz", axes) if on),

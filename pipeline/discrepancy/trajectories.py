@@ -87,6 +87,10 @@ class Clip:
         t0: s, absolute time of the first sample (tracks' ``t`` are relative to it).
         z_offset: m added to the file's vertical coordinate (two-dimensional files only, see
             :data:`TWO_D_FLOOR_CLEARANCE`).
+        static: fixed geometry besides the floor (ramps, walls, table tops) as scene-language
+            ``static:`` entries (dicts of :class:`pipeline.scene.StaticBox` /
+            :class:`pipeline.scene.StaticPlane`), from a ``dynamics infer`` scene; simulated in
+            every fit.
     """
 
     name: str
@@ -94,6 +98,7 @@ class Clip:
     tracks: list[Track]
     t0: float = 0.0
     z_offset: float = 0.0
+    static: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def times(self) -> np.ndarray:
@@ -121,4 +126,4 @@ def truncate_clip(clip: Clip, t_max: float) -> Clip | None:
             return None
         tracks.append(Track(tr.object, tr.t[keep], tr.pos[keep], None if tr.quat is None else tr.quat[keep],
                             tr.axes, tr.spec))
-    return Clip(clip.name, clip.source, tracks, clip.t0, clip.z_offset)
+    return Clip(clip.name, clip.source, tracks, clip.t0, clip.z_offset, clip.static)
