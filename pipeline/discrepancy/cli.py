@@ -110,6 +110,10 @@ def main_cli(args: argparse.Namespace) -> int:
         if len(args.trajectories) != 1:
             raise DiscrepancyInputError(f"{args.trajectories[0]}: a `dynamics infer` folder must be the only input")
         clips, video, gravity = clips_from_infer_dir(args.trajectories[0], cfg.default_object)
+        # the video's scene was re-simulated (and its camera fitted) on the scenes' own contact
+        # (params sim): the base model of its tracks is that simulator, not the stiffer contact
+        # the workflow fits measured trajectories with
+        cfg = cfg.model_copy(update={"contact_timeconst": float(sim.object_solref[0]), "friction_cone": sim.cone})
         g = video["resimulation_gap"]
         print(f"video reconstruction {args.trajectories[0]}: the re-simulated scene leaves "
               f"{g['rmse_m'] * 1e3:.2f} mm ({g['rmse_px']:.1f} px) RMSE on the observed tracks "
