@@ -79,6 +79,7 @@ def report_dict(result: Result, files: Mapping[str, Any] | None = None) -> dict[
                    "ci_profile": n.get("ci_profile", n["ci"]), "ci_jackknife": n.get("ci_jackknife", {}),
                    "units": n["units"],
                    "fitted": n["fitted"], "mechanism": n["mechanism"]} for n in result.named],
+        "dropped": result.dropped,
         "gap": result.gap,
         "in_sample": result.in_sample,
         "final": {"rmse": result.final.rmse, "bic": result.final.bic, "chi2": result.final.rss,
@@ -172,6 +173,11 @@ def report_markdown(rep: Mapping[str, Any]) -> str:
                           n['units'].get(p, '')] for n in rep["named"] for p, v in n["parameters"].items()])
     else:
         lines.append("None: no candidate cleared the noise floor (BIC and held-out gates).")
+    for d in rep.get("dropped") or []:
+        lines += ["", f"Dropped from the final model: {d['effect']} "
+                      f"({', '.join(f'{k}={v:.3g}' for k, v in d['parameters'].items())}), named during the selection, "
+                      f"does not beat its null value once the other effects are refitted (likelihood ratio "
+                      f"{d['statistic']:.1f} < {d['threshold']:.2f})."]
     lines += ["", "## Candidates", ""]
     for st in rep["steps"]:
         model = " + ".join(["base"] + st["model"])

@@ -52,8 +52,10 @@ def _null_test(ws: "Workspace", idx: Sequence[int], f: Fit, e: str, cfg: Discrep
     """Whether candidate ``e``'s joint fit ``f`` beats the effect's own null value.
 
     Every clip is refitted to the tolerance from ``f``'s per-clip parameters with ``e``
-    removed and the other effects held at ``f``'s values (for a nested effect that is the
-    effect at its null value; for ``wind``, no wind and no air). The likelihood-ratio
+    removed (for a nested effect that is the effect at its null value; for ``wind``, no wind and
+    no air); the other effects' coefficients are held at ``f``'s values and, in a second fit,
+    refitted jointly with every clip's parameters (the better of the two counts: a tilt that
+    only made up for a wind fit stalled at the step before must not stay). The likelihood-ratio
     statistic ``(chi2_null - chi2_f) / s^2``, with the residual variance factor
     ``s^2 = chi2_f / (n - k)`` of ``f`` (at least 1: a fit below the noise does not narrow
     the test), is compared with the chi-square quantile of
@@ -67,13 +69,45 @@ def _null_test(ws: "Workspace", idx: Sequence[int], f: Fit, e: str, cfg: Discrep
         ``{chi2_null, statistic, threshold, passed}``.
     """
     others = {k: dict(v) for k, v in f.effects.items() if k != e}
-    refits = ws.refit_each(idx, list(f.nuisance), others, converge=True)
-    chi2_null = float(sum(r.rss for r in refits))
+    if others:   # the other effects' coefficients refitted too, jointly (the profile over them)
+        refit = ws.fit(idx, list(f.nuisance), others, converge=True)
+        chi2_null = min(refit.rss, float(sum(r.rss for r in ws.refit_each(idx, list(f.nuisance), others,
+                                                                           converge=True))))
+    else:
+        chi2_null = float(sum(r.rss for r in ws.refit_each(idx, list(f.nuisance), others, converge=True)))
     s2 = max(f.rss / max(f.n - f.k, 1), 1.0)
     stat = (chi2_null - f.rss) / s2
     threshold = float(chi2_dist.ppf(cfg.ci_level, len(coefficient_keys([e]))))
     return {"chi2_null": chi2_null, "statistic": float(stat), "threshold": threshold,
             "passed": bool(stat >= threshold)}
+
+
+def _final_fit(ws: "Workspace", idx: Sequence[int], current: Fit, say,
+               clip_profile: dict[float, list[float]]) -> Fit:
+    """The named model's converged joint refit with Gauss-Newton intervals (``current`` kept if
+    the refit is worse), then its profile-likelihood intervals (:func:`profile_intervals`, which
+    fills ``clip_profile``); where the profile finds a lower chi-square than the joint fit
+    (which can stall a few chi-square units short), its minimum is the final fit."""
+    final = ws.fit(idx, current.nuisance, current.effects, with_ci=True, converge=True)
+    if final.rss > current.rss:   # the converged refit never loses the model it starts from
+        kept = final
+        final = Fit({k: dict(v) for k, v in current.effects.items()}, list(current.nuisance), list(current.chi2),
+                    list(current.sq_pos), list(current.n_res), list(current.n_pos), current.k,
+                    list(kept.theta_keys), ci=kept.ci, nfev=kept.nfev, status=kept.status,
+                    iterations=kept.iterations, converged=kept.converged, start="selection fit (kept)",
+                    ci_gn=kept.ci_gn, ci_method=kept.ci_method, clip_info=kept.clip_info)
+    else:
+        final.start = "selection fit"
+    say(f"final fit: chi2 {final.rss:.1f}, optimiser status {final.status}, {final.iterations} evaluations")
+    ci, ci_method, better = profile_intervals(ws, idx, final, log=say, clip_profile=clip_profile)
+    if better is not None:   # the profile found a lower chi-square than the joint fit: its minimum
+        say(f"final fit: the profile minimum lowers chi2 {final.rss:.1f} -> {better.rss:.1f} (taken)")
+        better.ci_gn, better.nfev, better.status = final.ci_gn, final.nfev, final.status
+        better.iterations, better.converged = final.iterations, final.converged
+        better.clip_info = final.clip_info   # the Newton step starts from the joint fit's own point
+        final = better
+    final.ci, final.ci_method = ci, ci_method
+    return final
 
 
 def _at_noise_floor(fit: Fit, cfg: DiscrepancyConfig) -> bool:
@@ -256,6 +290,9 @@ class Result:
     runtime_s: float = 0.0
     forward: dict[str, Any] | None = None
     """Single clip: the forward split (:func:`forward_gap`), or ``None``."""
+    dropped: list[dict[str, Any]] = field(default_factory=list)
+    """Effects named during the selection and dropped from the final model because their null
+    value was not excluded there (``{effect, parameters, chi2_null, statistic, threshold}``)."""
     outliers: dict[str, dict[str, list[float]]] = field(default_factory=dict)
     """``{clip: {object: [times of the samples dropped as outliers, s]}}`` (:func:`drop_outliers`)."""
 
@@ -338,7 +375,10 @@ def run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None = None,
     3. **Add.** With effects named, a converged joint refit with Gauss-Newton intervals (the
        selection fit is kept if the refit is worse), then profile-likelihood intervals
        (:func:`profile_intervals`); where the profile finds a lower chi-square than the joint
-       fit (which can stall a few chi-square units short), its minimum is the final fit.
+       fit (which can stall a few chi-square units short), its minimum is the final fit
+       (:func:`_final_fit`). With ``null_test`` every named effect must still beat its null
+       value in the final model; the weakest that does not is dropped and the rest refitted
+       (``Result.dropped``), until all do.
     4. **Find.** Per clip, the motion phases (:func:`motion_phases`, with the base model's
        spin where none is measured) and the residual segments of the base and the final model
        (:func:`residual_segments`); with one clip, the forward gap (:func:`forward_gap`).
@@ -544,26 +584,27 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
 
     final = current
     clip_profile: dict[float, list[float]] = {}
+    dropped: list[dict[str, Any]] = []
     if named_order:
-        final = ws.fit(idx, current.nuisance, current.effects, with_ci=True, converge=True)
-        if final.rss > current.rss:   # the converged refit never loses the model it starts from
-            kept = final
-            final = Fit({k: dict(v) for k, v in current.effects.items()}, list(current.nuisance), list(current.chi2),
-                        list(current.sq_pos), list(current.n_res), list(current.n_pos), current.k,
-                        list(kept.theta_keys), ci=kept.ci, nfev=kept.nfev, status=kept.status,
-                        iterations=kept.iterations, converged=kept.converged, start="selection fit (kept)",
-                        ci_gn=kept.ci_gn, ci_method=kept.ci_method, clip_info=kept.clip_info)
-        else:
-            final.start = "selection fit"
-        say(f"final fit: chi2 {final.rss:.1f}, optimiser status {final.status}, {final.iterations} evaluations")
-        ci, ci_method, better = profile_intervals(ws, idx, final, log=say, clip_profile=clip_profile)
-        if better is not None:   # the profile found a lower chi-square than the joint fit: its minimum
-            say(f"final fit: the profile minimum lowers chi2 {final.rss:.1f} -> {better.rss:.1f} (taken)")
-            better.ci_gn, better.nfev, better.status = final.ci_gn, final.nfev, final.status
-            better.iterations, better.converged = final.iterations, final.converged
-            better.clip_info = final.clip_info   # the Newton step starts from the joint fit's own point
-            final = better
-        final.ci, final.ci_method = ci, ci_method
+        final = _final_fit(ws, idx, current, say, clip_profile)
+        while cfg.null_test and named_order:
+            # never an effect at its null value: each named effect must still beat it in the final
+            # model (a tilt named after a stalled wind fit can end at 0 once the wind converges)
+            tests = {e: _null_test(ws, idx, final, e, cfg) for e in named_order}
+            fails = [e for e in named_order if not tests[e]["passed"]]
+            if not fails:
+                break
+            worst = min(fails, key=lambda e: tests[e]["statistic"])
+            dropped.append({"effect": worst, "parameters": dict(final.effects[worst]), **tests[worst]})
+            say(f"final fit: {worst} dropped, its null value not excluded in the final model (likelihood ratio "
+                f"{tests[worst]['statistic']:.1f} < {tests[worst]['threshold']:.2f})")
+            named_order.remove(worst)
+            clip_profile.clear()
+            if not named_order:
+                final = base
+                break
+            reduced = {k: dict(v) for k, v in final.effects.items() if k in named_order}
+            final = _final_fit(ws, idx, ws.fit(idx, list(final.nuisance), reduced, converge=True), say, clip_profile)
     named = []
     for e in named_order:
         cls = fx.REGISTRY[e]
@@ -601,4 +642,4 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
                                               p: f"{entry['ci_method'].get(p, 'profile')}, widened to the jackknife"}
     forward = forward_gap(ws, 0, named_order, say) if n == 1 else None
     return Result(ws.clips, ws.noise, base, base_ho, final, cur_ho, steps, named, segs, segs_after, phases,
-                  base_qpos, final_qpos, cfg, time.perf_counter() - t_start, forward)
+                  base_qpos, final_qpos, cfg, time.perf_counter() - t_start, forward, dropped=dropped)
