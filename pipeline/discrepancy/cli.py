@@ -5,6 +5,7 @@ and the typed configs of params.yaml."""
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 from pathlib import Path
 from typing import Any, Mapping
@@ -13,7 +14,7 @@ from pydantic import ValidationError
 
 from pipeline import effects as fx
 from pipeline import infer_tracks
-from pipeline.discrepancy.benchmark import benchmark_markdown, run_benchmark
+from pipeline.discrepancy.benchmark import benchmark_markdown, rescore, run_benchmark
 from pipeline.discrepancy.config import DiscrepancyConfig
 from pipeline.discrepancy.hidden import HiddenConfig
 from pipeline.discrepancy.readers import clips_from_infer_dir, read_trajectories
@@ -154,6 +155,10 @@ def add_benchmark_arguments(parser: argparse.ArgumentParser) -> None:
                         help="JSON output (.md written beside it; default reports/discrepancy_benchmark.json, "
                              "with --engine independent reports/discrepancy_benchmark_independent.json)")
     parser.add_argument("--params", default=None, help="params.yaml (sections discrepancy, measure_hidden, sim)")
+    parser.add_argument("--rescore", default=None, metavar="JSON",
+                        help="instead of running trials, recompute an earlier run's reported intervals, null-valued "
+                             "names and summary with the current interval rule (discrepancy.ci_model_error); the naming "
+                             "does not depend on them. Writes --out (default: the same file) and its .md")
 
 
 def benchmark_cli(args: argparse.Namespace) -> int:
@@ -165,6 +170,21 @@ def benchmark_cli(args: argparse.Namespace) -> int:
         DiscrepancyInputError: bad params or options (the CLI prints it, exit 2).
     """
     cfg, hidden, sim = _config_from_args(args)
+    if args.rescore:
+        src = Path(args.rescore)
+        try:
+            bench = json.loads(src.read_text())
+        except (OSError, ValueError) as exc:
+            raise DiscrepancyInputError(f"{src}: cannot read a benchmark JSON: {exc}") from None
+        bench = rescore(bench, cfg)
+        out = Path(args.out or src)
+        command = bench.get("command", "")
+        write_json(out, bench)
+        write_text(out.with_suffix(".md"), benchmark_markdown(bench, command))
+        c = bench["summary"]["ci_coverage"]["reported"]
+        print(f"rescored {src}: reported intervals hold the truth in {c['held']}/{c['coefficients']}; "
+              f"null-valued names {bench['summary']['null_valued_names']}; wrote {out}")
+        return 0
     jobs = args.jobs if args.backend == "local" else ComputeConfig(backend="ray", address=args.address,
                                                                         workers=args.jobs)
     if args.out is None:

@@ -17,10 +17,11 @@ rad/s (world frame) and orientation ``q (4,)`` (unit quaternion w, x, y, z; worl
   ``F = -1/2 rho C_d pi r^2 |u| u``, ``u = v - wind`` (e.g. Batchelor, *An Introduction to
   Fluid Dynamics*, 1967, §5.11; any ballistics text). ``rho`` is the effect's ``density``
   (``quadratic_drag``) or 1.2 kg/m^3 (``wind``). With ``C_d = 2.4 / pi`` the coefficient
-  ``1/2 rho C_d pi r^2 = 1.2 rho r^2`` equals that of MuJoCo's inertia-box model for motion
-  along a body axis, so the project's ``density`` parameter means ``rho`` here too; but this
-  law is isotropic (``|u| u``) where MuJoCo's is per body axis (``|u_i| u_i`` in the body
-  frame of the equivalent box): a deliberate model mismatch.
+  ``1/2 rho C_d pi r^2 = 1.2 rho r^2`` equals that of the project's ``quadratic_drag`` on a
+  sphere, so its ``density`` parameter means ``rho`` here too. (Until issue 31 the project
+  used MuJoCo's inertia-box model, per body axis, ``|u_i| u_i`` in the body frame of the
+  equivalent box: on these data it named a wind for a drag; it now uses the ellipsoid model's
+  isotropic blunt drag on spheres.)
 * Magnus lift (``magnus_lift``): ``F = lift * 1.2 kg/m^3 * V * (w x v)``, ``V = 4/3 pi r^3``:
   the project's definition of ``lift`` (``pipeline.effects.magnus_fluidcoef``, after
   MuJoCo's "Fluid forces" Magnus term). No drag and no air torque go with it: the spin is
@@ -29,7 +30,8 @@ rad/s (world frame) and orientation ``q (4,)`` (unit quaternion w, x, y, z; worl
   downwards) is located by bisection to 1e-9 s and resolved by an impulsive bounce (rigid-body
   impact with Coulomb friction, e.g. R. Cross, "Grip-slip behavior of a bouncing ball",
   Am. J. Phys. 70, 1093 (2002); Brody, Am. J. Phys. 52, 140 (1984)): the normal velocity
-  ``v_n -> -e v_n`` (``e`` of ``restitution``, else ``restitution_base``); the contact-point
+  ``v_n -> -e v_n`` (``e`` of ``restitution``, else ``restitution_base``, 0: a dead ball, as
+  the project's critically damped base contact); the contact-point
   slip ``s = v_t + w x (-r z_hat)`` is opposed by a tangential impulse
   ``min(2/7 m |s|, mu m (1 + e) |v_n|)`` (``2/7 m |s|`` stops the slip of a solid sphere),
   applied to ``v`` and, through the torque ``(-r z_hat) x J``, to ``w``. A rebound lower than

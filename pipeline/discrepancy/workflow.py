@@ -20,7 +20,7 @@ from pipeline.discrepancy.fit import (Fit, bounded_effect_values, coefficient_ke
                                       newton_leave_one_out, single_threaded_blas)
 from pipeline.discrepancy.forward import forward_gap
 from pipeline.discrepancy.noise import Noise, drop_outliers
-from pipeline.discrepancy.intervals import interval_union, jackknife_intervals, profile_intervals
+from pipeline.discrepancy.intervals import jackknife_intervals, profile_intervals, with_model_error
 from pipeline.discrepancy.profile import CHI2_1_95, parabola_min, profile_candidate, refit_from_data
 from pipeline.discrepancy.screen import second_chance_point, screen_candidates
 from pipeline.discrepancy.trajectories import MIN_SAMPLES, Clip
@@ -612,6 +612,10 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
                       "ci_gauss_newton": final.ci_gn.get(e, {}), "ci_method": final.ci_method.get(e, {}),
                       "units": {p: s.unit for p, s in cls.parameters.items()},
                       "fitted": [p for p, s in cls.parameters.items() if s.fit], "mechanism": cls.mechanism})
+        # the reported interval: the profile's, widened by the allowance for model mismatch
+        entry = named[-1]
+        entry["ci_profile"] = dict(entry["ci"])
+        entry["ci"] = with_model_error(e, entry["parameters"], entry["ci_profile"], cfg.ci_model_error)
 
     base_qpos, final_qpos, phases, segs, segs_after = [], [], [], [], []
     for c in idx:
@@ -627,19 +631,10 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
     if n >= 2:
         base_ho, cur_ho = _converged_heldout(ws, idx, base, base_ho, final, cur_ho if named_order else None,
                                              clip_profile)
-        if named_order and cfg.ci_jackknife:
-            # the reported interval also holds the leave-one-clip-out jackknife interval: the
-            # estimate's spread over the data, which the profile misses where refits scatter
+        if named_order and cfg.ci_jackknife:   # a diagnostic beside the reported interval
             jk = jackknife_intervals({e: final.effects[e] for e in named_order}, cur_ho.theta, cfg.ci_level)
             for entry in named:
-                e = entry["effect"]
-                entry["ci_profile"] = dict(entry["ci"])
-                entry["ci_jackknife"] = jk.get(e, {})
-                for p, ci_jk in jk.get(e, {}).items():
-                    entry["ci"][p] = interval_union(entry["ci"].get(p), ci_jk)
-                    if entry["ci"][p] != entry["ci_profile"].get(p):
-                        entry["ci_method"] = {**entry["ci_method"],
-                                              p: f"{entry['ci_method'].get(p, 'profile')}, widened to the jackknife"}
+                entry["ci_jackknife"] = jk.get(entry["effect"], {})
     forward = forward_gap(ws, 0, named_order, say) if n == 1 else None
     return Result(ws.clips, ws.noise, base, base_ho, final, cur_ho, steps, named, segs, segs_after, phases,
                   base_qpos, final_qpos, cfg, time.perf_counter() - t_start, forward, dropped=dropped)
