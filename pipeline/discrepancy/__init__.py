@@ -18,12 +18,14 @@ extended scenes (``effects:`` block) and a report showing the held-out gap shrin
    sample by BIC and out of sample by leave-one-clip-out (coefficients from the other clips'
    profile, only the clip's own parameters refitted). An effect is named only if it clears
    both gates (BIC drop and held-out chi-square drop above thresholds, i.e. above what the
-   noise floor explains); greedy forward selection repeats with the named effects in the
-   model (:func:`run_workflow`).
+   noise floor explains) and beats its own null value (a likelihood-ratio test, again in the
+   final model); greedy forward selection repeats with the named effects in the model
+   (:func:`run_workflow`). Isolated outliers are dropped first.
 3. **Add.** The final joint fit (converged) gives the coefficients, with confidence intervals
    from the profile likelihood (:func:`profile_intervals`; the Gauss-Newton interval
    ``s^2 (J^T J)^-1`` of ``mujoco.sysid.calculate_intervals`` where the profile confirms it,
-   open where the data cannot bound a side), and one extended scene per clip.
+   open where the data cannot bound a side), reported widened by an allowance for model
+   mismatch (``ci_model_error``), and one extended scene per clip.
 4. **Show.** ``discrepancy.md`` / ``discrepancy.json``, residual plots before/after (PNG),
    a rerun recording (measured vs base vs extended). The shown gap (:attr:`Result.gap`) is
    the leave-one-clip-out held-out RMSE with >= 2 clips; with one clip there is nothing to
@@ -46,13 +48,14 @@ Example::
     write_report(result, "reports")
 
 Modules, in import order (each imports only those above it): ``config`` (settings),
-``trajectories`` (objects, tracks, clips, :class:`DiscrepancyInputError`), ``readers`` (files
-and their checks), ``noise``, ``clip_model`` (the base model in MuJoCo, residuals), ``fit``
+``trajectories`` (objects, tracks, clips, :class:`DiscrepancyInputError`), ``noise`` (noise
+estimate, outliers), ``readers`` (files and their checks, a 2-D export's floor), ``clip_model`` (the base model in MuJoCo, residuals), ``fit``
 (least squares), ``find`` (motion phases, residual segments), ``workspace`` (compiled models,
 worker pool, held-out scores), ``screen`` (cheap candidate screens), ``profile`` (profiles,
 joint fits, held-out scores), ``intervals`` (profile-likelihood intervals, their coverage),
 ``forward`` (the single-clip forward gap), ``workflow`` (forward selection, :class:`Result`),
-``hidden`` (hidden-effect data), ``plots``, ``report``, ``benchmark`` and ``cli``. This
+``hidden`` (hidden-effect data), ``independent`` (hidden-effect data from a hand-written
+integrator that shares nothing with the MuJoCo model), ``plots``, ``report``, ``benchmark`` and ``cli``. This
 package re-exports the public API below.
 """
 
