@@ -25,6 +25,18 @@ and rolls; a heavier sphere pushed along the floor, sliding and spinning about t
 a sphere rolling with some spin about the vertical."""
 
 
+DEFAULT_STRENGTHS: dict[str, dict[str, tuple[float, float]]] = {
+    "quadratic_drag": {"density": (3.0, 12.0)},
+    "wind": {"speed": (2.0, 5.0)},
+    "restitution": {"e": (0.4, 0.85)},
+    "floor_tilt": {"tilt": (1.5, 5.0)},
+    "magnus_lift": {"lift": (0.6, 2.0)},
+    "torsional_friction": {"mu_torsion": (0.005, 0.03)},
+}
+"""Per effect, per parameter ``[low, high]`` of the hidden strength's uniform draw (``wind`` and
+``floor_tilt``: the magnitude, m/s and deg); the default of both generators' ``strengths``."""
+
+
 class HiddenConfig(StrictModel):
     """Hidden-effect data (params section ``measure_hidden``).
 
@@ -49,14 +61,7 @@ class HiddenConfig(StrictModel):
     noise_angle: float = Field(1.0, ge=0)
     orientation: bool = True
     kinds: tuple[str, ...] = HIDDEN_KINDS
-    strengths: dict[str, dict[str, tuple[float, float]]] = {
-        "quadratic_drag": {"density": (3.0, 12.0)},
-        "wind": {"speed": (2.0, 5.0)},
-        "restitution": {"e": (0.4, 0.85)},
-        "floor_tilt": {"tilt": (1.5, 5.0)},
-        "magnus_lift": {"lift": (0.6, 2.0)},
-        "torsional_friction": {"mu_torsion": (0.005, 0.03)},
-    }
+    strengths: dict[str, dict[str, tuple[float, float]]] = DEFAULT_STRENGTHS
 
     def model_post_init(self, _ctx: Any) -> None:
         if not self.kinds or any(k not in ("throw", "spin_slide", "roll") for k in self.kinds):

@@ -65,7 +65,7 @@ import numpy as np
 from pydantic import Field
 
 from pipeline.discrepancy.config import StrictModel
-from pipeline.discrepancy.hidden import HiddenConfig, draw_effect
+from pipeline.discrepancy.hidden import DEFAULT_STRENGTHS, HiddenConfig, draw_effect
 from pipeline.discrepancy.trajectories import QUAT_COLUMNS, SPEC_COLUMNS, TABLE_COLUMNS
 from pipeline.rotation import quat_mul, rotvec_to_quat
 
@@ -136,14 +136,7 @@ class IndependentConfig(StrictModel):
     orientation: bool = True
     restitution_base: float = Field(0.0, ge=0, le=1)
     drag_coefficient: float = Field(2.4 / math.pi, ge=0)
-    strengths: dict[str, dict[str, tuple[float, float]]] = {
-        "quadratic_drag": {"density": (3.0, 12.0)},
-        "wind": {"speed": (2.0, 5.0)},
-        "restitution": {"e": (0.4, 0.85)},
-        "floor_tilt": {"tilt": (1.5, 5.0)},
-        "magnus_lift": {"lift": (0.6, 2.0)},
-        "torsional_friction": {"mu_torsion": (0.005, 0.03)},
-    }
+    strengths: dict[str, dict[str, tuple[float, float]]] = DEFAULT_STRENGTHS
 
     def model_post_init(self, _ctx: Any) -> None:
         if not self.kinds or any(k not in ("throw", "spin_slide", "roll") for k in self.kinds):
