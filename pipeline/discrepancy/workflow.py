@@ -14,7 +14,7 @@ import numpy as np
 from scipy.stats import chi2 as chi2_dist
 
 from pipeline import effects as fx
-from pipeline.discrepancy.config import DiscrepancyConfig, fit_options
+from pipeline.discrepancy.config import DiscrepancyConfig
 from pipeline.discrepancy.find import motion_phases, residual_segments
 from pipeline.discrepancy.fit import (Fit, bounded_effect_values, coefficient_keys, initial_nuisance,
                                       newton_leave_one_out, single_threaded_blas)
@@ -69,12 +69,9 @@ def _null_test(ws: "Workspace", idx: Sequence[int], f: Fit, e: str, cfg: Discrep
         ``{chi2_null, statistic, threshold, passed}``.
     """
     others = {k: dict(v) for k, v in f.effects.items() if k != e}
+    chi2_null = float(sum(r.rss for r in ws.refit_each(idx, list(f.nuisance), others, converge=True)))
     if others:   # the other effects' coefficients refitted too, jointly (the profile over them)
-        refit = ws.fit(idx, list(f.nuisance), others, converge=True)
-        chi2_null = min(refit.rss, float(sum(r.rss for r in ws.refit_each(idx, list(f.nuisance), others,
-                                                                           converge=True))))
-    else:
-        chi2_null = float(sum(r.rss for r in ws.refit_each(idx, list(f.nuisance), others, converge=True)))
+        chi2_null = min(chi2_null, ws.fit(idx, list(f.nuisance), others, converge=True).rss)
     s2 = max(f.rss / max(f.n - f.k, 1), 1.0)
     stat = (chi2_null - f.rss) / s2
     threshold = float(chi2_dist.ppf(cfg.ci_level, len(coefficient_keys([e]))))
@@ -387,7 +384,7 @@ def run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None = None,
         clips: measured clips (:func:`read_trajectories`), objects in scene order.
         cfg: settings (default :class:`DiscrepancyConfig`).
         options: simulation options (params ``sim``; ``textured`` is switched off and the
-            base contact is ``cfg``'s, :func:`fit_options`).
+            base contact is ``cfg``'s, :func:`pipeline.discrepancy.config.fit_options`).
         gravity: m/s^2.
         log: optional ``print``-like callable for progress lines (default: this module's
             logger at INFO, shown by the ``dynamics`` CLI unless ``--quiet``).
@@ -402,7 +399,6 @@ def run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None = None,
 def _run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None, options: SimOptions | None,
                   gravity: float, log) -> Result:
     cfg = cfg or DiscrepancyConfig()
-    options = fit_options(options, cfg)
     say = log or logger.info  # progress lines: logging (configured by the entry point) unless a callable is given
     t_start = time.perf_counter()
     cleaned, outliers = [], {}
@@ -413,7 +409,7 @@ def _run_workflow(clips: Sequence[Clip], cfg: DiscrepancyConfig | None, options:
             outliers[clip.name] = dropped
             say(f"clip {clip.name}: {sum(map(len, dropped.values()))} outlier sample(s) dropped "
                 f"(> {cfg.outlier_sigma:g} sigma from a quadratic through their neighbours)")
-    ws = Workspace(cleaned, cfg, options, gravity)
+    ws = Workspace(cleaned, cfg, options or SimOptions(), gravity)   # on the fits' contact (fit_options)
     try:
         ws.start_pool(cfg.workers or available_cores())
         result = _select(ws, cfg, say, t_start)
@@ -608,14 +604,14 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
     named = []
     for e in named_order:
         cls = fx.REGISTRY[e]
-        named.append({"effect": e, "parameters": dict(final.effects[e]), "ci": final.ci.get(e, {}),
+        profile_ci = final.ci.get(e, {})
+        named.append({"effect": e, "parameters": dict(final.effects[e]),
+                      # the reported interval: the profile's, widened by the allowance for model mismatch
+                      "ci": with_model_error(e, final.effects[e], profile_ci, cfg.ci_model_error),
+                      "ci_profile": dict(profile_ci),
                       "ci_gauss_newton": final.ci_gn.get(e, {}), "ci_method": final.ci_method.get(e, {}),
                       "units": {p: s.unit for p, s in cls.parameters.items()},
                       "fitted": [p for p, s in cls.parameters.items() if s.fit], "mechanism": cls.mechanism})
-        # the reported interval: the profile's, widened by the allowance for model mismatch
-        entry = named[-1]
-        entry["ci_profile"] = dict(entry["ci"])
-        entry["ci"] = with_model_error(e, entry["parameters"], entry["ci_profile"], cfg.ci_model_error)
 
     base_qpos, final_qpos, phases, segs, segs_after = [], [], [], [], []
     for c in idx:
