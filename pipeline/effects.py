@@ -18,7 +18,12 @@ effect                        mechanism                                         
 ``floor_tilt``                direction of ``option/gravity``                        tilt_x, tilt_y deg
 ``magnus_lift``               geom ``fluidshape="ellipsoid"``, ``fluidcoef[4]``     lift (1)
 ``torsional_friction``        geom ``friction[1]`` (objects use ``condim=6``)       mu_torsion m
+``scale_error`` (nuisance)    measured positions x (1 + scale) (model unchanged)    scale (1)
 ============================  =====================================================  =========
+
+``scale_error`` is a nuisance term (a length or frame-rate calibration error of measured
+data), not a physical effect: the discrepancy workflow fits it only to check that a named
+effect gains more than it, and never names it (:data:`EFFECTS` lists the physical ones).
 
 Effects are applied in the order of :data:`REGISTRY` whatever their order in the scene, so a
 scene means the same model however its ``effects:`` list is ordered; each effect appears at
@@ -105,6 +110,9 @@ class Effect:
     damping (``material.damping``) stands in for: a one-clip forecast
     (``pipeline.discrepancy.forward_gap``) then also fits the effect *instead of* the
     damping (held at 0) and keeps the variant with the lower BIC on the fitted part."""
+    nuisance: ClassVar[bool] = False
+    """True for a nuisance term of the discrepancy workflow's mismatch check (a measurement
+    error, not a physical effect): never a naming candidate (not in :data:`EFFECTS`)."""
 
     @classmethod
     def apply(cls, root, params: Mapping[str, float]) -> None:  # root: dm_control mjcf.RootElement
@@ -118,6 +126,13 @@ class Effect:
         model's values, a :class:`pipeline.engine.ModelBase` from :func:`pipeline.engine.snapshot`). Called by
         :func:`pipeline.engine.configure_model` after the fields were reset to base."""
         raise NotImplementedError
+
+    @classmethod
+    def measure(cls, positions: np.ndarray, params: Mapping[str, float]) -> np.ndarray:
+        """How the effect changes what is *measured* of a simulated trajectory: ``positions
+        (..., 3)`` m (world) -> the measured ones (default: unchanged; physical effects act on
+        the model only)."""
+        return positions
 
     @classmethod
     def defaults(cls) -> dict[str, float]:
@@ -431,6 +446,42 @@ class TorsionalFriction(Effect):
     @classmethod
     def set_model(cls, model, params, geoms, base):
         model.geom_friction[geoms, 1] = params["mu_torsion"]
+
+
+# --------------------------------------------------------------------------- scale error
+@register
+class ScaleError(Effect):
+    """Nuisance term, not a physical effect: the measured lengths are off by the factor
+    ``1 + scale`` (a ruler or camera scale calibrated wrong), so every measured position is
+    ``(1 + scale)`` times the simulated one (world origin fixed: the floor stays at z = 0);
+    object sizes, spin and the physics are unchanged (:meth:`measure`; :meth:`apply` and
+    :meth:`set_model` change nothing). In flight this is gravity scaled by ``1 + scale``; on
+    the floor a rolling ball then shows ``v = (1 + scale) omega r``. The discrepancy
+    workflow's mismatch check (``pipeline.discrepancy.workflow``) asks every named effect to
+    gain more than this term; it is never named (:data:`EFFECTS`)."""
+
+    name = "scale_error"
+    mechanism = "measured positions x (1 + scale)"
+    nuisance = True
+    parameters = {"scale": ParamSpec(-0.3, 0.3, "1", 0.0, scale=0.01,
+                                     grid=(0.0, -0.04, -0.02, 0.02, 0.04))}
+
+    @classmethod
+    def apply(cls, root, params):
+        """Nothing: the term acts on the measurement, not on the model."""
+
+    @classmethod
+    def set_model(cls, model, params, geoms, base):
+        """Nothing: the term acts on the measurement, not on the model."""
+
+    @classmethod
+    def measure(cls, positions, params):
+        return (1.0 + params["scale"]) * positions
+
+
+EFFECTS: tuple[str, ...] = tuple(n for n, c in REGISTRY.items() if not c.nuisance)
+"""The physical effects of the library (:data:`REGISTRY` without nuisance terms): the
+discrepancy workflow's naming candidates and the hidden-effect benchmarks' effects."""
 
 
 # --------------------------------------------------------------------------- application

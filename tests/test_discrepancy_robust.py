@@ -1,6 +1,7 @@
 """Discrepancy workflow on data it was not built on (issue 31): outliers dropped before the fit
 (never a bounce), the null-value test that keeps an effect fitted at its null value from being
-named, and the benchmark's count of such names."""
+named, the mismatch check against a nuisance term (a scale error), the race's and the search's
+stop when nothing is left to explain, and the benchmark's count of null-valued names."""
 
 from __future__ import annotations
 
@@ -11,7 +12,8 @@ from pipeline import discrepancy as D
 from pipeline.discrepancy.benchmark import null_value, null_valued
 from pipeline.discrepancy.noise import drop_outliers, find_outliers
 from pipeline.discrepancy.trajectories import Clip, ObjectSpec, Track
-from pipeline.discrepancy.workflow import _null_test
+from pipeline.discrepancy.fit import Fit
+from pipeline.discrepancy.workflow import _excess, _explains, _null_test
 from pipeline.mjcf import SimOptions
 
 OPTS = SimOptions(textured=False)
@@ -287,3 +289,47 @@ def test_model_error_allowance_by_hand():
     assert out["mu_torsion"][0] == pytest.approx(0.001 - 0.0015) and out["mu_torsion"][1] is None
     assert with_model_error("quadratic_drag", {"density": 4.0}, {"density": [1.0, 9.0]}, 0.3) == {"density": [1.0, 9.0]}
     assert with_model_error("quadratic_drag", {"density": 4.0}, {"density": [3.9, 4.2]}, 0.0) == {"density": [3.9, 4.2]}
+
+
+# --------------------------------------------------------------------- mismatch check, stop rule
+def _scaled_throw(k: float, seed: int = 3100):
+    """One 1.5 s clip of a ball thrown with no hidden effect (MuJoCo data on the fits'
+    contact), every position measured at scale ``k`` (a ruler calibrated ``k`` times too
+    short: a 7 % error for k = 0.93)."""
+    cols, truth = D.generate_hidden(seed, D.HiddenConfig(n_clips=1, duration=1.5), OPTS, effect="none")
+    assert truth["effect"] is None and truth["clips"][0]["kind"] == "throw"
+    cols = {c: ([k * v for v in vals] if c in ("x", "y", "z") else vals) for c, vals in cols.items()}
+    return D.clips_from_columns(cols, "scaled")
+
+
+def test_mismatch_check_blocks_an_effect_that_a_scale_error_explains():
+    """A 7 % scale error of the measured positions, no effect: without the mismatch check a
+    Magnus lift is named (its profile gains ~800 in chi-square, ΔBIC -56); the scale-error
+    nuisance term, profiled the same way, gains more (~3500, at a scale near the true
+    -0.07), so with the check nothing is named, and the candidate's reason says why."""
+    clips = _scaled_throw(0.93)
+    off = D.run_workflow(clips, D.DiscrepancyConfig(workers=1, threads=2, mismatch_terms=()), OPTS)
+    assert [n["effect"] for n in off.named] == ["magnus_lift"], off.named
+    on = D.run_workflow(clips, D.DiscrepancyConfig(workers=1, threads=2), OPTS)
+    assert on.named == [], on.named
+    step = on.steps[0]
+    lift = next(cd for cd in step["candidates"] if cd["effect"] == "magnus_lift")
+    assert not lift["eligible"] and lift["reason"].startswith("mismatch check"), lift["reason"]
+    prof = step["mismatch"]["scale_error"]
+    assert prof["gain"] > lift["profile_gain"] + 10 and -0.1 <= prof["parameters"]["scale"] <= -0.05, prof
+
+
+def test_excess_and_explains_by_hand():
+    """The excess above the noise sums max(chi2_c - n_c, 0) over clips; a model explains the
+    data when every clip is at the noise floor, or when it leaves at most ``race_excess`` of
+    the excess the model before it left (clips at chi2/n 1.4 and 1.8 after a strong effect)."""
+    def fit(chi2, n):
+        return Fit({}, [np.zeros((1, 14))] * len(chi2), list(chi2), [0.0] * len(chi2), list(n), list(n), 0, [])
+    cfg = D.DiscrepancyConfig()
+    before = fit([50000.0, 30000.0, 100.0], [100, 100, 100])
+    after = fit([140.0, 180.0, 90.0], [100, 100, 100])
+    assert _excess(before) == pytest.approx(49900 + 29900) and _excess(after) == pytest.approx(40 + 80)
+    assert _explains(after, before, cfg)                                   # 120 <= 0.05 * 79800
+    assert not _explains(after, before, cfg.model_copy(update={"race_excess": 0.0}))   # 1.8 > 1.3
+    assert _explains(fit([120.0, 125.0, 90.0], [100] * 3), before, cfg.model_copy(update={"race_excess": 0.0}))
+    assert not _explains(after, fit([300.0, 300.0, 300.0], [100] * 3), cfg)   # 120 > 0.05 * 600

@@ -38,7 +38,7 @@ VALUES = {"quadratic_drag": {"density": 3.0}, "wind": {"wind_x": 2.0, "wind_y": 
 
 
 def test_every_effect_has_values_here():
-    assert set(VALUES) == set(fx.REGISTRY)
+    assert set(VALUES) == set(fx.EFFECTS)
 
 
 @pytest.mark.parametrize("combo", [[k] for k in VALUES] + [["quadratic_drag", "magnus_lift"],
@@ -129,6 +129,53 @@ def test_floor_tilt_leans_gravity():
     t = math.tan(math.radians(5.0))
     np.testing.assert_allclose(m.opt.gravity, 9.81 * np.array([t, 0, -1]) / math.hypot(t, 1), rtol=1e-12)
     np.testing.assert_allclose(d.qacc[0], 9.81 * math.sin(math.radians(5.0)), rtol=1e-9)
+
+
+def test_scale_error_scales_what_is_measured_not_the_physics():
+    """A scale error leaves the model as it is (MJCF and in-place edit: the same rollout as
+    without it) and multiplies the measured positions by 1 + scale (a clip model's
+    simulated measurements, origin fixed); orientations are unchanged."""
+    from pipeline.discrepancy import ClipModel
+    from pipeline.discrepancy.trajectories import Clip, ObjectSpec, Track
+    ball = {**BALL, "position": [0, 0, 0.5], "linear_velocity": [1.0, 0.2, 1.5], "angular_velocity": [0, 5, 0]}
+    scene = _scene([ball])
+    plain = rollout(compile_model(scene, OPTS), 1, 30, 30, record_contacts=False)
+    scaled = rollout(compile_model(scene.replace(effects=[fx_block("scale_error", {"scale": 0.05})]), OPTS), 1, 30, 30,
+                     record_contacts=False)
+    np.testing.assert_array_equal(scaled.qpos, plain.qpos)
+    t = np.arange(13) / 30.0
+    clip = Clip("c", "<test>", [Track("sphere_0", t, np.zeros((13, 3)), None, np.ones(3, bool),
+                                      ObjectSpec("sphere", {"radius": 0.03}, 0.01))])
+    cm = ClipModel(clip, ["scale_error"], OPTS)
+    nuis = np.zeros((1, 14))
+    nuis[0, :3], nuis[0, 3:6] = [0, 0, 0.5], [1.0, 0.2, 1.5]
+    q0 = cm.simulate(nuis, {"scale_error": {"scale": 0.0}})
+    q1 = cm.simulate(nuis, {"scale_error": {"scale": 0.05}})
+    np.testing.assert_allclose(q1[..., :3], 1.05 * q0[..., :3], rtol=1e-12)
+    np.testing.assert_array_equal(q1[..., 3:], q0[..., 3:])
+    # in flight the measured path is a fall at 1.05 g: z = 1.05 (0.5 + 1.5 t - g t (t + dt) / 2)
+    # (MuJoCo's semi-implicit Euler at timestep dt: the closed form of its free fall)
+    dt = float(cm.model.opt.timestep)
+    np.testing.assert_allclose(q1[:, 0, 2], 1.05 * (0.5 + 1.5 * t - 0.5 * 9.81 * t * (t + dt)), atol=1e-9)
+
+
+def fx_block(name, params):
+    """An ``effects:`` entry of a scene."""
+    return {"effect": name, "parameters": params}
+
+
+def test_nuisance_terms_are_not_physical_effects():
+    """``EFFECTS`` (naming candidates, benchmark effects) is the registry without nuisance
+    terms, in registry order; the workflow refuses a nuisance term as a candidate and a
+    physical effect as a mismatch term."""
+    from pipeline.discrepancy import DiscrepancyConfig
+    assert fx.EFFECTS == tuple(n for n in fx.REGISTRY if n != "scale_error")
+    assert fx.REGISTRY["scale_error"].nuisance and not any(fx.REGISTRY[n].nuisance for n in fx.EFFECTS)
+    assert DiscrepancyConfig().candidates == fx.EFFECTS
+    with pytest.raises(ValueError, match="candidates: unknown effect 'scale_error'"):
+        DiscrepancyConfig(candidates=("scale_error",))
+    with pytest.raises(ValueError, match="mismatch_terms: 'wind' is not a nuisance term"):
+        DiscrepancyConfig(mismatch_terms=("wind",))
 
 
 @pytest.mark.parametrize("lift", [0.0, 1.5])

@@ -148,7 +148,7 @@ def run_benchmark(trials: int, null_trials: int, seed: int = 1000, jobs: int | C
     """
     if engine not in ENGINES:
         raise ValueError(f"engine: must be one of {', '.join(ENGINES)}, got {engine!r}")
-    names = list(fx.REGISTRY)
+    names = list(fx.EFFECTS)
     hidden = hidden or HiddenConfig()
     independent = independent or IndependentConfig()
     data = hidden if engine == "mujoco" else independent
@@ -186,7 +186,7 @@ def summarize(bench: dict[str, Any]) -> dict[str, Any]:
     interval coverage), ``per_effect`` and ``per_effect_single`` from its ``trials`` (each
     with ``group``: ``effect``, ``null`` or ``single``); returns ``bench``."""
     results = bench["trials"]
-    names = list(fx.REGISTRY)
+    names = list(fx.EFFECTS)
     eff = [r for r in results if r["group"] == "effect"]
     null = [r for r in results if r["group"] == "null"]
     one = [r for r in results if r["group"] == "single"]

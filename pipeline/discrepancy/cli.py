@@ -60,7 +60,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="vertical axis of 3-D tables (y: a y-up export, world x, y, z = file x, -z, y); "
                              "2-D Tracker exports are always y up")
     parser.add_argument("--candidates", default=None,
-                        help=f"comma-separated effects to try (default: all: {','.join(fx.REGISTRY)})")
+                        help=f"comma-separated effects to try (default: all: {','.join(fx.EFFECTS)})")
     parser.add_argument("--max-effects", type=int, default=None, help="most effects named (greedy forward selection)")
     parser.add_argument("--bic-threshold", type=float, default=None, help="BIC drop needed to name an effect")
     parser.add_argument("--heldout-threshold", type=float, default=None, help="held-out chi-square drop needed")

@@ -13,6 +13,7 @@ import mujoco
 import numpy as np
 from mujoco import rollout as mj_rollout
 
+from pipeline import effects as fx
 from pipeline import engine
 from pipeline.rotation import quat_conj, quat_mul, quat_to_mat, quat_to_rotvec, rotvec_to_quat
 from pipeline.discrepancy.trajectories import Clip
@@ -227,7 +228,18 @@ class ClipModel:
         f = self._frac[:, None, None]
         cur = omega_at(self._k)
         omega = np.where(f >= 1.0, cur, omega_at(np.maximum(self._k - 1, 0)) * (1.0 - f) + cur * f)
-        return omega, self.sample(qpos)[0]
+        return omega, _measured(self.sample(qpos), [effect_values])[0]
+
+
+def _measured(qpos: np.ndarray, effects_list: Sequence[Mapping[str, Mapping[str, float]]]) -> np.ndarray:
+    """``qpos (B, T, n, 7)`` of B variants as measured: each variant's positions through
+    ``Effect.measure`` of its effects (``scale_error``: x (1 + scale)); in place, returned."""
+    for b, effects in enumerate(effects_list):
+        for name, params in effects.items():
+            cls = fx.REGISTRY.get(name)
+            if cls is not None and cls.measure.__func__ is not fx.Effect.measure.__func__:
+                qpos[b, ..., :3] = cls.measure(qpos[b, ..., :3], params)
+    return qpos
 
 
 def simulate_clips(requests: Sequence[tuple["ClipModel", Sequence[np.ndarray],
@@ -268,7 +280,7 @@ def simulate_clips(requests: Sequence[tuple["ClipModel", Sequence[np.ndarray],
         at = 0
         for i in members:
             cm, b = requests[i][0], len(prepared[i][0])
-            out[i] = cm.sample(cm.split(prepared[i][1], state[at:at + b])[0])
+            out[i] = _measured(cm.sample(cm.split(prepared[i][1], state[at:at + b])[0]), requests[i][2])
             at += b
     return [o if o is not None else np.zeros((0, len(r[0].times), r[0].n, 7)) for o, r in zip(out, requests)]
 

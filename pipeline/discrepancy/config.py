@@ -84,6 +84,16 @@ class DiscrepancyConfig(StrictModel):
             where a deferred candidate, under-predicted by the screen, would have had a lower
             BIC).
         race_margin: see ``race``.
+        race_excess: an eligible candidate also ends the race (and a named model the search)
+            when it leaves at most this fraction of the chi-square excess above the noise
+            (``sum_c max(chi2_c - n_c, 0)``) that the model before it left: it explains the
+            rest, and what is left is model mismatch no other candidate would explain better
+            (0: only the per-clip noise floor ends them).
+        mismatch_terms: nuisance terms (``pipeline.effects``, ``Effect.nuisance``: e.g.
+            ``scale_error``) of the mismatch check: an eligible candidate's profile gain
+            (every clip refitted from the data) must exceed the best term's, profiled the same
+            way on the current model, by ``mismatch_margin`` in chi-square (empty: no check).
+        mismatch_margin: see ``mismatch_terms``.
         rescreen_all: after the first step, try every remaining candidate again (default:
             only those whose profile improved the base model by ``heldout_threshold``).
         horizons: fractions of each clip fitted in turn by the per-clip fits (continuation,
@@ -140,7 +150,7 @@ class DiscrepancyConfig(StrictModel):
         recording: write the rerun recording.
     """
 
-    candidates: tuple[str, ...] = tuple(fx.REGISTRY)
+    candidates: tuple[str, ...] = fx.EFFECTS
     max_effects: int = Field(3, ge=0)
     noise_floor_chi2: float = Field(1.3, gt=0)
     bic_threshold: float = Field(10.0, ge=0)
@@ -160,6 +170,9 @@ class DiscrepancyConfig(StrictModel):
     rescreen_all: bool = False
     race: bool = True
     race_margin: float = Field(0.5, gt=0)
+    race_excess: float = Field(0.05, ge=0, lt=1)
+    mismatch_terms: tuple[str, ...] = ("scale_error",)
+    mismatch_margin: float = Field(10.0, ge=0)
     screen_gain: float = Field(10.0, ge=0)
     horizons: tuple[float, ...] = (0.2, 0.4, 0.7, 1.0)
     forward_split: float = Field(0.6, gt=0, lt=1)
@@ -177,9 +190,13 @@ class DiscrepancyConfig(StrictModel):
 
     def model_post_init(self, _ctx: Any) -> None:
         for name in self.candidates:
-            if name not in fx.REGISTRY:
+            if name not in fx.EFFECTS:
                 raise ValueError(f"candidates: unknown effect {name!r}, must be one of "
-                                 f"{', '.join(fx.REGISTRY)}")
+                                 f"{', '.join(fx.EFFECTS)}")
+        for name in self.mismatch_terms:
+            if name not in fx.REGISTRY or not fx.REGISTRY[name].nuisance:
+                raise ValueError(f"mismatch_terms: {name!r} is not a nuisance term, must be one of "
+                                 f"{', '.join(n for n, c in fx.REGISTRY.items() if c.nuisance)}")
 
 
 def fit_options(options: SimOptions | None, cfg: DiscrepancyConfig) -> SimOptions:

@@ -66,8 +66,8 @@ class HiddenConfig(StrictModel):
     def model_post_init(self, _ctx: Any) -> None:
         if not self.kinds or any(k not in ("throw", "spin_slide", "roll") for k in self.kinds):
             raise ValueError(f"kinds: each must be throw, spin_slide or roll, got {list(self.kinds)}")
-        if self.effect not in ("random", "none") and self.effect not in fx.REGISTRY:
-            raise ValueError(f"effect: must be random, none or one of {', '.join(fx.REGISTRY)}, got {self.effect!r}")
+        if self.effect not in ("random", "none") and self.effect not in fx.EFFECTS:
+            raise ValueError(f"effect: must be random, none or one of {', '.join(fx.EFFECTS)}, got {self.effect!r}")
 
 
 def draw_effect(rng: np.random.Generator, cfg: HiddenConfig, effect: str | None = None
@@ -87,7 +87,7 @@ def draw_effect(rng: np.random.Generator, cfg: HiddenConfig, effect: str | None 
     """
     name = effect or cfg.effect
     if name == "random":
-        name = str(rng.choice(["none", *fx.REGISTRY]))
+        name = str(rng.choice(["none", *fx.EFFECTS]))
     if name == "none":
         return None, {}
     ranges = cfg.strengths.get(name, {})

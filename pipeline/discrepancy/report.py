@@ -198,9 +198,17 @@ def report_markdown(rep: Mapping[str, Any]) -> str:
                          "`screen_gain`): " + ", ".join(f"{e} ({v['predicted_gain']:.1f})" for e, v in out.items()) + ".")
         if st.get("deferred"):
             lines.append("")
-            lines.append(f"Not fitted (`race`: {st.get('race_stopped_by')} fits every clip to the noise floor and the "
+            lines.append(f"Not fitted (`race`: {st.get('race_stopped_by')} leaves nothing to explain, every clip at "
+                         "the noise floor or at most `race_excess` of the χ² excess, and the "
                          "screen predicts each of these less than `race_margin` of its χ² gain): "
                          + ", ".join(f"{e} ({st['screen'][e]['predicted_gain']:.1f})" for e in st["deferred"]) + ".")
+        checked = [cd for cd in st["candidates"] if cd.get("mismatch")]
+        if checked:
+            lines.append("")
+            lines.append("Mismatch check (an eligible effect's profile must gain `mismatch_margin` more χ² than a "
+                         "nuisance term's, every clip refitted from the data): " + ", ".join(
+                             f"{cd['effect']} {cd['profile_gain']:.1f} against {cd['mismatch']['term']} "
+                             f"{cd['mismatch']['gain']:.1f}" for cd in checked) + ".")
         lines.append("")
         clip_names = list(st["candidates"][0].get("per_clip_gain", {})) if st["candidates"] else []
         if clip_names:
