@@ -569,13 +569,13 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
                     cand["eligible"] = False
                     cand["reason"] = (f"mismatch check: its profile gains {cand['profile_gain']:.1f} in chi2, the "
                                       f"nuisance term {m['term']} {m['gain']:.1f} (margin < {cfg.mismatch_margin:g})")
-            cand["at_noise_floor"] = False
+            cand["explains"] = False
             if cand["eligible"] and cfg.race and screened:
                 # as the model would stand if named: the joint fit, each clip refitted from the
                 # data where that is better; the refits (a cached fit, reused if it is named)
-                # only where the joint fit alone leaves nothing to explain (they can only
+                # only where the joint fit alone does not explain the data (they can only
                 # lower a clip's chi-square, so they cannot change a yes)
-                cand["at_noise_floor"] = _explains(f, current, cfg) or _explains(refit_from_data(ws, idx, f), current, cfg)
+                cand["explains"] = _explains(f, current, cfg) or _explains(refit_from_data(ws, idx, f), current, cfg)
             scored.append((cand, f, ho))
 
         def race_over(untried: Sequence[str]) -> str | None:
@@ -590,7 +590,7 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
             if not (cfg.race and screened and untried):
                 return None
             for cand, _, _ in scored:
-                if cand["eligible"] and cand["at_noise_floor"] and all(
+                if cand["eligible"] and cand["explains"] and all(
                         screened[u]["predicted_gain"] < cfg.race_margin * cand["fit_gain_chi2"] for u in untried):
                     return cand["effect"]
             return None
