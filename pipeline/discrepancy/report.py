@@ -256,16 +256,20 @@ def report_markdown(rep: Mapping[str, Any]) -> str:
               f"with the effect vs. without) ≥ {rep['config']['heldout_threshold']:g}, held-out Δχ² ≥ "
               f"{rep['config']['heldout_threshold']:g} and a smaller held-out RMSE, and (null test) the effect removed "
               "with every clip refitted must be worse by the χ² quantile × χ²/dof (its interval excludes its null "
-              "value); among eligible candidates the lowest "
-              "BIC is named; greedy forward selection until nothing is eligible or every clip is at the noise floor.",
+              "value), and (mismatch check) its profile must gain more than a nuisance term's (`mismatch_terms`: "
+              "`scale_error`, the measured positions off by a factor) by `mismatch_margin`; among eligible "
+              "candidates the lowest BIC is named; greedy forward selection until nothing is eligible, every clip "
+              "is at the noise floor, or the named model leaves at most `race_excess` of the base model's χ² "
+              "excess above the noise.",
               "- Outliers: samples more than `outlier_sigma` prediction SDs from a quadratic through their six "
               "neighbours (which fit it within the noise) are dropped before any fit (counted per clip above).",
               "- Confidence intervals: profile likelihood (the coefficient fixed, everything else refitted; threshold "
               "χ²₁ quantile × χ²/dof), where the Gauss-Newton interval s²(JᵀJ)⁻¹ (Student-t, "
               "`mujoco.sysid.calculate_intervals`) is accepted when the profile confirms its ends within 25 %; a side "
-              "the data cannot bound before the search bound is shown open. With >= 3 clips the reported interval "
-              "is widened to hold the leave-one-clip-out jackknife interval (estimate ± t·SE over the held-out "
-              "coefficients).",
+              "the data cannot bound before the search bound is shown open. The reported interval is the "
+              f"profile's widened by ±{100 * float(rep['config'].get('ci_model_error', 0.0)):g} % of max(|value|, "
+              "scale) for model mismatch (`ci_model_error`); the leave-one-clip-out jackknife interval (estimate ± "
+              "t·SE over the held-out coefficients, >= 3 clips) is shown beside it as a diagnostic.",
               f"- Runtime: {rep['runtime_s']:.0f} s."]
     return "\n".join(lines) + "\n"
 
