@@ -204,6 +204,9 @@ def benchmark_cli(args: argparse.Namespace) -> int:
     write_json(out, bench)
     write_text(out.with_suffix(".md"), benchmark_markdown(bench, command))
     s = bench["summary"]
-    print(f"naming accuracy {s['naming_accuracy']:.3f} over {s['effect_trials']} trials; false-positive rate "
-          f"{s['false_positive_rate']:.3f} over {s['null_trials']}; wrote {out}")
+    def rate(x: float | None) -> str:
+        return "-" if x is None else f"{x:.3f}"
+    print(f"naming accuracy {rate(s['naming_accuracy'])} over {s['effect_trials']} trials; false-positive rate "
+          f"{rate(s['false_positive_rate'])} over {s['null_trials']}; one clip {rate(s['single']['naming_accuracy'])} "
+          f"over {s['single']['trials']}; wrote {out}")
     return 0

@@ -84,8 +84,8 @@ class DiscrepancyConfig(StrictModel):
             where a deferred candidate, under-predicted by the screen, would have had a lower
             BIC).
         race_margin: see ``race``.
-        race_excess: an eligible candidate also ends the race (and a named model the search)
-            when it leaves at most this fraction of the chi-square excess above the noise
+        race_excess: an eligible candidate also ends the race (with >= 2 clips; and a named
+            model the search) when it leaves at most this fraction of the chi-square excess above the noise
             (``sum_c max(chi2_c - n_c, 0)``) that the model before it left: it explains the
             rest, and what is left is model mismatch no other candidate would explain better
             (0: only the per-clip noise floor ends them).
