@@ -39,6 +39,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from pipeline import frame_realism
 from pipeline.atomic import atomic_path, write_json
 from pipeline.video import read_video
 
@@ -234,7 +235,8 @@ def loss_fn(logits: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
 
 def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 12, lr: float = 3e-3,
           size: tuple[int, int] = (320, 240), per_clip: int = 12, seed: int = 0,
-          max_minutes: float | None = None, log_every: int = 50, init: Path | None = None) -> dict:
+          max_minutes: float | None = None, log_every: int = 50, init: Path | None = None,
+          realism: bool = False) -> dict:
     """Train the segmenter on rendered clips and save the checkpoint atomically.
 
     Args:
@@ -245,6 +247,8 @@ def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 12, lr: f
         per_clip: frames taken per clip.
         max_minutes: stop early after this much wall time.
         init: checkpoint to start from (fine-tuning), else random initialisation.
+        realism: add static scenery, camera noise and zoom-out to every batch
+            (:func:`pipeline.frame_realism.realism`).
     Returns:
         the card dict (data, steps done, seconds, final losses).
     """
@@ -271,6 +275,10 @@ def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 12, lr: f
             g["lr"] = lr * 0.5 * (1 + math.cos(math.pi * step / steps))
         idx = torch.randint(0, len(X), (batch,), generator=gen)
         x, y = _augment(X[idx], Y[idx], gen)
+        if realism:
+            xn, yn = x.numpy().copy(), y.numpy().copy()
+            frame_realism.realism(xn, yn, rng)
+            x, y = torch.from_numpy(xn), torch.from_numpy(yn)
         loss = loss_fn(net(x), y)
         opt.zero_grad()
         loss.backward()
@@ -287,7 +295,8 @@ def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 12, lr: f
             "steps": done, "batch": batch, "lr": lr, "seconds": round(time.time() - t1, 1),
             "final_loss": round(float(np.mean(history[-100:])), 4) if history else None,
             "parameters": int(sum(p.numel() for p in net.parameters())), "threads": torch.get_num_threads(),
-            "per_clip": per_clip, "contact_px": CONTACT_PX, "init": str(init) if init is not None else None}
+            "per_clip": per_clip, "contact_px": CONTACT_PX, "init": str(init) if init is not None else None,
+            "realism": realism}
     write_json(out.with_suffix(".json"), card)
     return card
 
@@ -325,13 +334,16 @@ def main(argv: list[str] | None = None) -> int:
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--per-clip", type=int, default=12, help="frames taken per clip")
     t.add_argument("--init", type=Path, default=None, help="checkpoint to fine-tune (default: from scratch)")
+    t.add_argument("--realism", action="store_true",
+                   help="add static scenery, camera noise and zoom-out to the batches (pipeline.frame_realism)")
     e = sub.add_parser("eval", help="foreground IoU on rendered clips")
     e.add_argument("--data", type=Path, nargs="+", required=True)
     e.add_argument("--weights", type=Path, default=None)
     args = ap.parse_args(argv)
     if args.cmd == "train":
         card = train(args.data, args.out, steps=args.steps, batch=args.batch, lr=args.lr,
-                     max_minutes=args.max_minutes, seed=args.seed, per_clip=args.per_clip, init=args.init)
+                     max_minutes=args.max_minutes, seed=args.seed, per_clip=args.per_clip, init=args.init,
+                     realism=args.realism)
     else:
         card = evaluate(args.data, args.weights)
     print(json.dumps(card, indent=1))
