@@ -57,6 +57,7 @@ from pipeline.metrics import observation_scores  # noqa: E402
 from pipeline.observe import observe, truth_in_window  # noqa: E402
 from pipeline.params import load_params  # noqa: E402
 from pipeline.reconstruct import realvideo_config  # noqa: E402
+from pipeline.segmenter import use_weights  # noqa: E402
 
 SETS = {("mujoco", "dev"): (0, 24), ("mujoco", "heldout"): (1, 12),
         ("pybullet", "dev"): (0, 24), ("pybullet", "heldout"): (1, 12)}
@@ -190,7 +191,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--limit", type=int, default=None, help="first N clips per rendered set (quick looks)")
     ap.add_argument("--params", default=None, help="params.yaml (default ./params.yaml)")
     ap.add_argument("--report", type=Path, default=ROOT / "reports/observation_truth", help="report path stem")
+    ap.add_argument("--segmenter-weights", type=Path, default=None,
+                    help="segmenter checkpoint to score (default: the shipped pipeline/weights/segmenter.pt)")
     args = ap.parse_args(argv)
+    use_weights(args.segmenter_weights)
     params = load_params(args.params)
     default = realvideo_config(params).mask_method
     methods = args.mask_method.split(",") if args.mask_method else [default]

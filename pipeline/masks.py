@@ -622,3 +622,80 @@ def _renumber(seg: np.ndarray) -> np.ndarray:
     for new, k in enumerate(order):
         lookup[k] = new
     return lookup[seg]
+
+
+COLOUR_SEPARATION = 3.0
+"""Fisher separation (centre distance / pooled within-cluster std of the chromaticity) above which
+a component's two colour clusters are two objects (:func:`cut_by_colour`)."""
+COLOUR_MIN_DISTANCE = 0.08
+"""Least distance between two objects' chromaticities ``(r, g, b) / (r + g + b)`` (:func:`cut_by_colour`)."""
+COLOUR_DARK = 60
+"""Pixels with ``r + g + b`` below this (of 765) have no reliable chromaticity: they are not
+clustered and go to the nearest clustered pixel (:func:`cut_by_colour`)."""
+
+
+def cut_by_colour(mask: np.ndarray, frame: np.ndarray, min_area: int, min_share: float = 0.15,
+                  coherent: float = 0.85) -> np.ndarray:
+    """Cut each connected component of a foreground mask that holds two objects of clearly
+    different colours (two touching objects that a foreground map cannot separate).
+
+    Per component: two-cluster k-means (``cv2.kmeans``) of its pixels' chromaticity
+    ``(r, g, b) / (r + g + b)``, which shading (a factor on all three) does not change; the
+    component is two objects when both clusters hold ``min_share`` of it and ``min_area`` px,
+    their centres are :data:`COLOUR_MIN_DISTANCE` apart and :data:`COLOUR_SEPARATION` pooled
+    standard deviations apart (Fisher's criterion), and each cluster is one spatial region (its
+    largest 4-connected part holds ``coherent`` of it: a checkered or striped object, whose
+    colours interleave, is not cut). The pixels of either part that touch the other are removed,
+    so the two parts are separate components; a tracker gives them back (nearest part).
+
+    Args:
+        mask: ``(H, W)`` bool foreground.
+        frame: ``(H, W, 3)`` uint8 RGB.
+        min_area: px; components smaller than twice this are left alone.
+    Returns:
+        ``(H, W)`` bool: ``mask`` with the cut pixels removed.
+    """
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    out = mask.copy()
+    big = [i for i in range(1, n) if stats[i, cv2.CC_STAT_AREA] >= 2 * min_area]
+    if not big:
+        return out
+    rgb = frame.astype(np.float32)
+    total = rgb.sum(axis=-1)
+    chroma = rgb / np.maximum(total, 1.0)[..., None]
+    crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 20, 1e-3)
+    for i in big:
+        x, y, w, h = stats[i, :4]
+        comp = labels[y:y + h, x:x + w] == i
+        lit = comp & (total[y:y + h, x:x + w] >= COLOUR_DARK)
+        if lit.sum() < 2 * min_area:
+            continue
+        feats = np.ascontiguousarray(chroma[y:y + h, x:x + w][lit])
+        _, assign, centres = cv2.kmeans(feats, 2, None, crit, 2, cv2.KMEANS_PP_CENTERS)
+        assign = assign.ravel()
+        sizes = np.bincount(assign, minlength=2)
+        if sizes.min() < max(min_area, min_share * len(feats)):
+            continue
+        dist = float(np.linalg.norm(centres[0] - centres[1]))
+        spread = math.sqrt(float(sum(((feats[assign == k] - centres[k]) ** 2).sum() for k in range(2))) / len(feats))
+        if dist < COLOUR_MIN_DISTANCE or dist < COLOUR_SEPARATION * max(spread, 1e-6):
+            continue
+        part = np.zeros(comp.shape, np.uint8)                   # 0 none, 1 / 2 the clusters
+        part[lit] = assign + 1
+        part = np.where(lit, cv2.medianBlur(part, 3), 0)
+        if (comp & (part == 0)).any():                          # dark pixels: nearest lit part
+            _, (iy, ix) = ndimage.distance_transform_edt(part == 0, return_indices=True)
+            part = np.where(comp, part[iy, ix], 0)
+        ok = True
+        for k in (1, 2):
+            pk = (part == k).astype(np.uint8)
+            m, lk = cv2.connectedComponents(pk, connectivity=4)
+            if m < 2 or np.bincount(lk[pk > 0]).max() < coherent * pk.sum():
+                ok = False
+                break
+        if not ok:
+            continue
+        near = [cv2.dilate((part == k).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0 for k in (1, 2)]
+        seam = ((part == 1) & near[1]) | ((part == 2) & near[0])
+        out[y:y + h, x:x + w][seam] = False
+    return out

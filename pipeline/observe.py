@@ -31,7 +31,7 @@ from scipy import ndimage
 
 from pipeline.flow import FlowConfig, estimate_flow, flow_of
 from pipeline.image_tracks import find_tracks, object_tracks, still_tracks
-from pipeline.masks import (drop_ghosts, hold_resting, label_objects, merge_touching, pseudo_ground_truth,
+from pipeline.masks import (cut_by_colour, drop_ghosts, hold_resting, label_objects, merge_touching, pseudo_ground_truth,
                             pseudo_masks)
 from pipeline.segmenter import median_background, shipped
 from pipeline.video import Clip, VideoError, declared_length, read_video, resample
@@ -146,6 +146,9 @@ LEARNED = ("segmenter", "hybrid", "anchored")
 
 FG_THRESHOLD = 0.5
 """Segmenter foreground probability above which a pixel belongs to an object."""
+COLOUR_CUT = True
+"""Whether the segmenter's components are also cut between touching objects of clearly different
+colours (:func:`pipeline.masks.cut_by_colour`)."""
 SIZE_CLASS = 6.0
 """Most median-area ratio between a segmenter track and the background-subtraction track it
 stands for (:func:`hybrid_objects`): a crescent of a slow object is a part of it, a ball is not
@@ -181,14 +184,19 @@ def segment_objects(frames: np.ndarray, context: np.ndarray, method: str, max_ob
     if method == "anchored":    # needs the flow-checked movers: observe() / observe_frames() run it
         raise ValueError("segment_objects: 'anchored' runs in observe(), after the median movers are kept")
     fg, contact = shipped()(frames, median_background(context))
-    return _segmenter_tracks(fg > FG_THRESHOLD, contact > 0.5, max_objects)
+    return _segmenter_tracks(fg > FG_THRESHOLD, contact > 0.5, max_objects, frames)
 
 
-def _segmenter_tracks(fg: np.ndarray, contact: np.ndarray, max_objects: int) -> np.ndarray:
-    """Tracks of segmenter foreground ``(T, H, W) bool`` split at its ``contact`` pixels (bool)."""
+def _segmenter_tracks(fg: np.ndarray, contact: np.ndarray, max_objects: int,
+                      frames: np.ndarray | None = None) -> np.ndarray:
+    """Tracks of segmenter foreground ``(T, H, W) bool`` split at its ``contact`` pixels (bool)
+    and, with ``frames`` (``(T, H, W, 3)`` uint8 RGB), between touching objects of clearly
+    different colours (:func:`pipeline.masks.cut_by_colour`)."""
     h, w = fg.shape[1:3]
     min_area = max(4, round(1e-3 * h * w))
     core = fg & ~contact
+    if frames is not None and COLOUR_CUT:
+        core = np.stack([cut_by_colour(c, f, 4 * min_area) for c, f in zip(core, frames)])
     core = np.stack([_keep_components(c, min_area) for c in core])
     seg = label_objects(core, max_objects=max_objects, split=True)
     out = seg.copy()
@@ -242,7 +250,7 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
     """
     T, H, W = frames.shape[:3]
     fg, contact = shipped()(frames, median_background(context))
-    sg = _segmenter_tracks(fg > FG_THRESHOLD, contact > 0.5, 16)
+    sg = _segmenter_tracks(fg > FG_THRESHOLD, contact > 0.5, 16, frames)
     bs = label_objects(pseudo_masks(frames, background=context), max_objects=max(max_objects, 8))
     bs, _ = keep_objects(bs, None, max(max_objects, 8))
     n_bs = int(bs.max()) + 1

@@ -167,11 +167,27 @@ class Segmenter:
 
 
 _SHIPPED: dict[str, Segmenter] = {}
+_DEFAULT: list[Path] = []
+
+
+def use_weights(weights: str | Path | None) -> None:
+    """Make ``weights`` the process-wide default checkpoint of :func:`shipped` (None: back to
+    :data:`DEFAULT_WEIGHTS`); what the benchmarks' ``--segmenter-weights`` sets.
+
+    Raises:
+        SegmenterError: the file is missing or not a segmenter checkpoint.
+    """
+    _DEFAULT.clear()
+    if weights is not None:
+        shipped(weights)                       # fail now, in one line, not inside an observation
+        _DEFAULT.append(Path(weights))
 
 
 def shipped(weights: str | Path | None = None) -> Segmenter:
-    """The segmenter of ``weights`` (default :data:`DEFAULT_WEIGHTS`), loaded once per process."""
-    key = str(Path(weights) if weights is not None else DEFAULT_WEIGHTS)
+    """The segmenter of ``weights`` (default: :func:`use_weights`' choice, else
+    :data:`DEFAULT_WEIGHTS`), loaded once per process."""
+    default = _DEFAULT[0] if _DEFAULT else DEFAULT_WEIGHTS
+    key = str(Path(weights) if weights is not None else default)
     if key not in _SHIPPED:
         _SHIPPED[key] = Segmenter(key)
     return _SHIPPED[key]

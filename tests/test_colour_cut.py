@@ -1,0 +1,51 @@
+"""Touching objects of different colours are cut apart; one object with shading or a checker
+texture is not (pipeline.masks.cut_by_colour, issue 36)."""
+
+import cv2
+import numpy as np
+
+from pipeline.masks import cut_by_colour
+
+
+def _components(mask: np.ndarray) -> int:
+    return cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)[0] - 1
+
+
+def _scene():
+    """A grey floor, canvas (120, 160)."""
+    return np.full((120, 160, 3), 128, np.uint8), np.zeros((120, 160), bool)
+
+
+def test_two_touching_discs_of_different_colours_become_two_parts():
+    frame, mask = _scene()
+    for (cx, colour) in ((60, (40, 160, 40)), (95, (40, 40, 170))):      # green and blue, touching
+        disc = np.zeros_like(mask, np.uint8)
+        cv2.circle(disc, (cx, 60), 18, 1, -1)
+        mask |= disc > 0
+        frame[disc > 0] = colour
+    assert _components(mask) == 1
+    out = cut_by_colour(mask, frame, min_area=30)
+    assert _components(out) == 2
+    assert out.sum() >= 0.9 * mask.sum()                                 # only the seam is removed
+    assert not (out & ~mask).any()
+
+
+def test_a_shaded_sphere_is_one_object():
+    frame, mask = _scene()
+    yy, xx = np.mgrid[0:120, 0:160]
+    disc = (xx - 80) ** 2 + (yy - 60) ** 2 <= 30 ** 2
+    shade = np.clip(1.2 - ((xx - 65) ** 2 + (yy - 45) ** 2) / 2500.0, 0.15, 1.2)   # lit top-left, dark rim
+    base = np.array([200, 60, 40], np.float32)
+    frame[disc] = np.clip(base[None] * shade[disc][:, None], 0, 255).astype(np.uint8)
+    mask |= disc
+    np.testing.assert_array_equal(cut_by_colour(mask, frame, min_area=30), mask)
+
+
+def test_a_checkered_box_is_one_object():
+    frame, mask = _scene()
+    mask[30:90, 50:110] = True
+    yy, xx = np.mgrid[0:120, 0:160]
+    check = ((yy // 10 + xx // 10) % 2).astype(bool)
+    frame[mask & check] = (220, 40, 40)
+    frame[mask & ~check] = (40, 40, 220)
+    np.testing.assert_array_equal(cut_by_colour(mask, frame, min_area=30), mask)
