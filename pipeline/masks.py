@@ -634,12 +634,32 @@ COLOUR_DARK = 60
 clustered and go to the nearest clustered pixel (:func:`cut_by_colour`)."""
 
 
+COLOUR_UNION_SOLIDITY = 0.94
+"""A component is cut by colour only when its solidity (holes filled) is below this: two convex
+objects that touch form a waist, one object of several colours (a Rubik's cube, a labelled can) is
+convex. Measured on touching pairs of the dev renders (0.81-0.93) against a Rubik's cube on real
+video (0.965-0.978) and a checkered ball (0.954) (:func:`cut_by_colour`)."""
+
+
+def solidity(mask: np.ndarray) -> float:
+    """Pixel area of a ``(H, W)`` mask over the area of its convex hull (1 for a convex shape).
+
+    The hull is that of the pixel centres, grown by half a pixel all round (half its perimeter
+    added), so a convex pixel blob scores ~1 at any size.
+    """
+    pts = cv2.findNonZero(np.asarray(mask, np.uint8))
+    if pts is None or len(pts) < 3:
+        return 1.0
+    hull = cv2.convexHull(pts)
+    return float(np.count_nonzero(mask)) / (cv2.contourArea(hull) + 0.5 * cv2.arcLength(hull, True) + 1.0)
+
+
 def cut_by_colour(mask: np.ndarray, frame: np.ndarray, min_area: int, min_share: float = 0.15,
                   coherent: float = 0.85) -> np.ndarray:
     """Cut each connected component of a foreground mask that holds two objects of clearly
     different colours (two touching objects that a foreground map cannot separate).
 
-    Per component: two-cluster k-means (``cv2.kmeans``) of its pixels' chromaticity
+    Per component that is not convex (:data:`COLOUR_UNION_SOLIDITY`): two-cluster k-means (``cv2.kmeans``) of its pixels' chromaticity
     ``(r, g, b) / (r + g + b)``, which shading (a factor on all three) does not change; the
     component is two objects when both clusters hold ``min_share`` of it and ``min_area`` px,
     their centres are :data:`COLOUR_MIN_DISTANCE` apart and :data:`COLOUR_SEPARATION` pooled
@@ -667,6 +687,8 @@ def cut_by_colour(mask: np.ndarray, frame: np.ndarray, min_area: int, min_share:
     for i in big:
         x, y, w, h = stats[i, :4]
         comp = labels[y:y + h, x:x + w] == i
+        if solidity(ndimage.binary_fill_holes(comp)) >= COLOUR_UNION_SOLIDITY:
+            continue                                            # convex: one object, however coloured
         lit = comp & (total[y:y + h, x:x + w] >= COLOUR_DARK)
         if lit.sum() < 2 * min_area:
             continue

@@ -4,7 +4,7 @@ texture is not (pipeline.masks.cut_by_colour, issue 36)."""
 import cv2
 import numpy as np
 
-from pipeline.masks import cut_by_colour
+from pipeline.masks import cut_by_colour, solidity
 
 
 def _components(mask: np.ndarray) -> int:
@@ -49,3 +49,23 @@ def test_a_checkered_box_is_one_object():
     frame[mask & check] = (220, 40, 40)
     frame[mask & ~check] = (40, 40, 220)
     np.testing.assert_array_equal(cut_by_colour(mask, frame, min_area=30), mask)
+
+
+def test_a_convex_object_of_two_colours_is_one_object():
+    """A cube seen with a yellow top and a red side (a Rubik's cube): the component is convex,
+    so its colours do not make it two objects; the same colours as two touching discs do."""
+    frame, mask = _scene()
+    mask[30:90, 50:110] = True
+    frame[30:55, 50:110] = (230, 210, 30)
+    frame[55:90, 50:110] = (200, 40, 40)
+    np.testing.assert_array_equal(cut_by_colour(mask, frame, min_area=30), mask)
+
+
+def test_solidity_of_convex_and_waisted_shapes():
+    disc = np.zeros((120, 160), np.uint8)
+    cv2.circle(disc, (80, 60), 25, 1, -1)
+    assert solidity(disc) > 0.97
+    two = np.zeros_like(disc)
+    cv2.circle(two, (60, 60), 18, 1, -1)
+    cv2.circle(two, (96, 60), 18, 1, -1)
+    assert solidity(two) < 0.9
