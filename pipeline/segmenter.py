@@ -323,6 +323,31 @@ def _save(net: UNet, out: Path) -> None:
         torch.save({"channels": list(CHANNELS), "state_dict": net.state_dict()}, tmp)
 
 
+def interpolate(a: Path, b: Path, out: Path, alpha: float = 0.5) -> dict:
+    """Write the checkpoint ``(1 - alpha) * a + alpha * b`` (every float tensor, batch-norm
+    statistics included; integer tensors from ``b``), atomically.
+
+    Weight-space interpolation between a model and its fine-tuned copy (WiSE-FT, Wortsman et al.,
+    "Robust fine-tuning of zero-shot models", CVPR 2022) keeps much of what each knows: here the
+    renders-only weights and their fine-tune with :mod:`pipeline.frame_realism` (card:
+    ``pipeline/weights/segmenter.md``).
+
+    Raises:
+        SegmenterError: a checkpoint is missing or the two do not have the same tensors.
+    """
+    if not 0.0 <= alpha <= 1.0:
+        raise SegmenterError(f"alpha: must be in [0, 1], got {alpha}")
+    na, nb = Segmenter(a).net.state_dict(), Segmenter(b).net.state_dict()
+    if na.keys() != nb.keys() or any(na[k].shape != nb[k].shape for k in na):
+        raise SegmenterError(f"{a}, {b}: not the same network")
+    mixed = {k: ((1 - alpha) * na[k].float() + alpha * nb[k].float()).to(na[k].dtype)
+             if na[k].is_floating_point() else nb[k] for k in na}
+    net = UNet()
+    net.load_state_dict(mixed)
+    _save(net, out)
+    return {"a": str(a), "b": str(b), "alpha": alpha, "out": str(out)}
+
+
 def evaluate(data: list[Path], weights: Path | None = None, size: tuple[int, int] = (320, 240)) -> dict:
     """Foreground IoU of the segmenter (threshold 0.5) per clip of rendered sets, and its mean."""
     seg_net = Segmenter(weights)
@@ -355,8 +380,19 @@ def main(argv: list[str] | None = None) -> int:
     e = sub.add_parser("eval", help="foreground IoU on rendered clips")
     e.add_argument("--data", type=Path, nargs="+", required=True)
     e.add_argument("--weights", type=Path, default=None)
+    m = sub.add_parser("interpolate", help="(1 - alpha) * A + alpha * B of two checkpoints (WiSE-FT)")
+    m.add_argument("a", type=Path)
+    m.add_argument("b", type=Path)
+    m.add_argument("--alpha", type=float, default=0.5)
+    m.add_argument("--out", type=Path, required=True)
     args = ap.parse_args(argv)
-    if args.cmd == "train":
+    if args.cmd == "interpolate":
+        try:
+            card = interpolate(args.a, args.b, args.out, args.alpha)
+        except SegmenterError as exc:
+            print(f"error: {exc}")
+            return 2
+    elif args.cmd == "train":
         card = train(args.data, args.out, steps=args.steps, batch=args.batch, lr=args.lr,
                      max_minutes=args.max_minutes, seed=args.seed, per_clip=args.per_clip, init=args.init,
                      realism=args.realism)

@@ -170,3 +170,30 @@ def test_at_rest_needs_a_steady_confident_silhouette_seen_throughout():
     occluded = box.copy()
     occluded[5:7, 10:20, 10:16] = False                                                 # a mover passes in front twice
     assert _at_rest(occluded, fg, frames, T)
+
+
+def test_interpolate_is_the_weighted_mean_of_two_checkpoints(tmp_path):
+    """WiSE-FT weights (pipeline.segmenter.interpolate): alpha 0 and 1 give the two checkpoints,
+    0.5 their mean; two different networks are one error."""
+    import torch
+    from pipeline.segmenter import _save, interpolate
+    torch.manual_seed(0)
+    a, b = UNet(), UNet()
+    with torch.no_grad():
+        for p in b.parameters():
+            p.add_(1.0)
+    _save(a, tmp_path / "a.pt")
+    _save(b, tmp_path / "b.pt")
+    interpolate(tmp_path / "a.pt", tmp_path / "b.pt", tmp_path / "m.pt", alpha=0.5)
+    m = Segmenter(tmp_path / "m.pt").net.state_dict()
+    sa, sb = a.state_dict(), b.state_dict()
+    for k in sa:
+        if sa[k].is_floating_point():
+            torch.testing.assert_close(m[k], 0.5 * (sa[k] + sb[k]))
+    interpolate(tmp_path / "a.pt", tmp_path / "b.pt", tmp_path / "one.pt", alpha=1.0)
+    one = Segmenter(tmp_path / "one.pt").net.state_dict()
+    for k in sb:
+        torch.testing.assert_close(one[k], sb[k])
+    torch.save({"channels": [8, 16, 24, 32], "state_dict": UNet((8, 16, 24, 32)).state_dict()}, tmp_path / "small.pt")
+    with pytest.raises(SegmenterError, match="not the same network"):
+        interpolate(tmp_path / "a.pt", tmp_path / "small.pt", tmp_path / "x.pt")
