@@ -146,9 +146,6 @@ LEARNED = ("segmenter", "hybrid", "anchored")
 
 FG_THRESHOLD = 0.5
 """Segmenter foreground probability above which a pixel belongs to an object."""
-COLOUR_CUT = True
-"""Whether the segmenter's components are also cut between touching objects of clearly different
-colours (:func:`pipeline.masks.cut_by_colour`)."""
 SIZE_CLASS = 6.0
 """Most median-area ratio between a segmenter track and the background-subtraction track it
 stands for (:func:`hybrid_objects`): a crescent of a slow object is a part of it, a ball is not
@@ -195,7 +192,7 @@ def _segmenter_tracks(fg: np.ndarray, contact: np.ndarray, max_objects: int,
     h, w = fg.shape[1:3]
     min_area = max(4, round(1e-3 * h * w))
     core = fg & ~contact
-    if frames is not None and COLOUR_CUT:
+    if frames is not None:
         core = np.stack([cut_by_colour(c, f, 4 * min_area) for c, f in zip(core, frames)])
     core = np.stack([_keep_components(c, min_area) for c in core])
     seg = label_objects(core, max_objects=max_objects, split=True)
