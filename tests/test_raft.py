@@ -269,3 +269,92 @@ def test_infer_flags_choose_raft_and_its_weights(tmp_path, monkeypatch):
     assert reconstruct.main_cli(args) == 0
     cfg = flow_config(seen["params"])
     assert cfg.method == "raft" and Path(cfg.raft_weights) == tmp_path / "w" / "raft-things.pth"
+
+
+def test_chairs_layers_cut_from_a_texture_bank(monkeypatch):
+    """With a bank, layers are real-frame crops: with every layer drawn from a one-colour bank,
+    image 1 is that colour; the flow stays exact (image 2 warped back gives image 1)."""
+    import cv2
+
+    from pipeline.raft import pairs
+
+    bank = np.empty((2, 72, 96, 3), np.uint8)
+    bank[:] = (7, 200, 13)
+    monkeypatch.setattr(pairs, "PHOTO_FRACTION", 1.0)
+    rng = np.random.default_rng(5)
+    a, b, f = chairs_pair(rng, 64, 96, max_shift=6.0, textures=bank)
+    assert np.abs(a.astype(int) - (7, 200, 13)).max() <= 1 and np.abs(b.astype(int) - (7, 200, 13)).max() <= 1
+
+    yy, xx = np.mgrid[0:64, 0:96].astype(np.float32)
+    textured = np.stack([cv2.GaussianBlur(rng.uniform(0, 255, (72, 96, 3)).astype(np.float32), (0, 0), 2)
+                         for _ in range(3)]).astype(np.uint8)
+    monkeypatch.setattr(pairs, "PHOTO_FRACTION", 0.5)
+    errs_flow, errs_zero = [], []
+    for _ in range(5):
+        a, b, f = chairs_pair(rng, 64, 96, max_shift=6.0, textures=textured)
+        back = cv2.remap(b, xx + f[..., 0], yy + f[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+        inner = (slice(10, -10), slice(10, -10))
+        errs_flow.append(np.median(np.abs(back.astype(float) - a)[inner]))
+        errs_zero.append(np.median(np.abs(b.astype(float) - a)[inner]))
+    assert np.mean(errs_flow) < 0.5 * np.mean(errs_zero)
+
+
+def test_texture_bank_takes_evenly_spaced_frames(tmp_path):
+    import cv2
+
+    from pipeline.raft.pairs import texture_bank
+
+    path = tmp_path / "clip.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30, (80, 60))
+    for i in range(12):
+        writer.write(np.full((60, 80, 3), 20 * i, np.uint8))
+    writer.release()
+    bank = texture_bank([path], per_video=4, size=(64, 48))
+    assert bank.shape == (4, 48, 64, 3) and bank.dtype == np.uint8
+    assert np.allclose(bank.reshape(4, -1).mean(axis=1), [0, 80, 140, 220], atol=6)   # frames 0, 4, 7, 11
+    with pytest.raises(ValueError, match="no video paths"):
+        texture_bank([])
+
+
+def _tiny_export(tmp_path, monkeypatch):
+    """An export file of two random 'train' clips and one 'val' clip (load_split stubbed)."""
+    from pipeline.raft import train as raft_train
+
+    rng = np.random.default_rng(0)
+    clips = {s: (rng.integers(0, 255, (n, 4, 64, 96, 3), dtype=np.uint8),
+                 rng.normal(0, 3, (n, 3, 64, 96, 2)).astype(np.float16),
+                 rng.integers(-1, 2, (n, 4, 64, 96)).astype(np.int8)) for s, n in (("train", 2), ("val", 1))}
+    monkeypatch.setattr(raft_train, "load_split", lambda video, configs, split: clips[split])
+    return raft_train.export_data("v", "c", tmp_path / "flow.npz"), clips
+
+
+def test_export_round_trips_flow_to_a_64th_of_a_pixel(tmp_path, monkeypatch):
+    from pipeline.raft.train import FLOW_QUANT, load_data
+
+    path, clips = _tiny_export(tmp_path, monkeypatch)
+    rgb, flow, vrgb, vflow, vseg = load_data(path)
+    assert flow.dtype == np.float16 and np.array_equal(rgb, clips["train"][0]) and np.array_equal(vseg, clips["val"][2])
+    assert np.abs(flow.astype(np.float32) - clips["train"][1]).max() <= 0.5 / FLOW_QUANT + 1e-2
+    assert not list(tmp_path.glob("*.tmp*"))
+    np.savez(tmp_path / "bad.npz", train_rgb=rgb)
+    with pytest.raises(KeyError, match="bad.npz: missing"):
+        load_data(tmp_path / "bad.npz")
+    with pytest.raises(FileNotFoundError, match="nope.npz"):
+        load_data(tmp_path / "nope.npz")
+
+
+def test_training_from_an_export_with_batch_workers(tmp_path, monkeypatch):
+    """Two steps from an export file, batches made in a DataLoader worker, a texture bank: the
+    weights written load as the same variant, and the summary records how they were made."""
+    import json
+
+    from pipeline.raft.train import train
+
+    path, _ = _tiny_export(tmp_path, monkeypatch)
+    np.savez(tmp_path / "bank.npz", bank=np.random.default_rng(1).integers(0, 255, (3, 72, 96, 3), dtype=np.uint8))
+    out = tmp_path / "w" / "raft.pth"
+    summary = train(Path("unused"), Path("unused"), out, steps=2, batch=2, iters=2, crop=(64, 64), data=path,
+                    textures=tmp_path / "bank.npz", workers=1, eval_every=100, max_minutes=5)
+    assert summary["steps"] == 2 and summary["workers"] == 1 and summary["textures"]["frames"] == 3
+    assert json.loads((tmp_path / "w" / "raft.json").read_text())["data"]["train_pairs"] == 6
+    assert arch_of(read_state(out)) == RaftArch(small=True, convex=True)

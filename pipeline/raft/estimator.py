@@ -152,15 +152,15 @@ class RaftFlow:
                              if (h, w) != (H, W) else frames.copy()).permute(0, 3, 1, 2).float()
         ph, pw = (-h) % 8, (-w) % 8
         pad = (pw // 2, pw - pw // 2, ph // 2, ph - ph // 2)
-        x = F.pad(x, pad, mode="replicate")
-        out = np.empty((T - 1, H, W, 2), np.float32)
         net = self.net
+        x = F.pad(x.to(next(net.parameters()).device), pad, mode="replicate")   # the network's device
+        out = np.empty((T - 1, H, W, 2), np.float32)
         for a in range(0, T - 1, self.batch):
             b = min(a + self.batch, T - 1)
             clip = RAFT.normalise(x[a:b + 1])
             fmaps = net.fnet(clip)
             flow = net.refine(fmaps[:-1], fmaps[1:], net.cnet(clip[:-1]), self.iters)[-1]
-            flow = flow[:, :, pad[2]:pad[2] + h, pad[0]:pad[0] + w].permute(0, 2, 3, 1).numpy()
+            flow = flow[:, :, pad[2]:pad[2] + h, pad[0]:pad[0] + w].permute(0, 2, 3, 1).cpu().numpy()
             for i, f in enumerate(flow):
                 out[a + i] = (cv2.resize(f, (W, H), interpolation=cv2.INTER_AREA) / s) if (h, w) != (H, W) else f
         return out

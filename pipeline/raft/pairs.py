@@ -2,8 +2,10 @@
 
 FlyingChairs (Dosovitskiy et al., "FlowNet", ICCV 2015) pastes textured objects on a
 textured background and moves every layer by its own affine transform; the flow follows in closed
-form. No chair models or photos can be downloaded here, so the layers are made procedurally:
-smooth noise, stripes, checkers and blobs in random colours, cut into ellipses and polygons.
+form. No chair models or photo collections can be downloaded here, so the layers are made
+procedurally: smooth noise, stripes, checkers and blobs in random colours, cut into ellipses and
+polygons; and, where a *texture bank* is given (:func:`texture_bank`: frames of real videos),
+half the layers are random crops of real frames, as FlyingChairs pastes Flickr photos.
 
 For a layer moved by the affine map ``x' = A x + b`` (pixels), a pixel ``x`` of image 1 that
 shows the layer moves to ``A x + b`` in image 2, so its flow is ``(A - I) x + b``. Image 1 shows
@@ -20,13 +22,64 @@ Example::
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import cv2
 import numpy as np
 
 
-def _texture(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
-    """A random ``(h, w, 3)`` float32 texture in [0, 255]: smooth noise, stripes, a checker or
+PHOTO_FRACTION = 0.5
+"""Share of layers cut from the texture bank when one is given."""
+
+
+def texture_bank(paths: list[str | Path], per_video: int = 24, size: tuple[int, int] = (192, 144)) -> np.ndarray:
+    """Frames of real videos to cut chairs-pair layers from.
+
+    Args:
+        paths: video files (anything :func:`pipeline.video.read_video` decodes).
+        per_video: frames taken per video, evenly spaced over its length.
+        size: ``(width, height)`` px of the stored frames (centre crop, then ``INTER_AREA``).
+
+    Returns:
+        ``(N, height, width, 3)`` uint8 RGB, ``N = per_video * len(paths)`` (fewer for short videos).
+
+    Raises:
+        pipeline.video.VideoError: a file that cannot be decoded.
+        ValueError: no paths.
+    """
+    from pipeline.video import read_video
+
+    if not paths:
+        raise ValueError("texture_bank: no video paths")
+    out = []
+    for path in paths:
+        frames = read_video(path, size=size).frames
+        idx = np.unique(np.linspace(0, len(frames) - 1, per_video).round().astype(int))
+        out.append(frames[idx])
+    return np.concatenate(out)
+
+
+def _photo(rng: np.random.Generator, bank: np.ndarray, h: int, w: int) -> np.ndarray:
+    """A random crop of a random bank frame, resized to ``(h, w, 3)`` float32, flipped at random."""
+    img = bank[int(rng.integers(len(bank)))]
+    H, W = img.shape[:2]
+    zoom = rng.uniform(0.35, 1.0)
+    ch, cw = max(8, int(H * zoom)), max(8, int(min(W, H * zoom * w / h)))
+    y0, x0 = int(rng.integers(H - ch + 1)), int(rng.integers(W - cw + 1))
+    tex = cv2.resize(img[y0:y0 + ch, x0:x0 + cw], (w, h), interpolation=cv2.INTER_LINEAR).astype(np.float32)
+    if rng.random() < 0.5:
+        tex = tex[:, ::-1]
+    if rng.random() < 0.5:
+        tex = tex[::-1]
+    return np.ascontiguousarray(tex)
+
+
+def _texture(rng: np.random.Generator, h: int, w: int, bank: np.ndarray | None = None) -> np.ndarray:
+    """A random ``(h, w, 3)`` float32 texture in [0, 255]: a crop of a bank frame (share
+    :data:`PHOTO_FRACTION` when ``bank`` is given), else smooth noise, stripes, a checker or
     blobs, in one or two random colours, with fine noise on top."""
+    if bank is not None and len(bank) and rng.random() < PHOTO_FRACTION:
+        return _photo(rng, bank, h, w)
     kind = rng.integers(4)
     if kind == 0:      # smooth noise at a random scale
         cells = int(rng.integers(2, 16))
@@ -82,7 +135,8 @@ def _affine(rng: np.random.Generator, h: int, w: int, max_shift: float, max_rot:
 
 
 def chairs_pair(rng: np.random.Generator, height: int = 128, width: int = 192, max_shift: float = 10.0,
-                n_objects: tuple[int, int] = (1, 6)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                n_objects: tuple[int, int] = (1, 6), textures: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """One procedural image pair and its exact forward flow (module docstring).
 
     Args:
@@ -90,6 +144,7 @@ def chairs_pair(rng: np.random.Generator, height: int = 128, width: int = 192, m
         height, width: image size, px.
         max_shift: largest translation of a layer, px (the background gets a third of it).
         n_objects: inclusive range of foreground layers.
+        textures: optional ``(N, H, W, 3)`` uint8 bank (:func:`texture_bank`) to cut layers from.
 
     Returns:
         ``img1, img2``: ``(height, width, 3)`` uint8 RGB; ``flow``: ``(height, width, 2)``
@@ -97,14 +152,14 @@ def chairs_pair(rng: np.random.Generator, height: int = 128, width: int = 192, m
     """
     h, w = height, width
     yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
-    img1, img2 = _texture(rng, h, w), np.empty((h, w, 3), np.float32)
+    img1, img2 = _texture(rng, h, w, textures), np.empty((h, w, 3), np.float32)
     M = _affine(rng, h, w, max_shift / 3, 0.05, 0.05)
     img2[:] = cv2.warpAffine(img1, M, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
     flow = np.stack([(M[0, 0] - 1) * xx + M[0, 1] * yy + M[0, 2],
                      M[1, 0] * xx + (M[1, 1] - 1) * yy + M[1, 2]], axis=-1)
     for _ in range(int(rng.integers(n_objects[0], n_objects[1] + 1))):
         size = rng.uniform(0.08, 0.6) * min(h, w)
-        mask, tex = _shape_mask(rng, h, w, size), _texture(rng, h, w)
+        mask, tex = _shape_mask(rng, h, w, size), _texture(rng, h, w, textures)
         M = _affine(rng, h, w, max_shift, 0.2, 0.15)
         inside = mask > 0.5
         img1[inside] = tex[inside]

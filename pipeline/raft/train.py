@@ -22,6 +22,13 @@ minutes, loss, validation EPE).
 
     python -m pipeline.raft train --video data/video --configs data/configs \\
         --out pipeline/weights/raft-small-dynamics.pth --steps 4000 --max-minutes 60
+
+On a machine with a GPU and many cores: ``--device cuda --workers 14`` makes the batches in
+worker processes (each with its own random stream, seeded from ``--seed``, the worker and the
+step it started at, so a resumed run is reproducible only with ``--workers 0``).
+``python -m pipeline.raft export`` packs the render shards into one ``.npz`` for ``--data``, so
+such a machine needs neither the shards nor zarr; ``--textures BANK.npz`` (``python -m
+pipeline.raft textures VIDEO...``) cuts half the chairs layers from real frames.
 """
 
 from __future__ import annotations
@@ -34,7 +41,6 @@ import cv2
 import numpy as np
 import torch
 
-from pipeline import shards
 from pipeline.raft.estimator import RaftFlow, save_raft, working_scale
 from pipeline.raft.model import RAFT, RaftArch
 from pipeline.raft.pairs import chairs_pair
@@ -53,6 +59,8 @@ def load_split(video_dir: str | Path, configs_dir: str | Path, split: str) -> tu
     Raises:
         FileNotFoundError: no shards, or no clip of ``split``.
     """
+    from pipeline import shards   # here, so training from an export needs neither zarr nor pydantic
+
     table = shards.read_table(configs_dir, columns=["scene_id", "split"])
     want = {s for s, sp in zip(table.column("scene_id").to_pylist(), table.column("split").to_pylist()) if sp == split}
     rgb, flow, seg = [], [], []
@@ -66,6 +74,46 @@ def load_split(video_dir: str | Path, configs_dir: str | Path, split: str) -> tu
     if not rgb:
         raise FileNotFoundError(f"{video_dir}: no clip of split {split!r} (run `dvc repro render` first)")
     return np.concatenate(rgb), np.concatenate(flow), np.concatenate(seg)
+
+
+FLOW_QUANT = 64
+"""Steps per px of the flow stored by :func:`export_data` (int16: +-512 px at 1/64 px)."""
+
+
+def export_data(video_dir: str | Path, configs_dir: str | Path, out: str | Path) -> Path:
+    """Pack the ``train`` and ``val`` clips of the render shards into one compressed ``.npz``
+    (``train_rgb``, ``train_flow``, ``val_rgb``, ``val_flow``, ``val_seg``; flow stored as int16
+    in units of 1/:data:`FLOW_QUANT` px, which compresses three times better than float16) for
+    :func:`train`'s ``data``; written via a temp file and rename."""
+    out = Path(out)
+    arrays = {}
+    for split in ("train", "val"):
+        rgb, flow, seg = load_split(video_dir, configs_dir, split)
+        arrays |= {f"{split}_rgb": rgb, f"{split}_flow": np.round(flow.astype(np.float32) * FLOW_QUANT).astype(np.int16)}
+        if split == "val":
+            arrays["val_seg"] = seg
+    tmp = out.with_name(out.name + ".tmp.npz")
+    np.savez_compressed(tmp, **arrays)
+    tmp.replace(out)
+    return out
+
+
+def load_data(data: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``train_rgb, train_flow, val_rgb, val_flow, val_seg`` of an :func:`export_data` file
+    (dtypes of :func:`load_split`: uint8, float16 px, int8).
+
+    Raises:
+        FileNotFoundError: no such file. KeyError: an array missing from it.
+    """
+    data = Path(data)
+    if not data.is_file():
+        raise FileNotFoundError(f"{data}: no such file (python -m pipeline.raft export writes it)")
+    with np.load(data) as z:
+        missing = [k for k in ("train_rgb", "train_flow", "val_rgb", "val_flow", "val_seg") if k not in z]
+        if missing:
+            raise KeyError(f"{data}: missing array(s) {missing}")
+        return (z["train_rgb"], (z["train_flow"] / FLOW_QUANT).astype(np.float16), z["val_rgb"],
+                (z["val_flow"] / FLOW_QUANT).astype(np.float16), z["val_seg"])
 
 
 def _upscale(img1: np.ndarray, img2: np.ndarray, flow: np.ndarray, s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -109,18 +157,30 @@ def _crop_at_motion(rng: np.random.Generator, a: np.ndarray, b: np.ndarray, f: n
     return a[win], b[win], f[win]
 
 
+SHIFTS = (4.0, 10.0, 20.0, 32.0)
+"""Largest layer translations (px) of chairs pairs, one drawn per pair."""
+
+
 def make_batch(rng: np.random.Generator, rgb: np.ndarray, flow: np.ndarray, batch: int,
-               chairs_fraction: float, crop: tuple[int, int] | None = None
-               ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+               chairs_fraction: float, crop: tuple[int, int] | None = None,
+               textures: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``img1, img2 (B, 3, h, w)`` float [0, 255] and ``flow (B, 2, h, w)`` px at the working size,
-    or ``crop = (h, w)`` windows of it (multiples of 8)."""
+    or ``crop = (h, w)`` windows of it (multiples of 8); ``textures``: see
+    :func:`pipeline.raft.pairs.chairs_pair`."""
+    return _to_tensors(_batch_arrays(rng, rgb, flow, batch, chairs_fraction, crop, textures))
+
+
+def _batch_arrays(rng: np.random.Generator, rgb: np.ndarray, flow: np.ndarray, batch: int,
+                  chairs_fraction: float, crop: tuple[int, int] | None = None,
+                  textures: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`make_batch` as ``(B, h, w, C)`` float32 numpy arrays (what DataLoader workers send)."""
     H, W = rgb.shape[2:4]
     s = working_scale(H, W)
     h, w = round(H * s), round(W * s)
     i1, i2, fl = [], [], []
     for _ in range(batch):
         if rng.random() < chairs_fraction:
-            a, b, f = chairs_pair(rng, *(crop or (h, w)), max_shift=rng.choice([4.0, 10.0, 20.0]))
+            a, b, f = chairs_pair(rng, *(crop or (h, w)), max_shift=float(rng.choice(SHIFTS)), textures=textures)
         else:
             n, t = int(rng.integers(len(rgb))), int(rng.integers(flow.shape[1]))
             a, b, f = _upscale(rgb[n, t], rgb[n, t + 1], flow[n, t], s)
@@ -131,8 +191,33 @@ def make_batch(rng: np.random.Generator, rgb: np.ndarray, flow: np.ndarray, batc
         if rng.random() < 0.5:                     # horizontal flip: u changes sign
             pair, f = pair[:, :, ::-1], f[:, ::-1] * np.array([-1, 1], np.float32)
         i1.append(pair[0]), i2.append(pair[1]), fl.append(f)
-    t = lambda xs: torch.from_numpy(np.ascontiguousarray(np.stack(xs))).permute(0, 3, 1, 2).float()  # noqa: E731
-    return t(i1), t(i2), t(fl)
+    return _stack(i1, i2, fl)
+
+
+def _stack(i1: list, i2: list, fl: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The pairs of a batch as ``(B, h, w, C)`` float32 arrays."""
+    return tuple(np.ascontiguousarray(np.stack(xs), dtype=np.float32) for xs in (i1, i2, fl))
+
+
+def _to_tensors(arrays) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(B, h, w, C)`` arrays or tensors -> ``(B, C, h, w)`` float32 tensors."""
+    return tuple(torch.as_tensor(a).permute(0, 3, 1, 2).float() for a in arrays)
+
+
+class _Batches(torch.utils.data.IterableDataset):
+    """Endless batches (:func:`_batch_arrays`, numpy only) made in DataLoader workers, one random
+    stream each (seeded from ``seed``, the step the run starts at and the worker's id)."""
+
+    def __init__(self, seed: int, start_step: int, *args) -> None:
+        super().__init__()
+        self.seed, self.start_step, self.args = seed, start_step, args
+
+    def __iter__(self):
+        info = torch.utils.data.get_worker_info()
+        cv2.setNumThreads(1)
+        rng = np.random.default_rng([self.seed, self.start_step, info.id if info else 0])
+        while True:
+            yield _batch_arrays(rng, *self.args)
 
 
 def learning_rate(peak: float, progress: float, warmup: float = 0.05) -> float:
@@ -180,19 +265,40 @@ def train(video: Path, configs: Path, out: Path, steps: int = 4000, batch: int =
           lr: float = 4e-4, chairs_fraction: float = 0.5, max_minutes: float = 60.0, seed: int = 0,
           resume: bool = False, checkpoint_every: int = 100, eval_every: int = 500,
           arch: RaftArch = RaftArch(small=True, convex=True), crop: tuple[int, int] | None = None,
-          init: Path | None = None) -> dict:
-    """Train and write ``out`` (weights) and ``out.json`` (summary, returned). See module doc."""
+          init: Path | None = None, data: Path | None = None, textures: Path | None = None,
+          device: str = "cpu", workers: int = 0) -> dict:
+    """Train and write ``out`` (weights) and ``out.json`` (summary, returned). See module doc.
+
+    ``data``: an :func:`export_data` file used instead of the shards ``video``/``configs``;
+    ``textures``: a ``.npz`` with a ``bank`` array (:func:`pipeline.raft.pairs.texture_bank`);
+    ``device``: torch device of the network; ``workers``: DataLoader processes making batches
+    (0: in this process, the random state checkpointed with the network)."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    rgb, flow, _ = load_split(video, configs, "train")
-    vrgb, vflow, vseg = load_split(video, configs, "val")
+    if data is not None:
+        rgb, flow, vrgb, vflow, vseg = load_data(data)
+    else:
+        rgb, flow, _ = load_split(video, configs, "train")
+        vrgb, vflow, vseg = load_split(video, configs, "val")
+    bank = None
+    if textures is not None:
+        with np.load(textures) as z:
+            bank = z["bank"]
+        print(f"texture bank {textures}: {len(bank)} frames", flush=True)
+    dev = torch.device(device)
+    if dev.type == "cuda":
+        torch.backends.cuda.matmul.allow_tf32 = True
+        torch.backends.cudnn.allow_tf32 = True
+        torch.backends.cudnn.benchmark = True
     net = RAFT(arch)
     if init is not None:   # weights of an earlier run (a .pth or the .ckpt of a run); a new schedule
         state = torch.load(init, map_location="cpu", weights_only=False)
         net.load_state_dict(state["net"] if "net" in state else {k.removeprefix("module."): v for k, v in state.items()})
         print(f"initialised from {init}", flush=True)
+    net.to(dev)              # before the optimiser, so its state lives on the same device
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-5, eps=1e-8)
     ckpt, step, spent, history = Path(str(out) + ".ckpt"), 0, 0.0, []
+    ckpt.parent.mkdir(parents=True, exist_ok=True)
     if resume and ckpt.is_file():
         state = torch.load(ckpt, map_location="cpu", weights_only=False)
         net.load_state_dict(state["net"]), opt.load_state_dict(state["opt"])
@@ -200,6 +306,12 @@ def train(video: Path, configs: Path, out: Path, steps: int = 4000, batch: int =
         rng.bit_generator.state = state["rng"]
         torch.set_rng_state(state["torch_rng"])
         print(f"resumed at step {step} ({spent:.1f} min)", flush=True)
+    batches = None
+    if workers > 0:
+        batches = iter(torch.utils.data.DataLoader(
+            _Batches(seed, step, rgb, flow, batch, chairs_fraction, crop, bank), batch_size=None,
+            num_workers=workers, pin_memory=dev.type == "cuda", prefetch_factor=4,
+            multiprocessing_context="spawn"))   # a fork can hang on thread pools (OpenMP, EGL) the parent started
     start, losses = time.time(), []
 
     def save_ckpt() -> None:
@@ -214,7 +326,9 @@ def train(video: Path, configs: Path, out: Path, steps: int = 4000, batch: int =
         rate = learning_rate(lr, max(step / steps, (spent + (time.time() - start) / 60) / max_minutes))
         for group in opt.param_groups:
             group["lr"] = rate
-        i1, i2, gt = make_batch(rng, rgb, flow, batch, chairs_fraction, crop)
+        i1, i2, gt = _to_tensors(next(batches)) if batches is not None else make_batch(rng, rgb, flow, batch,
+                                                                                       chairs_fraction, crop, bank)
+        i1, i2, gt = (x.to(dev, non_blocking=True) for x in (i1, i2, gt))
         loss = sequence_loss(net(i1, i2, iters=iters), gt)
         opt.zero_grad(set_to_none=True)
         loss.backward()
@@ -234,17 +348,19 @@ def train(video: Path, configs: Path, out: Path, steps: int = 4000, batch: int =
             print(f"val step {step}: EPE all {v['epe_all']:.3f} px, foreground {v['epe_fg']:.3f} px", flush=True)
         if step % checkpoint_every == 0:
             save_ckpt()
+            save_raft(net, out)      # the latest weights, so a run cut off still leaves a usable file
     save_ckpt()
     net.eval()
     minutes = spent + (time.time() - start) / 60
     v = validate(net, vrgb, vflow, vseg)
     summary = {"steps": step, "minutes": round(minutes, 1), "batch": batch, "train_iters": iters, "lr": lr,
                "chairs_fraction": chairs_fraction, "crop": list(crop) if crop else None,
-               "init": str(init) if init else None, "seed": seed, "arch": {"small": arch.small, "convex": arch.convex},
+               "init": str(init) if init else None, "seed": seed, "device": str(dev), "workers": workers,
+               "textures": {"file": str(textures), "frames": int(len(bank))} if bank is not None else None, "arch": {"small": arch.small, "convex": arch.convex},
                "parameters": sum(p.numel() for p in net.parameters()),
                "final_loss": float(np.mean(losses[-100:])) if losses else None,
                "val": v, "history": history,
-               "data": {"video": str(video), "train_clips": int(len(rgb)), "train_pairs": int(len(rgb) * flow.shape[1])}}
+               "data": {"video": str(data or video), "train_clips": int(len(rgb)), "train_pairs": int(len(rgb) * flow.shape[1])}}
     save_raft(net, out)
     tmp = Path(str(out) + ".json.tmp")
     tmp.write_text(json.dumps(summary, indent=1) + "\n")
