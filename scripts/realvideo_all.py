@@ -120,11 +120,13 @@ def content_columns(name: str, clip_out: Path) -> dict:
             "view_written": view, "view_true": truth["view"]}
 
 
-def run_clip(name: str, rel: str, fps: int | None, out: Path) -> dict:
-    """Run ``dynamics infer`` then ``dynamics simulate`` on one clip; one summary row."""
+def run_clip(name: str, rel: str, fps: int | None, out: Path, mask_method: str | None = None) -> dict:
+    """Run ``dynamics infer`` then ``dynamics simulate`` on one clip; one summary row
+    (``mask_method``: the observation, default params ``realvideo.mask_method``)."""
     clip_out = out / name
     row: dict = {"clip": name, "file": rel, "fps": fps}
     cmd = ["dynamics", "infer", str(REAL / rel), "--out", str(clip_out)] + (["--fps", str(fps)] if fps else [])
+    cmd += ["--mask-method", mask_method] if mask_method else []
     labels = LABELS / name.split("_")[0]          # hand labels (issue 36): scored against, never fitted
     if labels.is_dir():
         cmd += ["--labels", str(labels)]
@@ -235,6 +237,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0], formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", type=Path, default=Path("outputs/realvideo_all"), help="output folder")
     ap.add_argument("--only", nargs="*", default=None, help="clip names to run (default: all)")
+    ap.add_argument("--mask-method", default=None,
+                    help="observation for every clip (dynamics infer --mask-method; default params realvideo.mask_method)")
     ap.add_argument("--table-only", action="store_true",
                     help="rebuild table.md from OUT/summary.json and the clips' folders; run nothing")
     args = ap.parse_args(argv)
@@ -250,13 +254,14 @@ def main(argv: list[str] | None = None) -> int:
     for name, rel, fps in ([] if args.table_only else CLIPS):
         if args.only and name not in args.only:
             continue
-        row = run_clip(name, rel, fps, args.out)
+        row = run_clip(name, rel, fps, args.out, args.mask_method)
         print(json.dumps(row), flush=True, file=sys.stderr)
         rows.append(row)
     write_text(args.out / "summary.json", json.dumps(rows, indent=1) + "\n")
     sheets = contact_sheets(rows, args.out)
     text = (f"# Main job then dynamics simulate on all {len(CLIPS)} real clips\n\n"
-            f"Command: `python scripts/realvideo_all.py --out {args.out}` (IoU against pseudo ground truth: "
+            f"Command: `python scripts/realvideo_all.py --out {args.out}"
+            f"{' --mask-method ' + args.mask_method if args.mask_method else ''}` (IoU against pseudo ground truth: "
             "full-sequence IoU as the search reports it, and strict, over the frames where an object or its match "
             "is visible; \"re-sim vs scored masks\": foreground IoU of `dynamics simulate`'s masks against the masks "
             "the main job scored; labels: the hand labels on the window's labelled frames).\n\n" + table(rows)
