@@ -7,7 +7,10 @@ import argparse
 import sys
 from pathlib import Path
 
+import numpy as np
+
 from pipeline.raft.estimator import DEFAULT_WEIGHTS
+from pipeline.raft.pairs import texture_bank
 from pipeline.raft.train import export_data, train
 
 
@@ -51,10 +54,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"wrote {export_data(args.video, args.configs, args.out)}")
         return 0
     if args.cmd == "textures":
-        import numpy as np
-
-        from pipeline.raft.pairs import texture_bank
-
         bank = texture_bank(args.videos, per_video=args.per_video)
         tmp = args.out.with_name(args.out.name + ".tmp.npz")
         np.savez_compressed(tmp, bank=bank, sources=np.array([p.name for p in args.videos]))

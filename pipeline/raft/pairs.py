@@ -27,6 +27,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from pipeline.video import read_video
+
 
 PHOTO_FRACTION = 0.5
 """Share of layers cut from the texture bank when one is given."""
@@ -47,8 +49,6 @@ def texture_bank(paths: list[str | Path], per_video: int = 24, size: tuple[int, 
         pipeline.video.VideoError: a file that cannot be decoded.
         ValueError: no paths.
     """
-    from pipeline.video import read_video
-
     if not paths:
         raise ValueError("texture_bank: no video paths")
     out = []

@@ -27,7 +27,8 @@ On a machine with a GPU and many cores: ``--device cuda --workers 14`` makes the
 worker processes (each with its own random stream, seeded from ``--seed``, the worker and the
 step it started at, so a resumed run is reproducible only with ``--workers 0``).
 ``python -m pipeline.raft export`` packs the render shards into one ``.npz`` for ``--data``, so
-such a machine needs neither the shards nor zarr; ``--textures BANK.npz`` (``python -m
+such a machine needs neither the shards nor zarr (it needs numpy, OpenCV, torch, pyarrow and
+pydantic: carry wheels of the last two to a GPU box that lacks them); ``--textures BANK.npz`` (``python -m
 pipeline.raft textures VIDEO...``) cuts half the chairs layers from real frames.
 """
 
@@ -41,6 +42,7 @@ import cv2
 import numpy as np
 import torch
 
+from pipeline import shards
 from pipeline.raft.estimator import RaftFlow, save_raft, working_scale
 from pipeline.raft.model import RAFT, RaftArch
 from pipeline.raft.pairs import chairs_pair
@@ -59,8 +61,6 @@ def load_split(video_dir: str | Path, configs_dir: str | Path, split: str) -> tu
     Raises:
         FileNotFoundError: no shards, or no clip of ``split``.
     """
-    from pipeline import shards   # here, so training from an export needs neither zarr nor pydantic
-
     table = shards.read_table(configs_dir, columns=["scene_id", "split"])
     want = {s for s, sp in zip(table.column("scene_id").to_pylist(), table.column("split").to_pylist()) if sp == split}
     rgb, flow, seg = [], [], []
