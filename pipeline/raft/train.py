@@ -191,11 +191,6 @@ def _batch_arrays(rng: np.random.Generator, rgb: np.ndarray, flow: np.ndarray, b
         if rng.random() < 0.5:                     # horizontal flip: u changes sign
             pair, f = pair[:, :, ::-1], f[:, ::-1] * np.array([-1, 1], np.float32)
         i1.append(pair[0]), i2.append(pair[1]), fl.append(f)
-    return _stack(i1, i2, fl)
-
-
-def _stack(i1: list, i2: list, fl: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The pairs of a batch as ``(B, h, w, C)`` float32 arrays."""
     return tuple(np.ascontiguousarray(np.stack(xs), dtype=np.float32) for xs in (i1, i2, fl))
 
 
