@@ -207,7 +207,7 @@ def _segmenter_tracks(fg: np.ndarray, contact: np.ndarray, max_objects: int,
 
 
 def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
-                   explain: list | None = None) -> np.ndarray:
+                   explain: list | None = None, flow: np.ndarray | None = None) -> np.ndarray:
     """The segmenter first, background subtraction where it misses (``mask_method: hybrid``).
 
     The segmenter (:mod:`pipeline.segmenter`) gives whole silhouettes of objects moving or at
@@ -222,7 +222,11 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
       segmenter track's median area at most :data:`SIZE_CLASS` times the other's, so a wall or a
       backdrop the segmenter marks does not take over the ball that crosses it); in the frames
       where a mover's segmenter mask is missing, the overlapping background-subtraction mask
-      stands in;
+      stands in. Its pixels must move too (:func:`flow_moves`: a mask that flickers over still
+      scenery travels without flow) and the segmenter must be sure of it (mean probability
+      :data:`MOVER_CONFIDENT`: reflections and shadows on real floors are not); the pieces of one
+      mover (a track lost and found again further on, an object split in two) are joined
+      (:func:`join_movers`);
     * a moving track of background subtraction that lies mostly (80 %) outside the segmenter
       tracks of its size class is a mover of its own (its masks as they are): a small or blurred
       object the segmenter missed;
@@ -231,7 +235,8 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
       looks like a whole object in view (rotated box at most 3:1, at least half full, touching
       the border in at most half its frames: tables, walls, rulers and shelves run out of the
       frame) and, when there are movers, is of their size class (median area 1/16..16 times
-      theirs);
+      theirs); so is a track that travels but fails the mover tests when it still looks like a
+      whole object (:func:`_slow_object`: a slow object, one a mover occludes);
     * movers first (the segmenter's that background subtraction confirms, the segmenter's
       others, then those of background subtraction alone, each seen longest first), then objects at rest (largest first), at most ``max_objects``, numbered
       0, 1, ...: motion is the stronger evidence.
@@ -242,10 +247,14 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
         max_objects: most objects kept.
         explain: if given, one dict per kept object is appended: ``kind`` (``mover``,
             ``mover_bs_only``, ``at_rest``), ``area`` (median px), ``frames`` (seen in).
+        flow: ``(T-1, H, W, 2)`` float32 px between consecutive ``frames``
+            (:func:`pipeline.flow.estimate_flow`); None computes it (DIS, ``fast`` preset).
     Returns:
         ``(T, H, W)`` int8 object ids, -1 background.
     """
     T, H, W = frames.shape[:3]
+    if flow is None:
+        flow = estimate_flow(frames, method="dis", preset="fast")
     fg, contact = shipped()(frames, median_background(context))
     sg = _segmenter_tracks(fg > FG_THRESHOLD, contact > 0.5, 16, frames)
     bs = label_objects(pseudo_masks(frames, background=context), max_objects=max(max_objects, 8))
@@ -262,15 +271,18 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
         inside = [int((m & b).sum()) if ok else 0 for b, ok in zip(bs_masks, size_ok)]
         overlap += inside
         fill_in = [k for k in range(n_bs) if inside[k] and inside[k] >= 0.3 * bs_masks[k].sum()]
-        if tr.travel >= 0.25 * tr.diameter or fill_in:
+        shifts = tr.travel >= 0.25 * tr.diameter or fill_in
+        if shifts and flow_moves(m, flow, tr.diameter) and float(fg[m].mean()) >= MOVER_CONFIDENT:
             movers.append((tr, m, fill_in))
             linked.update(fill_in)
-        elif _whole_object_at_rest(tr, m, fg, T):
+        elif _whole_object_at_rest(tr, m, fg, T) or (shifts and _slow_object(tr, m, fg, T)):
             stills.append((tr, m))
+    movers = join_movers(movers, flow)
     unseen = [(None, m, []) for k, m in enumerate(bs_masks)   # movers only background subtraction saw
               if k not in linked and m.any() and overlap[k] <= 0.2 * m.sum()]
     if movers or unseen:
-        ref = float(np.median([np.median(m.sum(axis=(1, 2))[m.any(axis=(1, 2))]) for _, m, _ in movers + unseen]))
+        areas = [np.median(m.sum(axis=(1, 2))[m.any(axis=(1, 2))]) for _, m, _ in movers + unseen]
+        ref = float(np.median(areas))
         stills = [(tr, m) for tr, m in stills if ref / 16 <= float(np.median(tr.area)) <= 16 * ref]
     by_frames = lambda x: -int(x[1].any(axis=(1, 2)).sum())  # noqa: E731
     ranked = sorted(movers, key=lambda x: (not x[2], by_frames(x))) + sorted(unseen, key=by_frames) \
@@ -296,6 +308,146 @@ def _in_view(m: np.ndarray) -> bool:
     seen = m.any(axis=(1, 2))
     border = m[:, 0, :].any(axis=1) | m[:, -1, :].any(axis=1) | m[:, :, 0].any(axis=1) | m[:, :, -1].any(axis=1)
     return bool(seen.any() and border[seen].mean() <= 0.5)
+
+
+FLOW_PATH, FLOW_SPEED, FLOW_FRAMES = 0.5, 0.5, 0.25
+"""A segmenter track moves by its own pixels' flow (:func:`flow_moves`) when the median flow
+magnitude inside its masks, summed over the frames, reaches ``FLOW_PATH`` of its diameter and exceeds ``FLOW_SPEED`` px in at least ``FLOW_FRAMES`` of
+the frames where it is seen."""
+MOVER_CONFIDENT = 0.85
+"""Mean segmenter foreground probability inside a mover's masks. Measured on the candidates that
+pass :func:`flow_moves` (``docs/observation.md``): true movers 0.876-0.993 (rendered, both
+engines) and 0.885-0.990 (real clips); reflections and shadows on real floors 0.74-0.84."""
+SLOW_SEEN = 0.5
+"""A track whose outline shifts but whose pixels barely flow (:func:`_slow_object`) is kept as an
+object when seen in at least this fraction of the frames."""
+
+
+def flow_moves(mask: np.ndarray, flow: np.ndarray, diameter: float) -> bool:
+    """Whether the pixels of a track move, by optical flow, not only its outline.
+
+    A segmenter mask that flickers (scenery it half-recognises, fragments, a mask cut by a mover
+    passing in front) has a centroid that wanders by several diameters while the image under it
+    does not move (``docs/observation.md``). The flow of a frame is the median flow magnitude
+    inside the mask (the 75th percentile, tried for textureless objects whose interior DIS leaves
+    nearly still, scored the same on the rendered sets and let one more flickering track through
+    on the real clips).
+
+    Args:
+        mask: ``(T, H, W)`` bool masks of the track; flow: ``(T-1, H, W, 2)`` float32 px
+            (:func:`pipeline.flow.estimate_flow`); diameter: the track's diameter, px.
+    Returns:
+        True when that flow (frames with at least 4 px) sums to :data:`FLOW_PATH` diameters and is
+        above :data:`FLOW_SPEED` px in :data:`FLOW_FRAMES` of the frames.
+    """
+    speed = [float(np.median(np.linalg.norm(flow[t][mask[t]], axis=-1)))
+             for t in range(min(len(mask), len(flow))) if mask[t].sum() >= 4]
+    if not speed:
+        return False
+    speed = np.asarray(speed)
+    return bool(speed.sum() >= FLOW_PATH * diameter and (speed > FLOW_SPEED).mean() >= FLOW_FRAMES)
+
+
+JOIN_REACH, JOIN_TOUCH_PX, JOIN_AGREE = 1.5, 2, 0.7
+""":func:`join_movers`: a track that starts where another ended is the same object when its first
+centroid is within ``JOIN_REACH`` steps (per frame of the gap, the larger of the two tracks' median
+step and diameter) of the other's last; two tracks seen together are one object when they lie
+within ``JOIN_TOUCH_PX`` px of each other and their median flows agree (within 0.5 px + 25 %) in
+``JOIN_AGREE`` of the frames where both are seen."""
+
+
+def _median_flow(mask: np.ndarray, flow: np.ndarray, t: int) -> np.ndarray | None:
+    """``(2,)`` median flow (px) inside ``mask[t]`` (``(T, H, W)`` bool), None without 4 px or flow."""
+    if t >= len(flow) or mask[t].sum() < 4:
+        return None
+    return np.median(flow[t][mask[t]], axis=0)
+
+
+def join_movers(movers: list, flow: np.ndarray) -> list:
+    """Join the segmenter tracks of one moving object (``hybrid``): a fast or blurred object the
+    tracker loses comes back as a new track further along its path, and an object split in two
+    by a highlight or a colour edge gives two tracks that touch and flow alike. On the real clips
+    these pieces were most of the extra objects (``docs/observation.md``).
+
+    Two tracks are joined when (:data:`JOIN_REACH`, :data:`JOIN_TOUCH_PX`, :data:`JOIN_AGREE`):
+
+    * **in sequence**: they share at most one frame, their median areas are within 3x, and the
+      later one starts within reach of where the earlier one ended;
+    * **side by side**: seen together in 3 frames or more, within a few px of each other in half of
+      them, and moving alike (median flows) in most.
+
+    Args:
+        movers: ``(track, mask, fill_in)`` triples as in :func:`hybrid_objects`: a
+            :class:`pipeline.image_tracks.Track`, its ``(T, H, W)`` bool masks and the
+            background-subtraction tracks that stand in where it is missing.
+        flow: ``(T-1, H, W, 2)`` float32 px.
+    Returns:
+        The joined triples (masks OR-ed, ``fill_in`` merged), in the order of each group's first
+        member; a group's track is that of its member seen longest.
+    """
+    n = len(movers)
+    if n < 2:
+        return movers
+    parent = list(range(n))
+
+    def root(i):
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    def step(tr):
+        return float(np.median(np.linalg.norm(np.diff(tr.centre, axis=0), axis=1))) if len(tr.frames) > 1 else 0.0
+
+    kernel = np.ones((2 * JOIN_TOUCH_PX + 1, 2 * JOIN_TOUCH_PX + 1), np.uint8)
+    for i in range(n):
+        for j in range(i + 1, n):
+            (a, ma, _), (b, mb, _) = movers[i], movers[j]
+            shared = np.intersect1d(a.frames, b.frames)
+            if len(shared) <= 1:
+                if a.frames[0] > b.frames[0]:
+                    a, b = b, a
+                ratio = float(np.median(a.area)) / max(float(np.median(b.area)), 1e-6)
+                gap = int(b.frames[0] - a.frames[-1])
+                reach = JOIN_REACH * max(gap, 1) * max(step(a), step(b), a.diameter, b.diameter)
+                joined = gap >= 0 and 1 / 3 <= ratio <= 3 and \
+                    float(np.linalg.norm(b.centre[0] - a.centre[-1])) <= reach
+            elif len(shared) >= 3:
+                near = [bool((cv2.dilate(ma[t].astype(np.uint8), kernel) & mb[t]).any()) for t in shared]
+                agree = []
+                for t in shared:
+                    fa, fb = _median_flow(ma, flow, t), _median_flow(mb, flow, t)
+                    if fa is not None and fb is not None:
+                        agree.append(np.linalg.norm(fa - fb) <= 0.5 + 0.25 * np.linalg.norm(fa + fb) / 2)
+                joined = np.mean(near) >= 0.5 and bool(agree) and np.mean(agree) >= JOIN_AGREE
+            else:
+                joined = False
+            if joined:
+                parent[root(j)] = root(i)
+    groups: dict[int, list[int]] = {}
+    for i in range(n):
+        groups.setdefault(root(i), []).append(i)
+    out = []
+    for members in sorted(groups.values(), key=min):
+        mask = np.logical_or.reduce([movers[k][1] for k in members])
+        lead = max(members, key=lambda k: len(movers[k][0].frames))
+        fill = sorted({f for k in members for f in movers[k][2]})
+        out.append((movers[lead][0], mask, fill))
+    return out
+
+
+def _slow_object(tr, m: np.ndarray, fg: np.ndarray, T: int) -> bool:
+    """Whether a segmenter track whose outline shifts but whose pixels barely flow (an object
+    pushed slowly, one occluded by a mover, one at rest with a mask that wobbles) is still a whole
+    object: seen in :data:`SLOW_SEEN` of the frames, segmented confidently
+    (:data:`REST_CONFIDENT`) and looking like a whole object in view (at least half its rotated
+    box full, :func:`_in_view`; no aspect limit: a capsule or a cylinder lying down is long). On the rendered dev sets such tracks are objects with
+    probability 0.925-0.991; on real clips they are mostly scenery at 0.68-0.90.
+
+    Args: as :func:`_whole_object_at_rest`.
+    """
+    return len(tr.frames) >= SLOW_SEEN * T and float(fg[m].mean()) >= REST_CONFIDENT and tr.fill >= 0.5 \
+        and _in_view(m)
 
 
 def _whole_object_at_rest(tr, m: np.ndarray, fg: np.ndarray, T: int) -> bool:

@@ -197,3 +197,63 @@ def test_interpolate_is_the_weighted_mean_of_two_checkpoints(tmp_path):
     torch.save({"channels": [8, 16, 24, 32], "state_dict": UNet((8, 16, 24, 32)).state_dict()}, tmp_path / "small.pt")
     with pytest.raises(SegmenterError, match="not the same network"):
         interpolate(tmp_path / "a.pt", tmp_path / "small.pt", tmp_path / "x.pt")
+
+
+def _square_track(T: int = 10, step: float = 1.0, size: int = 6) -> np.ndarray:
+    """``(T, 32, 48)`` bool masks of a square moving ``step`` px right per frame."""
+    m = np.zeros((T, 32, 48), bool)
+    for t in range(T):
+        x = 4 + int(round(step * t))
+        m[t, 10:10 + size, x:x + size] = True
+    return m
+
+
+def test_flow_moves_needs_the_pixels_to_flow_not_only_the_outline():
+    """A mover's pixels flow with it; a mask that flickers over still pixels (scenery half
+    recognised, a fragment) has a centroid that travels while the flow under it is zero."""
+    from pipeline.observe import flow_moves
+
+    m = _square_track(step=1.0)                 # 9 px in 10 frames: 1.5 diameters
+    flow = np.zeros((9, 32, 48, 2), np.float32)
+    flow[..., 0] = 1.0                           # the true motion, 1 px / frame to the right
+    assert flow_moves(m, flow, diameter=6.0)
+    assert not flow_moves(m, np.zeros_like(flow), diameter=6.0)       # outline only
+    slow = flow * 0.2                                                  # 1.8 px in all: 0.3 diameters
+    assert not flow_moves(m, slow, diameter=6.0)
+    assert not flow_moves(np.zeros_like(m), flow, diameter=6.0)        # never seen
+
+
+
+def test_join_movers_joins_the_pieces_of_one_mover_only():
+    """A fast square the tracker loses half way comes back as a second track further along its
+    path; a square split down the middle gives two touching tracks that flow alike. Both are one
+    mover each; a second square elsewhere moving the other way stays apart."""
+    from pipeline.image_tracks import find_tracks
+    from pipeline.observe import join_movers
+
+    T, H, W = 10, 32, 64
+    seg = np.full((T, H, W), -1, np.int8)
+    flow = np.zeros((T - 1, H, W, 2), np.float32)
+    for t in range(T):
+        x = 2 + 3 * t                                   # 3 px / frame to the right
+        seg[t, 4:10, x:x + 6] = 0 if t < 5 else 1       # lost at t = 5: a new track
+        seg[t, 20:26, 50 - 2 * t:53 - 2 * t] = 2        # left half of another square
+        seg[t, 20:26, 53 - 2 * t:56 - 2 * t] = 3        # its right half, 2 px / frame to the left
+        if t < T - 1:
+            flow[t, 4:10, x:x + 6, 0] = 3.0
+            flow[t, 20:26, 50 - 2 * t:56 - 2 * t, 0] = -2.0
+    tracks = find_tracks(seg, None, min_frames=1)
+    movers = [(tr, seg == tr.label, [5] if tr.label == 3 else []) for tr in tracks]
+    joined = join_movers(movers, flow)
+    assert len(joined) == 2
+    (_, first, fill0), (_, second, fill1) = joined
+    np.testing.assert_array_equal(first, (seg == 0) | (seg == 1))
+    np.testing.assert_array_equal(second, (seg == 2) | (seg == 3))
+    assert fill0 == [] and fill1 == [5]                 # background-subtraction stand-ins merged
+    # the same pieces far apart in time and space are not one object
+    far = seg.copy()
+    far[5:][far[5:] == 1] = -1
+    far[8, 26:32, 56:62] = 1                            # reappears 47 px away after a 4-frame gap (reach 36 px)
+    tracks = find_tracks(far, None, min_frames=1)
+    movers = [(tr, far == tr.label, []) for tr in tracks if tr.label in (0, 1)]
+    assert len(join_movers(movers, flow)) == 2
