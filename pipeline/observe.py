@@ -224,9 +224,8 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
       where a mover's segmenter mask is missing, the overlapping background-subtraction mask
       stands in. Its pixels must move too (:func:`flow_moves`: a mask that flickers over still
       scenery travels without flow) and the segmenter must be sure of it (mean probability
-      :data:`MOVER_CONFIDENT`: reflections and shadows on real floors are not); the pieces of one
-      mover (a track lost and found again further on, an object split in two) are joined
-      (:func:`join_movers`);
+      :data:`MOVER_CONFIDENT`: reflections and shadows on real floors are not); a mover the
+      tracker lost and found again further along its path is joined into one (:func:`join_movers`);
     * a moving track of background subtraction that lies mostly (80 %) outside the segmenter
       tracks of its size class is a mover of its own (its masks as they are): a small or blurred
       object the segmenter missed;
@@ -277,7 +276,7 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
             linked.update(fill_in)
         elif _whole_object_at_rest(tr, m, fg, T) or (shifts and _slow_object(tr, m, fg, T)):
             stills.append((tr, m))
-    movers = join_movers(movers, flow)
+    movers = join_movers(movers)
     unseen = [(None, m, []) for k, m in enumerate(bs_masks)   # movers only background subtraction saw
               if k not in linked and m.any() and overlap[k] <= 0.2 * m.sum()]
     if movers or unseen:
@@ -348,39 +347,27 @@ def flow_moves(mask: np.ndarray, flow: np.ndarray, diameter: float) -> bool:
     return bool(speed.sum() >= FLOW_PATH * diameter and (speed > FLOW_SPEED).mean() >= FLOW_FRAMES)
 
 
-JOIN_REACH, JOIN_TOUCH_PX, JOIN_AGREE = 1.5, 2, 0.7
+JOIN_REACH = 1.5
 """:func:`join_movers`: a track that starts where another ended is the same object when its first
-centroid is within ``JOIN_REACH`` steps (per frame of the gap, the larger of the two tracks' median
-step and diameter) of the other's last; two tracks seen together are one object when they lie
-within ``JOIN_TOUCH_PX`` px of each other and their median flows agree (within 0.5 px + 25 %) in
-``JOIN_AGREE`` of the frames where both are seen."""
+centroid is within ``JOIN_REACH`` steps of the other's last (per frame of the gap, the larger of the
+two tracks' median step and diameter)."""
 
 
-def _median_flow(mask: np.ndarray, flow: np.ndarray, t: int) -> np.ndarray | None:
-    """``(2,)`` median flow (px) inside ``mask[t]`` (``(T, H, W)`` bool), None without 4 px or flow."""
-    if t >= len(flow) or mask[t].sum() < 4:
-        return None
-    return np.median(flow[t][mask[t]], axis=0)
-
-
-def join_movers(movers: list, flow: np.ndarray) -> list:
+def join_movers(movers: list) -> list:
     """Join the segmenter tracks of one moving object (``hybrid``): a fast or blurred object the
-    tracker loses comes back as a new track further along its path, and an object split in two
-    by a highlight or a colour edge gives two tracks that touch and flow alike. On the real clips
-    these pieces were most of the extra objects (``docs/observation.md``).
+    tracker loses comes back as a new track further along its path. On the real clips such pieces
+    were a third of the extra objects (``docs/observation.md``).
 
-    Two tracks are joined when (:data:`JOIN_REACH`, :data:`JOIN_TOUCH_PX`, :data:`JOIN_AGREE`):
-
-    * **in sequence**: they share at most one frame, their median areas are within 3x, and the
-      later one starts within reach of where the earlier one ended;
-    * **side by side**: seen together in 3 frames or more, within a few px of each other in half of
-      them, and moving alike (median flows) in most.
+    Two tracks are joined when they share at most one frame, their median areas are within 3x, and
+    the later one starts within reach (:data:`JOIN_REACH`) of where the earlier one ended. Tracks
+    seen together are never joined: two objects that touch and move together (a box pushing
+    another) are two objects, and a ball passing a dark surface lends it its flow (DIS), so
+    "touching and flowing alike" joined a ball with a laptop on real clip dev09.
 
     Args:
         movers: ``(track, mask, fill_in)`` triples as in :func:`hybrid_objects`: a
             :class:`pipeline.image_tracks.Track`, its ``(T, H, W)`` bool masks and the
             background-subtraction tracks that stand in where it is missing.
-        flow: ``(T-1, H, W, 2)`` float32 px.
     Returns:
         The joined triples (masks OR-ed, ``fill_in`` merged), in the order of each group's first
         member; a group's track is that of its member seen longest.
@@ -399,30 +386,17 @@ def join_movers(movers: list, flow: np.ndarray) -> list:
     def step(tr):
         return float(np.median(np.linalg.norm(np.diff(tr.centre, axis=0), axis=1))) if len(tr.frames) > 1 else 0.0
 
-    kernel = np.ones((2 * JOIN_TOUCH_PX + 1, 2 * JOIN_TOUCH_PX + 1), np.uint8)
     for i in range(n):
         for j in range(i + 1, n):
-            (a, ma, _), (b, mb, _) = movers[i], movers[j]
-            shared = np.intersect1d(a.frames, b.frames)
-            if len(shared) <= 1:
-                if a.frames[0] > b.frames[0]:
-                    a, b = b, a
-                ratio = float(np.median(a.area)) / max(float(np.median(b.area)), 1e-6)
-                gap = int(b.frames[0] - a.frames[-1])
-                reach = JOIN_REACH * max(gap, 1) * max(step(a), step(b), a.diameter, b.diameter)
-                joined = gap >= 0 and 1 / 3 <= ratio <= 3 and \
-                    float(np.linalg.norm(b.centre[0] - a.centre[-1])) <= reach
-            elif len(shared) >= 3:
-                near = [bool((cv2.dilate(ma[t].astype(np.uint8), kernel) & mb[t]).any()) for t in shared]
-                agree = []
-                for t in shared:
-                    fa, fb = _median_flow(ma, flow, t), _median_flow(mb, flow, t)
-                    if fa is not None and fb is not None:
-                        agree.append(np.linalg.norm(fa - fb) <= 0.5 + 0.25 * np.linalg.norm(fa + fb) / 2)
-                joined = np.mean(near) >= 0.5 and bool(agree) and np.mean(agree) >= JOIN_AGREE
-            else:
-                joined = False
-            if joined:
+            a, b = movers[i][0], movers[j][0]
+            if len(np.intersect1d(a.frames, b.frames)) > 1:
+                continue
+            if a.frames[0] > b.frames[0]:
+                a, b = b, a
+            ratio = float(np.median(a.area)) / max(float(np.median(b.area)), 1e-6)
+            gap = int(b.frames[0] - a.frames[-1])
+            reach = JOIN_REACH * max(gap, 1) * max(step(a), step(b), a.diameter, b.diameter)
+            if gap >= 0 and 1 / 3 <= ratio <= 3 and float(np.linalg.norm(b.centre[0] - a.centre[-1])) <= reach:
                 parent[root(j)] = root(i)
     groups: dict[int, list[int]] = {}
     for i in range(n):

@@ -224,36 +224,32 @@ def test_flow_moves_needs_the_pixels_to_flow_not_only_the_outline():
 
 
 
-def test_join_movers_joins_the_pieces_of_one_mover_only():
+def test_join_movers_joins_a_mover_lost_and_found_again_only():
     """A fast square the tracker loses half way comes back as a second track further along its
-    path; a square split down the middle gives two touching tracks that flow alike. Both are one
-    mover each; a second square elsewhere moving the other way stays apart."""
+    path: one mover. Two halves of a square seen together (two objects that touch and move alike)
+    stay two; the same second piece reappearing far away after a gap is another object."""
     from pipeline.image_tracks import find_tracks
     from pipeline.observe import join_movers
 
     T, H, W = 10, 32, 64
     seg = np.full((T, H, W), -1, np.int8)
-    flow = np.zeros((T - 1, H, W, 2), np.float32)
     for t in range(T):
         x = 2 + 3 * t                                   # 3 px / frame to the right
         seg[t, 4:10, x:x + 6] = 0 if t < 5 else 1       # lost at t = 5: a new track
         seg[t, 20:26, 50 - 2 * t:53 - 2 * t] = 2        # left half of another square
-        seg[t, 20:26, 53 - 2 * t:56 - 2 * t] = 3        # its right half, 2 px / frame to the left
-        if t < T - 1:
-            flow[t, 4:10, x:x + 6, 0] = 3.0
-            flow[t, 20:26, 50 - 2 * t:56 - 2 * t, 0] = -2.0
+        seg[t, 20:26, 53 - 2 * t:56 - 2 * t] = 3        # its right half, moving with it
     tracks = find_tracks(seg, None, min_frames=1)
-    movers = [(tr, seg == tr.label, [5] if tr.label == 3 else []) for tr in tracks]
-    joined = join_movers(movers, flow)
-    assert len(joined) == 2
-    (_, first, fill0), (_, second, fill1) = joined
-    np.testing.assert_array_equal(first, (seg == 0) | (seg == 1))
-    np.testing.assert_array_equal(second, (seg == 2) | (seg == 3))
-    assert fill0 == [] and fill1 == [5]                 # background-subtraction stand-ins merged
-    # the same pieces far apart in time and space are not one object
+    movers = [(tr, seg == tr.label, [5] if tr.label == 1 else []) for tr in tracks]
+    joined = join_movers(movers)
+    assert len(joined) == 3
+    np.testing.assert_array_equal(joined[0][1], (seg == 0) | (seg == 1))
+    assert joined[0][2] == [5]                          # background-subtraction stand-ins merged
+    np.testing.assert_array_equal(joined[1][1], seg == 2)
+    np.testing.assert_array_equal(joined[2][1], seg == 3)
+    # the second piece far from where the first ended is not the same object
     far = seg.copy()
     far[5:][far[5:] == 1] = -1
     far[8, 26:32, 56:62] = 1                            # reappears 47 px away after a 4-frame gap (reach 36 px)
     tracks = find_tracks(far, None, min_frames=1)
     movers = [(tr, far == tr.label, []) for tr in tracks if tr.label in (0, 1)]
-    assert len(join_movers(movers, flow)) == 2
+    assert len(join_movers(movers)) == 2
