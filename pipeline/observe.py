@@ -228,7 +228,8 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
       tracker lost and found again further along its path is joined into one (:func:`join_movers`);
     * a moving track of background subtraction that lies mostly (80 %) outside the segmenter
       tracks of its size class is a mover of its own (its masks as they are): a small or blurred
-      object the segmenter missed;
+      object the segmenter missed, unless half of it lies on an object kept at rest (the crescent
+      of a slow whole object);
     * any other segmenter track is an **object at rest** when it is seen as a rigid body at rest
       is (:func:`_at_rest`: in nearly every frame, with the same silhouette, and confidently),
       looks like a whole object in view (rotated box at most 3:1, at least half full, touching
@@ -283,6 +284,9 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
         areas = [np.median(m.sum(axis=(1, 2))[m.any(axis=(1, 2))]) for _, m, _ in movers + unseen]
         ref = float(np.median(areas))
         stills = [(tr, m) for tr, m in stills if ref / 16 <= float(np.median(tr.area)) <= 16 * ref]
+    if stills and unseen:   # a crescent of a slow whole object is that object, not a mover of its own
+        held = np.logical_or.reduce([m for _, m in stills])
+        unseen = [(tr, m, f) for tr, m, f in unseen if (m & held).sum() <= 0.5 * m.sum()]
     by_frames = lambda x: -int(x[1].any(axis=(1, 2)).sum())  # noqa: E731
     ranked = sorted(movers, key=lambda x: (not x[2], by_frames(x))) + sorted(unseen, key=by_frames) \
         + [(tr, m, []) for tr, m in sorted(stills, key=lambda x: -float(np.median(x[0].area)))]
