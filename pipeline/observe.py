@@ -238,8 +238,9 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
       theirs); so is a track that travels but fails the mover tests when it still looks like a
       whole object (:func:`_slow_object`: a slow object, one a mover occludes);
     * movers first (the segmenter's that background subtraction confirms, the segmenter's
-      others, then those of background subtraction alone, each seen longest first), then objects at rest (largest first), at most ``max_objects``, numbered
-      0, 1, ...: motion is the stronger evidence.
+      others, then those of background subtraction alone, each seen longest first), then objects
+      at rest (largest first), at most ``max_objects``, numbered 0, 1, ...: motion is the
+      stronger evidence.
 
     Args:
         frames: ``(T, H, W, 3)`` uint8 RGB; context: ``(N, H, W, 3)`` uint8 frames spread over
@@ -315,8 +316,8 @@ def _in_view(m: np.ndarray) -> bool:
 
 FLOW_PATH, FLOW_SPEED, FLOW_FRAMES = 0.5, 0.5, 0.25
 """A segmenter track moves by its own pixels' flow (:func:`flow_moves`) when the median flow
-magnitude inside its masks, summed over the frames, reaches ``FLOW_PATH`` of its diameter and exceeds ``FLOW_SPEED`` px in at least ``FLOW_FRAMES`` of
-the frames where it is seen."""
+magnitude inside its masks, summed over the frames, reaches ``FLOW_PATH`` of its diameter and
+exceeds ``FLOW_SPEED`` px in at least ``FLOW_FRAMES`` of the frames where it is seen."""
 MOVER_CONFIDENT = 0.85
 """Mean segmenter foreground probability inside a mover's masks. Measured on the candidates that
 pass :func:`flow_moves` (``docs/observation.md``): true movers 0.876-0.993 (rendered, both
@@ -359,8 +360,8 @@ two tracks' median step and diameter)."""
 
 def join_movers(movers: list) -> list:
     """Join the segmenter tracks of one moving object (``hybrid``): a fast or blurred object the
-    tracker loses comes back as a new track further along its path. On the real clips such pieces
-    were a third of the extra objects (``docs/observation.md``).
+    tracker loses comes back as a new track further along its path (the balls of real clips 02
+    and dev03 came back as 2-3 tracks each, ``docs/observation.md``).
 
     Two tracks are joined when they share at most one frame, their median areas are within 3x, and
     the later one starts within reach (:data:`JOIN_REACH`) of where the earlier one ended. Tracks
@@ -419,8 +420,9 @@ def _slow_object(tr, m: np.ndarray, fg: np.ndarray, T: int) -> bool:
     pushed slowly, one occluded by a mover, one at rest with a mask that wobbles) is still a whole
     object: seen in :data:`SLOW_SEEN` of the frames, segmented confidently
     (:data:`REST_CONFIDENT`) and looking like a whole object in view (at least half its rotated
-    box full, :func:`_in_view`; no aspect limit: a capsule or a cylinder lying down is long). On the rendered dev sets such tracks are objects with
-    probability 0.925-0.991; on real clips they are mostly scenery at 0.68-0.90.
+    box full, :func:`_in_view`; no aspect limit: a capsule or a cylinder lying down is long). On
+    the rendered dev sets such tracks are objects with probability 0.925-0.991; on real clips
+    they are mostly scenery at 0.68-0.90.
 
     Args: as :func:`_whole_object_at_rest`.
     """
