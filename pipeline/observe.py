@@ -207,7 +207,7 @@ def _segmenter_tracks(fg: np.ndarray, contact: np.ndarray, max_objects: int,
 
 
 def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
-                   explain: list | None = None, flow: np.ndarray | None = None) -> np.ndarray:
+                   explain: list | None = None) -> np.ndarray:
     """The segmenter first, background subtraction where it misses (``mask_method: hybrid``).
 
     The segmenter (:mod:`pipeline.segmenter`) gives whole silhouettes of objects moving or at
@@ -248,14 +248,11 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
         max_objects: most objects kept.
         explain: if given, one dict per kept object is appended: ``kind`` (``mover``,
             ``mover_bs_only``, ``at_rest``), ``area`` (median px), ``frames`` (seen in).
-        flow: ``(T-1, H, W, 2)`` float32 px between consecutive ``frames``
-            (:func:`pipeline.flow.estimate_flow`); None computes it (DIS, ``fast`` preset).
     Returns:
         ``(T, H, W)`` int8 object ids, -1 background.
     """
     T, H, W = frames.shape[:3]
-    if flow is None:
-        flow = estimate_flow(frames, method="dis", preset="fast")
+    flow = estimate_flow(frames, method="dis", preset="fast")   # for flow_moves
     fg, contact = shipped()(frames, median_background(context))
     sg = _segmenter_tracks(fg > FG_THRESHOLD, contact > 0.5, 16, frames)
     bs = label_objects(pseudo_masks(frames, background=context), max_objects=max(max_objects, 8))
@@ -282,8 +279,7 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
     unseen = [(None, m, []) for k, m in enumerate(bs_masks)   # movers only background subtraction saw
               if k not in linked and m.any() and overlap[k] <= 0.2 * m.sum()]
     if movers or unseen:
-        areas = [np.median(m.sum(axis=(1, 2))[m.any(axis=(1, 2))]) for _, m, _ in movers + unseen]
-        ref = float(np.median(areas))
+        ref = float(np.median([np.median(m.sum(axis=(1, 2))[m.any(axis=(1, 2))]) for _, m, _ in movers + unseen]))
         stills = [(tr, m) for tr, m in stills if ref / 16 <= float(np.median(tr.area)) <= 16 * ref]
     if stills and unseen:   # a crescent of a slow whole object is that object, not a mover of its own
         held = np.logical_or.reduce([m for _, m in stills])
