@@ -29,8 +29,8 @@ from pipeline.shard_viewer import camera_dict, scene_objects
 
 
 def scene_scores(scene: Scene, obs: Observation, sim: SimOptions) -> tuple[dict, tuple]:
-    """Re-simulate ``scene`` at the observation's working size and score it against the
-    observation (docs/design.md §7).
+    """Re-simulate ``scene`` at the observation's working size and score it against what the
+    search fits (``obs.fit_seg``: the observed objects that move, docs/design.md §7).
 
     Returns:
         ``({initial_iou, full_iou, strict_full_iou, foreground_iou_full, epe}, (trace, frames))``:
@@ -39,9 +39,9 @@ def scene_scores(scene: Scene, obs: Observation, sim: SimOptions) -> tuple[dict,
     """
     W, H = obs.size
     trace, fr = render_scene(scene, W, H, options=sim)
-    iou = sequence_iou(obs.seg, fr.seg)
+    iou = sequence_iou(obs.fit_seg, fr.seg)
     strict = iou["strict_iou"]
-    epe = flow_epe(fr.flow, obs.flow, fr.seg[:-1] >= 0, obs.seg[:-1] >= 0)
+    epe = flow_epe(fr.flow, obs.flow, fr.seg[:-1] >= 0, obs.fit_seg[:-1] >= 0)
     return {"initial_iou": round(iou["initial_iou"], 4), "full_iou": round(iou["full_iou"], 4),
             "strict_full_iou": None if not np.isfinite(strict) else round(float(strict), 4),
             "foreground_iou_full": round(iou["foreground_iou_full"], 4), "epe": round(epe, 4)}, (trace, fr)
@@ -104,7 +104,9 @@ def write_outputs(out: str | Path, video: str | Path, fps: float | None, obs: Ob
             for key, value in (("seg", obs.seg.astype(np.int8)), ("crop", np.asarray(obs.crop, dtype=np.int64)),
                                ("size", np.asarray(obs.size, dtype=np.int64)), ("start", np.float64(obs.start)),
                                ("fps", np.float64(scene_fps)), ("source_fps", np.float64(obs.clip.fps)),
-                               ("source_frames", source_frames(obs))):
+                               ("source_frames", source_frames(obs)),
+                               ("moving", np.asarray(obs.moving if obs.moving is not None
+                                                     else [True] * (int(obs.seg.max()) + 1), dtype=bool))):
                 npz.write(key, value)
         # for people: original frames at panel height, masks drawn over them
         orig = original_frames(obs, video, fps, height=rv.panel_height)
@@ -129,6 +131,8 @@ def write_outputs(out: str | Path, video: str | Path, fps: float | None, obs: Ob
             "ground_truth": "pseudo: masks from background subtraction, flow from the same estimator "
                             f"({obs.flow_method})",
             "objects_found": len(tracks),
+            "objects_observed": {"moving": int(sum(obs.moving)) if obs.moving is not None else int(obs.seg.max()) + 1,
+                                 "at_rest": sum(not m for m in obs.moving) if obs.moving is not None else 0},
             "object_pixels": [round(float(np.median(t.area)), 1) for t in tracks],
             "view": proposals.view if proposals else None,
             "perception_notes": notes, "model_note": model_note,
@@ -159,7 +163,7 @@ def write_outputs(out: str | Path, video: str | Path, fps: float | None, obs: Ob
                         positions=trace.qpos[..., :3], quaternions=trace.qpos[..., 3:],
                         objects=scene_objects(written), camera=camera_dict(written, W, H), fps=scene_fps,
                         app_id="dynamics_infer",
-                        scalars={"iou/frame": sequence_iou(obs.seg, fr.seg)["per_frame"]})
+                        scalars={"iou/frame": sequence_iou(obs.fit_seg, fr.seg)["per_frame"]})
         publish_dir(out, final)
     finally:
         if out.exists():

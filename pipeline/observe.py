@@ -86,6 +86,22 @@ class Observation:
     mask_method: str = "median"
     duration: float = 1.0
     """s, length of the window (the asked duration, or less for a clip shorter than it)."""
+    moving: tuple[bool, ...] | None = None
+    """Per object id of ``seg``: whether the observation saw it move (``hybrid`` and ``anchored``
+    tell movers from objects at rest; every object of ``median``/``mog2`` moves; None: all)."""
+
+    @property
+    def fit_seg(self) -> np.ndarray:
+        """``(T, H, W)`` int8: what the search fits, the objects of ``seg`` that move, renumbered
+        0..m-1 in their order in ``seg`` (-1 elsewhere); all of ``seg`` when none moves or
+        :attr:`moving` is None. Objects at rest stay in ``seg`` (``observation.npz``): the scene
+        language has no object held in place, and a still object the search must also explain
+        pulls the movers' camera and view away from theirs (``docs/observation.md``)."""
+        if self.moving is None or all(self.moving) or not any(self.moving):
+            return self.seg
+        lut = np.full(len(self.moving) + 1, -1, dtype=np.int8)   # index -1 (background) -> -1
+        lut[[k for k, m in enumerate(self.moving) if m]] = np.arange(sum(self.moving), dtype=np.int8)
+        return lut[self.seg.astype(np.int64)]
 
 
 def _detect_size(orig_w: int, orig_h: int) -> tuple[int, int]:
@@ -152,7 +168,8 @@ stands for (:func:`hybrid_objects`): a crescent of a slow object is a part of it
 a part of the wall it crosses."""
 
 
-def segment_objects(frames: np.ndarray, context: np.ndarray, method: str, max_objects: int) -> np.ndarray:
+def segment_objects(frames: np.ndarray, context: np.ndarray, method: str, max_objects: int,
+                    explain: list | None = None) -> np.ndarray:
     """Masks of the objects in ``frames``, split into tracks (before :func:`keep_objects`).
 
     ``median`` / ``mog2``: background subtraction against ``context``
@@ -166,6 +183,7 @@ def segment_objects(frames: np.ndarray, context: np.ndarray, method: str, max_ob
         frames: ``(T, H, W, 3)`` uint8 RGB; context: ``(N, H, W, 3)`` uint8 frames of the same
             video spread over the clip (the background model's).
         method: one of :data:`MASK_METHODS`.
+        explain: ``hybrid`` only: one dict per object (:func:`hybrid_objects`).
     Returns:
         ``(T, H, W)`` int8 track ids, -1 background.
     Raises:
@@ -177,7 +195,7 @@ def segment_objects(frames: np.ndarray, context: np.ndarray, method: str, max_ob
         masks = pseudo_masks(frames, method=method, background=context)
         return label_objects(masks, max_objects=max_objects)
     if method == "hybrid":
-        return hybrid_objects(frames, context, max_objects)
+        return hybrid_objects(frames, context, max_objects, explain)
     if method == "anchored":    # needs the flow-checked movers: observe() / observe_frames() run it
         raise ValueError("segment_objects: 'anchored' runs in observe(), after the median movers are kept")
     fg, contact = shipped()(frames, median_background(context))
@@ -573,10 +591,6 @@ def _keep_components(mask: np.ndarray, min_area: int) -> np.ndarray:
     return np.isin(labels, keep[keep > 0])
 
 
-def _masks(frames: np.ndarray, context: np.ndarray, method: str, max_objects: int) -> np.ndarray:
-    return segment_objects(frames, context, method, max_objects)
-
-
 def keep_objects(seg: np.ndarray, flow: np.ndarray, max_objects: int, still: bool = False
                  ) -> tuple[np.ndarray, list]:
     """Pseudo masks of the objects only. With ``still`` (masks from the segmenter, which sees
@@ -734,7 +748,7 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     _, det_frames, det_ctx = window(dsize, full)
     anchored = mask_method == "anchored"      # movers as median decides them, then the segmenter
     bs_method = "median" if anchored else mask_method
-    det_seg = _masks(det_frames, det_ctx, bs_method, max_objects)
+    det_seg = segment_objects(det_frames, det_ctx, bs_method, max_objects)
     det_flow = estimate_flow(det_frames, method="dis", preset="fast")
     learned = bs_method in LEARNED
     det_seg, tracks = keep_objects(det_seg if learned else hold_resting(det_seg, min_frames=HELD_MIN_FRAMES),
@@ -744,15 +758,21 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     crop = motion_crop(det_seg, diameter, scale, (W0, H0))
     size = working_size(crop, diameter * scale)
     clip, frames, ctx = window(size, crop)
-    seg = _masks(frames, ctx, bs_method, max_objects)
+    kinds: list = []
+    seg = segment_objects(frames, ctx, bs_method, max_objects, kinds)
     flow = flow or FlowConfig()
     flow_px = flow_of(frames, flow)
-    seg, _ = keep_objects(seg if learned else hold_resting(seg, min_frames=HELD_MIN_FRAMES), flow_px,
-                          max_objects, learned)
+    seg, kept = keep_objects(seg if learned else hold_resting(seg, min_frames=HELD_MIN_FRAMES), flow_px,
+                             max_objects, learned)
+    moving = None
     if anchored:
-        seg = anchored_objects(frames, ctx, seg, max_objects)
+        kinds = []
+        seg = anchored_objects(frames, ctx, seg, max_objects, kinds)
+        moving = tuple(k["kind"] != "at_rest" for k in kinds)
+    elif kinds:   # hybrid: kept tracks carry its ids
+        moving = tuple(kinds[t.label]["kind"] != "at_rest" for t in kept)
     return Observation(frames, seg, flow_px, clip, float(start), auto, clip.crop, size, scene_fps, flow.estimator,
-                       mask_method, duration)
+                       mask_method, duration, moving)
 
 
 def original_frames(obs: Observation, video, fps: float | None, height: int = 320) -> np.ndarray:

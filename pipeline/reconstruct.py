@@ -264,7 +264,7 @@ def propose_candidates(obs: Observation, mdir: Path | None, params: dict, rv: Re
         candidates += [Candidate(sc, "model", f"model sample {i}", err) for i, (sc, err) in enumerate(zip(scenes, errs))]
     proposals, notes = None, []
     try:
-        proposals = perception.propose(obs.seg, obs.flow, obs.scene_fps, obs.duration, rv.max_objects,
+        proposals = perception.propose(obs.fit_seg, obs.flow, obs.scene_fps, obs.duration, rv.max_objects,
                                        still=obs.mask_method in LEARNED)
         candidates += [Candidate(sc, "perception", f"perception: {lab}") for sc, lab in zip(proposals.scenes,
                                                                                            proposals.labels)]
@@ -312,9 +312,10 @@ def search_scene(candidates: list[Candidate], obs: Observation, scfg: SearchConf
         VideoError: no candidate could be simulated.
     """
     W, H = obs.size
+    target = obs.fit_seg   # the objects the observation saw move (Observation.fit_seg)
     scenes = [c.scene for c in candidates]
     with EvaluatorPool(W, H, sim) as pool:
-        scores, best = best_of_k(scenes, obs.seg, obs.flow, at_width(scfg, W), sim, pool=pool)
+        scores, best = best_of_k(scenes, target, obs.flow, at_width(scfg, W), sim, pool=pool)
         if best is None:
             raise VideoError(f"{obs.clip.source}: no proposal could be simulated ({scores[0].get('error')})")
         fittest = best   # the paper's Best@K; then the simplest shapes the re-simulation cannot tell apart
@@ -323,12 +324,12 @@ def search_scene(candidates: list[Candidate], obs: Observation, scfg: SearchConf
             print(f"[infer] Best@K: {candidates[best].label} (fitness {scores[best]['fitness']:.4f}) over "
                   f"{candidates[fittest].label} ({scores[fittest]['fitness']:.4f}): fewer shape parameters within "
                   f"{rv.shape_margin:g}")
-        refined, history = staged_refine(scenes[best], obs.seg, obs.flow, scfg, sim, seed=seed,
+        refined, history = staged_refine(scenes[best], target, obs.flow, scfg, sim, seed=seed,
                                          restarts=rv.restarts, pool=pool, workers=rv.workers)
         # what scene.yaml holds is what is scored: the better of the search's result and its
         # start, each as written (overlaps resolved, canonical text) and as `dynamics simulate` checks it
         chosen, written, choice = choose_output([("cmaes", refined), ("best_of_k", scenes[best])],
-                                                obs.seg, obs.flow, scfg, sim, sanity, pool=pool)
+                                                target, obs.flow, scfg, sim, sanity, pool=pool)
     gain = choice[0]["fitness"] - choice[1]["fitness"]
     search_gain = {
         "written": choice[chosen]["name"], "fitness_gain": round(gain, 6),
