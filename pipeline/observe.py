@@ -748,11 +748,16 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     _, det_frames, det_ctx = window(dsize, full)
     anchored = mask_method == "anchored"      # movers as median decides them, then the segmenter
     bs_method = "median" if anchored else mask_method
-    det_seg = segment_objects(det_frames, det_ctx, bs_method, max_objects)
+    det_kinds: list = []
+    det_seg = segment_objects(det_frames, det_ctx, bs_method, max_objects, det_kinds)
     det_flow = estimate_flow(det_frames, method="dis", preset="fast")
     learned = bs_method in LEARNED
     det_seg, tracks = keep_objects(det_seg if learned else hold_resting(det_seg, min_frames=HELD_MIN_FRAMES),
                                    det_flow, max_objects, learned)
+    movers = [k for k, t in enumerate(tracks) if not det_kinds or det_kinds[t.label]["kind"] != "at_rest"]
+    if movers and len(movers) < len(tracks):   # the region of motion and the working size are the movers'
+        det_seg = np.where(np.isin(det_seg, movers), det_seg, -1).astype(np.int8)
+        tracks = [tracks[k] for k in movers]
     scale = W0 / dsize[0]
     diameter = float(np.median([t.diameter for t in tracks])) if tracks else 0.05 * dsize[1]
     crop = motion_crop(det_seg, diameter, scale, (W0, H0))

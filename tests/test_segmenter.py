@@ -253,3 +253,44 @@ def test_join_movers_joins_a_mover_lost_and_found_again_only():
     tracks = find_tracks(far, None, min_frames=1)
     movers = [(tr, far == tr.label, []) for tr in tracks if tr.label in (0, 1)]
     assert len(join_movers(movers)) == 2
+
+
+def test_fit_seg_keeps_the_movers_renumbered_and_all_when_none_moves():
+    """``Observation.fit_seg``: what the search fits is the observed objects that move, numbered
+    0..m-1 in their order; with no mover (or no flags) it is the whole observation."""
+    from pipeline.observe import Observation
+
+    seg = np.full((2, 4, 6), -1, np.int8)
+    seg[:, 0, 0], seg[:, 1, 1], seg[:, 2, 2] = 0, 1, 2
+    obs = Observation(frames=None, seg=seg, flow=None, clip=None, start=0.0, auto=True, crop=(0, 0, 6, 4),
+                      size=(6, 4), scene_fps=30, flow_method="dis", mask_method="hybrid", moving=(False, True, True))
+    fit = obs.fit_seg
+    assert fit[0, 0, 0] == -1 and fit[0, 1, 1] == 0 and fit[0, 2, 2] == 1
+    assert (fit >= 0).sum() == 4 and fit.dtype == np.int8
+    for moving in (None, (False, False, False), (True, True, True)):
+        obs.moving = moving
+        assert np.array_equal(obs.fit_seg, seg)
+
+
+@pytest.mark.skipif(not DEFAULT_WEIGHTS.exists(), reason="no shipped segmenter weights")
+def test_observe_with_hybrid_flags_the_object_at_rest_and_fits_the_mover(tmp_path):
+    """``observe(..., mask_method="hybrid")`` on a video of a ball rolling past a box at rest:
+    both are observed (``seg``), the ball flagged moving and the box not, and the search's target
+    (``fit_seg``) is the ball alone, whose masks it keeps."""
+    import cv2
+    from pipeline.metrics import observation_scores
+    from pipeline.observe import observe, truth_in_window
+
+    fr = _box_at_rest_and_rolling_ball()
+    path = tmp_path / "box_and_ball.avi"
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), 30.0, fr.rgb.shape[2:0:-1])
+    for f in fr.rgb:
+        writer.write(cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
+    writer.release()
+    obs = observe(path, None, 0.0, 30, 1.0, mask_method="hybrid")
+    assert obs.moving is not None and sorted(obs.moving) == [False, True], obs.moving
+    truth, _ = truth_in_window(fr.seg, obs)
+    s = observation_scores(truth, obs.seg, [True, False])
+    assert s["n_pred"] == 2 and s["still_iou"] >= 0.7 and s["moving_iou"] >= 0.6, s["per_object"]
+    ball = observation_scores(np.where(truth == 1, 0, -1).astype(np.int8), obs.fit_seg, [False])
+    assert int(obs.fit_seg.max()) == 0 and ball["moving_iou"] >= 0.6, ball["per_object"]
