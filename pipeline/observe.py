@@ -9,8 +9,8 @@ object is at least :data:`MIN_OBJECT_DIAMETER` px across (area >= ~100 px) with 
 between :data:`MIN_LONG_SIDE` and :data:`MAX_LONG_SIDE` px. Cropping (rather than only raising
 the working size) keeps the render small, so the search runs at 100+ evaluations/s, and never
 cuts an object out because the box is built from where the objects are. With a mask method that
-also finds objects at rest (``hybrid``) the box holds them too, but the working size is set by
-the movers' median diameter, so that large still objects do not shrink the movers.
+also finds objects at rest (``hybrid``) the box and the median diameter include them (a box and a
+working size from the movers alone were tried: ``docs/observation.md``).
 
 Window (``start=None``): a clip shorter than the window is its own window (at least
 :data:`MIN_WINDOW_FRAMES` frames at the scene rate), and the scene's duration follows it.
@@ -752,18 +752,14 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     _, det_frames, det_ctx = window(dsize, full)
     anchored = mask_method == "anchored"      # movers as median decides them, then the segmenter
     bs_method = "median" if anchored else mask_method
-    det_kinds: list = []
-    det_seg = segment_objects(det_frames, det_ctx, bs_method, max_objects, det_kinds)
+    det_seg = segment_objects(det_frames, det_ctx, bs_method, max_objects)
     det_flow = estimate_flow(det_frames, method="dis", preset="fast")
     learned = bs_method in LEARNED
     det_seg, tracks = keep_objects(det_seg if learned else hold_resting(det_seg, min_frames=HELD_MIN_FRAMES),
                                    det_flow, max_objects, learned)
-    # the working size is set by the movers (objects at rest: hybrid), the crop by every object
-    movers = [t for t in tracks if not det_kinds or det_kinds[t.label]["kind"] != "at_rest"] or tracks
     scale = W0 / dsize[0]
-    diameter = float(np.median([t.diameter for t in movers])) if movers else 0.05 * dsize[1]
-    crop = motion_crop(det_seg, float(np.median([t.diameter for t in tracks])) if tracks else diameter, scale,
-                       (W0, H0))
+    diameter = float(np.median([t.diameter for t in tracks])) if tracks else 0.05 * dsize[1]
+    crop = motion_crop(det_seg, diameter, scale, (W0, H0))
     size = working_size(crop, diameter * scale)
     clip, frames, ctx = window(size, crop)
     kinds: list = []

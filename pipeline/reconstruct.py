@@ -15,10 +15,12 @@ propose (:func:`propose_candidates`: one list of :class:`Candidate`) -> search
   search's fitness, of the search's result and the Best@K pick it started from, each with
   initial overlaps resolved and checked as ``dynamics simulate`` checks it, so that
   ``dynamics simulate scene.yaml`` runs as it is and gives ``masks.npz``;
-* ``observation.npz``: the observation the search fitted (issue 36): ``seg (T, H, W) int8``
+* ``observation.npz``: the observation (issue 36): ``seg (T, H, W) int8``
   pseudo masks at the working size (-1 background), ``crop`` ``[x, y, w, h]`` px of the
   original frame, ``size`` ``[W, H]`` px, ``start`` s and ``fps`` of the window, ``source_fps`` and
-  ``source_frames`` ``(T,)`` int64 (the decoded frame, 0-based, behind each window frame);
+  ``source_frames`` ``(T,)`` int64 (the decoded frame, 0-based, behind each window frame), and
+  ``moving`` ``(K,)`` bool per object id of ``seg``: the search fits the objects that move
+  (:attr:`pipeline.observe.Observation.fit_seg`); objects at rest stay in ``seg``;
 * ``masks.npz``: the re-simulated masks that were scored (``seg (T, H, W) int8``, -1 =
   background, and ``names``; the layout of ``dynamics simulate``), at the working size;
 * ``side_by_side.mp4``: original frames with pseudo ground-truth masks | with re-simulated

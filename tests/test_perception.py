@@ -179,6 +179,7 @@ def test_dynamics_infer_without_model(tmp_path, capsys, monkeypatch):
         assert float(o["start"]) == pytest.approx(m["window"]["start_s"], abs=1e-4) and float(o["fps"]) == 30
         assert (o["seg"] >= 0).any()                   # the sliding puck is observed
         assert o["source_frames"].tolist() == list(range(m["window"]["frames"]))   # 30 fps, start 0
+        assert o["moving"].dtype == bool and o["moving"].shape == (int(o["seg"].max()) + 1,) and o["moving"].all()
     # scored against the truth beside the observation: every window frame is labelled; the
     # observation of a lone puck on a plain floor is close to the truth, and so is its fit
     a = m["against_labels"]
