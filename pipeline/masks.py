@@ -463,57 +463,14 @@ def _difference(frame: np.ndarray, bg: np.ndarray, gain: bool, shadows: bool,
             frame = frame / g
     d = np.abs(frame - bg).max(axis=-1)
     if shadows:
-        shadow = shadow_pixels(frame, bg)
+        sf, sb = frame.sum(-1) + 1e-3, bg.sum(-1) + 1e-3
+        ratio = sf / sb
+        chroma = np.abs(frame / sf[..., None] - bg / sb[..., None]).max(-1)
+        shadow = (ratio > 0.45) & (ratio < 0.97) & (chroma < 0.06)
         solid = ((d > threshold) & ~shadow).astype(np.uint8)
         shadow &= ~(cv2.dilate(solid, np.ones((3, 3), np.uint8)) > 0)
         d = np.where(shadow, 0, d)
     return d.astype(np.float32)
-
-
-def shadow_pixels(frame: np.ndarray, bg: np.ndarray) -> np.ndarray:
-    """Pixels of ``frame`` that look like a shadow cast on ``bg``: darker by a factor 0.45-0.97
-    with nearly the same chromaticity (normalised RGB within 0.06), the usual shadow model of
-    background subtraction (Prati et al., IEEE TPAMI 2003, the chromaticity-based detectors).
-
-    Args:
-        frame, bg: ``(H, W, 3)`` float32 RGB (0-255), smoothed alike.
-    Returns:
-        ``(H, W)`` bool.
-    """
-    sf, sb = frame.sum(-1) + 1e-3, bg.sum(-1) + 1e-3
-    ratio = sf / sb
-    chroma = np.abs(frame / sf[..., None] - bg / sb[..., None]).max(-1)
-    return (ratio > 0.45) & (ratio < 0.97) & (chroma < 0.06)
-
-
-SHADOW_KEEP = 0.5
-""":func:`trim_shadows` leaves a frame's mask as it is when trimming would remove more than this
-fraction of it: a grey object on a floor of the same hue reads as a shadow everywhere."""
-
-
-def trim_shadows(mask: np.ndarray, frames: np.ndarray, background: np.ndarray) -> np.ndarray:
-    """A moving object's masks without its cast shadow: the shadow pixels
-    (:func:`shadow_pixels` against the median ``background``) that do not touch (3x3) the rest of
-    the mask, as :func:`pseudo_masks` trims them; frames where that would remove more than
-    :data:`SHADOW_KEEP` of the mask are left as they are. An object at rest has its shadow in the
-    median background, so it loses nothing.
-
-    Args:
-        mask: ``(T, H, W)`` bool; frames: ``(T, H, W, 3)`` uint8 RGB; background: ``(H, W, 3)`` uint8.
-    Returns:
-        ``(T, H, W)`` bool, a subset of ``mask``.
-    """
-    h, w = mask.shape[1:3]
-    sigma = max(0.5, 0.002 * min(h, w))
-    bg = cv2.GaussianBlur(background, (0, 0), sigma).astype(np.float32)
-    out = mask.copy()
-    for t in np.flatnonzero(mask.any(axis=(1, 2))):
-        shadow = shadow_pixels(cv2.GaussianBlur(frames[t], (0, 0), sigma).astype(np.float32), bg) & mask[t]
-        solid = (mask[t] & ~shadow).astype(np.uint8)
-        drop = shadow & ~(cv2.dilate(solid, np.ones((3, 3), np.uint8)) > 0)
-        if drop.sum() <= (1.0 - SHADOW_KEEP) * mask[t].sum():
-            out[t] &= ~drop
-    return out
 
 
 def _gradient(grey: np.ndarray) -> np.ndarray:

@@ -34,7 +34,7 @@ from scipy import ndimage
 from pipeline.flow import FlowConfig, estimate_flow, flow_of
 from pipeline.image_tracks import find_tracks, object_tracks, still_tracks
 from pipeline.masks import (cut_by_colour, drop_ghosts, hold_resting, label_objects, merge_touching, pseudo_ground_truth,
-                            pseudo_masks, trim_shadows)
+                            pseudo_masks)
 from pipeline.segmenter import median_background, shipped
 from pipeline.video import Clip, VideoError, declared_length, read_video, resample
 
@@ -242,8 +242,7 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
       segmenter track's median area at most :data:`SIZE_CLASS` times the other's, so a wall or a
       backdrop the segmenter marks does not take over the ball that crosses it); in the frames
       where a mover's segmenter mask is missing, the overlapping background-subtraction mask
-      stands in, and its cast shadow is trimmed (:func:`pipeline.masks.trim_shadows`: the segmenter
-      takes in a soft shadow that moves with the object). Its pixels must move too (:func:`flow_moves`: a mask that flickers over still
+      stands in. Its pixels must move too (:func:`flow_moves`: a mask that flickers over still
       scenery travels without flow) and the segmenter must be sure of it (mean probability
       :data:`MOVER_CONFIDENT`: reflections and shadows on real floors are not); a mover the
       tracker lost and found again further along its path is joined into one (:func:`join_movers`);
@@ -274,8 +273,7 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
     """
     T, H, W = frames.shape[:3]
     flow = estimate_flow(frames, method="dis", preset="fast")   # for flow_moves
-    background = median_background(context)
-    fg, contact = shipped()(frames, background)
+    fg, contact = shipped()(frames, median_background(context))
     sg = _segmenter_tracks(fg > FG_THRESHOLD, contact > 0.5, 16, frames)
     bs = label_objects(pseudo_masks(frames, background=context), max_objects=max(max_objects, 8))
     bs, _ = keep_objects(bs, None, max(max_objects, 8))
@@ -316,7 +314,7 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
             seen = m.any(axis=(1, 2))
             explain.append({"kind": kinds[n], "area": float(np.median(m.sum(axis=(1, 2))[seen])) if seen.any() else 0.0,
                             "frames": int(seen.sum())})
-        mask = trim_shadows(m, frames, background) if kinds[n] == "mover" else m.copy()
+        mask = m.copy()
         missing = ~m.any(axis=(1, 2))
         for k in fill_in:
             mask[missing] |= bs[missing] == k

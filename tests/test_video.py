@@ -191,31 +191,6 @@ def test_pseudo_masks_shadow_and_blur():
     assert plain.sum() > 1.3 * masks.sum()               # the shadow would be foreground
 
 
-def test_trim_shadows_drops_the_cast_shadow_and_keeps_a_grey_object_whole():
-    """``trim_shadows``: a segmenter-like mask of a disc and its soft shadow loses the shadow
-    (it touches the disc only along a rim) and keeps the disc; a grey disc on a floor of the
-    same hue, all of it 'shadow', is left whole (``SHADOW_KEEP``)."""
-    from pipeline.masks import trim_shadows
-
-    rng = np.random.default_rng(2)
-    H, W = 64, 96
-    bg = (200 + rng.integers(-5, 6, (H, W, 3))).astype(np.uint8)
-    yy, xx = np.mgrid[:H, :W]
-    disc = (yy - 30) ** 2 + (xx - 40) ** 2 <= 64
-    shadow = ((yy - 36) ** 2 + (xx - 46) ** 2 <= 64) & ~disc   # cast down and to the right
-    f = bg.astype(np.float32)
-    f[shadow] *= 0.7                                          # same colour, darker
-    grey = f.copy()
-    f[disc] = (30, 60, 160)
-    grey[disc] *= 0.6                                         # a grey disc: the floor's hue, darker
-    frames = np.stack([f, grey]).clip(0, 255).astype(np.uint8)
-    mask = np.stack([disc | shadow, disc])
-    out = trim_shadows(mask, frames, bg)
-    assert not (out & ~mask).any()                            # a subset of the mask
-    assert out[0][disc].all() and out[0][shadow].sum() <= 0.35 * shadow.sum()
-    assert np.array_equal(out[1], disc)                       # all 'shadow': left as it is
-
-
 @needs_real
 def test_pseudo_ground_truth_crop_and_ids():
     # the main job's call: a crop box, a working size, source frames of a window
