@@ -34,7 +34,7 @@ from pipeline.camera import intrinsics, pixel_to_plane
 from pipeline.errors import UserError
 from pipeline.geometry import volume
 from pipeline.image_tracks import (BOX_FILL, CIRCLE_FILL, Motion, Track, View, gravity_vote, bounce_restitution,
-                                   estimate_view, first_bounce, gravity_motion, initial_motion, initial_state_given, object_tracks,
+                                   estimate_view, find_tracks, first_bounce, gravity_motion, initial_motion, initial_state_given, object_tracks,
                                    still_tracks, whole_frames)
 from pipeline.rotation import axis_angle_quat
 from pipeline.scene import Camera, Scene
@@ -398,6 +398,68 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
                 labels.append(label + f", restitution {COLLISION_RESTITUTION}")
     motions = side_motions if view == "side" else motions
     return Proposals(scenes, labels, view, tracks, motions, notes)
+
+
+AT_REST_PITCH = 45.0
+"""deg: a camera pitched less than this sees objects at rest from the side (a disc is a sphere
+first), more from above (a disc is a puck first): :func:`shape_candidates`."""
+
+
+def place_at_rest(scene: Scene, seg: np.ndarray, moving, width: int, height: int) -> tuple[Scene, list[str]]:
+    """Add the observed objects at rest to a scene fitted to the movers, seen by its camera.
+
+    Each object whose ``moving`` flag is False becomes a scene object at rest on the floor: the
+    viewing ray of its silhouette's median centroid meets the horizontal plane at the object's
+    centre height (the radius, half the height; found by fixed-point iteration from the floor,
+    since the size depends on the depth), its size is its median image diameter (the short side
+    of the rotated box, :class:`pipeline.image_tracks.Track`) times depth over focal length
+    (pinhole: size = px * Z / f), its shape the first of :func:`shape_candidates` for the view
+    the camera's pitch gives, its mass from :data:`DENSITY`, its velocity 0. An object whose
+    ray does not meet the floor (above the horizon) is left out, with a note.
+
+    Args:
+        scene: the scene fitted to the movers (its camera is used as it is).
+        seg: ``(T, H, W)`` int8 observed object ids, -1 background, at ``width x height`` px.
+        moving: per object id of ``seg``, whether it moves (``Observation.moving``).
+        width, height: the working image size, px.
+    Returns:
+        ``(scene, notes)``: the scene with the objects at rest appended (the same scene when
+        there is none to add), and one note per object.
+    """
+    cam = scene.camera
+    f = float(intrinsics(cam.fov, width, height)[1, 1])
+    view: View = "side" if cam.pitch < AT_REST_PITCH else "top"
+    added, notes = [], []
+    for k, m in enumerate(moving or ()):
+        if m:
+            continue
+        tracks = find_tracks(np.where(seg == k, 0, -1).astype(np.int8), None, min_frames=1)
+        if not tracks:
+            continue
+        tr = tracks[0]
+        uv = np.median(tr.centre, axis=0)
+        shape = shape_candidates(tr, view)[0]
+        z, size = 0.0, None
+        for _ in range(4):
+            point = pixel_to_plane(uv, z, cam, width, height)
+            if not np.all(np.isfinite(point)):
+                break
+            depth = float(np.linalg.norm(point - np.asarray(cam.eye, dtype=np.float64)))
+            d = tr.diameter * depth / f                       # m, the silhouette's short side
+            size = ({"radius": d / 2} if shape == "sphere" else
+                    {"radius": d / 2, "height": d / 2} if shape == "cylinder" else
+                    {"width": d, "depth": d, "height": d})
+            z = d / 2 if shape == "sphere" else 0.5 * size["height"]
+        if size is None or not np.all(np.isfinite(point)):
+            notes.append(f"object {k} at rest: its ray misses the floor (above the horizon), left out")
+            continue
+        added.append({"shape": shape, "size": size, "mass": _mass(shape, size),
+                      "position": [float(point[0]), float(point[1]), float(z)]})
+        notes.append(f"object {k} at rest: {shape} of {d:.3f} m on the floor at "
+                     f"({point[0]:.2f}, {point[1]:.2f}) m")
+    if not added:
+        return scene, notes
+    return scene.replace(objects=[o.model_dump() for o in scene.objects] + added), notes
 
 
 def _to_scene(cam: Camera, objs: list[Lifted], fps: float, duration: float) -> Scene:

@@ -345,7 +345,33 @@ def search_scene(candidates: list[Candidate], obs: Observation, scfg: SearchConf
     if not choice[chosen]["simulate_ok"]:
         search_gain["note"] += f"; dynamics simulate refuses it: {choice[chosen]['problem']}"
     print(f"[infer] {search_gain['note']} (fitness {choice[0]['fitness']:.4f} vs start {choice[1]['fitness']:.4f})")
+    written, search_gain["objects_at_rest"] = add_objects_at_rest(written, obs, scfg, sim, sanity)
     return SearchOutcome(scores, fittest, best, written, history, search_gain)
+
+
+def add_objects_at_rest(scene: Scene, obs: Observation, scfg: SearchConfig, sim: SimOptions,
+                        sanity: SanityConfig) -> tuple[Scene, dict | None]:
+    """The observed objects at rest, added to the scene fitted to the movers
+    (:func:`pipeline.perception.place_at_rest`) when that scene, made writable, scores better
+    against the whole observation (``obs.seg``, movers and objects at rest) with the search's
+    fitness and ``dynamics simulate`` accepts it (:func:`choose_output`).
+
+    Returns:
+        ``(scene, report)``: the scene to write and, for ``metrics.json``, None when the
+        observation has no object at rest, else ``{added, notes, candidates}``.
+    """
+    if obs.moving is None or all(obs.moving) or not any(obs.moving):
+        return scene, None
+    placed, notes = perception.place_at_rest(scene, obs.seg, obs.moving, *obs.size)
+    if placed is scene:
+        return scene, {"added": 0, "notes": notes, "candidates": []}
+    chosen, out, choice = choose_output([("with_objects_at_rest", placed), ("movers_only", scene)], obs.seg, obs.flow,
+                                        scfg, sim, sanity)
+    added = len(placed.objects) - len(scene.objects) if chosen == 0 else 0
+    print(f"[infer] objects at rest: {len(placed.objects) - len(scene.objects)} placed, "
+          f"{'added' if chosen == 0 else 'not added'} (fitness against the whole observation "
+          f"{choice[0]['fitness']:.4f} with them, {choice[1]['fitness']:.4f} without)")
+    return (out if chosen == 0 else scene), {"added": added, "notes": notes, "candidates": choice}
 
 
 def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | None = None,

@@ -228,3 +228,42 @@ def test_drop_entering_at_the_top_and_bouncing_below_the_view(tmp_path):
     assert first.camera.height == pytest.approx(0.27, rel=0.15)
     _, fr = render_scene(first, obs.size[0], obs.size[1])
     assert sequence_iou(obs.seg, fr.seg)["strict_iou"] > 0.5
+
+
+@pytest.mark.parametrize("shape,size", [("box", {"width": 0.2, "depth": 0.2, "height": 0.2}),
+                                        ("sphere", {"radius": 0.1}), ("cylinder", {"radius": 0.1, "height": 0.1})])
+@pytest.mark.parametrize("pitch", [20.0, 40.0, 70.0])
+def test_place_at_rest_puts_a_still_object_where_the_camera_sees_it(shape, size, pitch):
+    """``place_at_rest``: an object at rest, rendered beside a rolling ball, is added to a scene
+    that holds only the ball, through the true camera: on the floor within 10 cm of where it is
+    (1.4-2 m from the camera) and of its true width within -20 %..+50 % (the silhouette's short side
+    grows with the faces an oblique view shows), at rest."""
+    y_rest, y_ball = (-0.6, -0.8) if pitch < 60 else (-1.3, -1.5)
+    z = size["radius"] if shape == "sphere" else size["height"] / 2
+    scene = Scene.from_dict({"duration": 1.0, "fps": 30, "camera": {"height": 1.2, "pitch": pitch, "fov": 45.0},
+                             "objects": [{"shape": shape, "size": size, "mass": 2.0, "position": [0.25, y_rest, z]},
+                                         {"shape": "sphere", "size": {"radius": 0.08}, "mass": 0.5,
+                                          "position": [-0.5, y_ball, 0.08], "linear_velocity": [0.8, 0.0, 0.0]}]})
+    fr = render_scene(scene, 192, 144)[1]
+    movers = scene.replace(objects=[scene.objects[1].model_dump()])
+    out, notes = perception.place_at_rest(movers, fr.seg, (False, True), 192, 144)
+    assert len(out.objects) == 2 and len(notes) == 1 and out.objects[0] == movers.objects[0]
+    placed = out.objects[1]
+    assert np.hypot(placed.position[0] - 0.25, placed.position[1] - y_rest) <= 0.10, notes
+    width = 2 * placed.size.radius if placed.shape != "box" else placed.size.width
+    assert 0.8 * 0.2 <= width <= 1.5 * 0.2, notes
+    assert placed.linear_velocity == (0.0, 0.0, 0.0) and placed.angular_velocity == (0.0, 0.0, 0.0)
+    # nothing at rest: the scene comes back as it is
+    assert perception.place_at_rest(movers, fr.seg, (True, True), 192, 144)[0] is movers
+
+
+def test_place_at_rest_leaves_out_an_object_above_the_horizon():
+    """A still silhouette whose viewing ray never meets the floor (above the horizon of a level
+    camera) cannot rest on it: it is left out, with a note."""
+    scene = Scene.from_dict({"duration": 1.0, "fps": 30, "camera": {"height": 0.5, "pitch": 0.0, "fov": 45.0},
+                             "objects": [{"shape": "sphere", "size": {"radius": 0.05}, "mass": 0.5,
+                                          "position": [0.0, 0.0, 0.05], "linear_velocity": [0.5, 0.0, 0.0]}]})
+    seg = np.full((30, 96, 128), -1, np.int8)
+    seg[:, 10:20, 60:70] = 0                                        # high in the image: above the horizon
+    out, notes = perception.place_at_rest(scene, seg, (False,), 128, 96)
+    assert out is scene and len(notes) == 1 and "horizon" in notes[0]
