@@ -267,3 +267,45 @@ def test_place_at_rest_leaves_out_an_object_above_the_horizon():
     seg[:, 10:20, 60:70] = 0                                        # high in the image: above the horizon
     out, notes = perception.place_at_rest(scene, seg, (False,), 128, 96)
     assert out is scene and len(notes) == 1 and "horizon" in notes[0]
+
+
+@pytest.mark.skipif(not (Path(__file__).resolve().parents[1] / "pipeline/weights/segmenter.pt").exists(),
+                    reason="no shipped segmenter weights")
+def test_dynamics_infer_hybrid_fits_the_mover_and_adds_the_object_at_rest(tmp_path, monkeypatch):
+    """``dynamics infer --mask-method hybrid`` on a ball rolling past a box at rest (camera pitched
+    40 deg): the observation holds both and flags the box at rest; the search fits the ball; the
+    box is then added to the written scene through its camera, and its re-simulated mask lies on
+    the true box (matched IoU >= 0.5 against the true masks of the window)."""
+    from pipeline.cli import main
+    from pipeline.metrics import observation_scores
+
+    import pipeline.model as vlm
+    monkeypatch.setattr(vlm, "SHIPPED_CHECKPOINT", tmp_path / "no_shipped_checkpoint")
+    truth = _scene({"height": 1.2, "pitch": 40.0, "fov": 45.0},
+                   [{"shape": "box", "size": {"width": 0.2, "depth": 0.2, "height": 0.2}, "mass": 2.0,
+                     "position": [0.25, -0.6, 0.1]},
+                    {"shape": "sphere", "size": {"radius": 0.08}, "mass": 0.5, "position": [-0.5, -0.8, 0.08],
+                     "linear_velocity": [0.8, 0.0, 0.0]}])
+    video = _video(tmp_path, truth, "box_and_ball")
+    params = yaml.safe_load(Path("params.yaml").read_text())
+    params["realvideo"].update(popsize=4, iterations=3, restarts=1, mask_method="hybrid")
+    params["paths"]["model"] = str(tmp_path / "no_model_here")
+    pfile = tmp_path / "params.yaml"
+    pfile.write_text(yaml.safe_dump(params))
+    out = tmp_path / "out"
+    assert main(["infer", str(video), "--out", str(out), "--start", "0", "--params", str(pfile)]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["objects_observed"] == {"moving": 1, "at_rest": 1}
+    assert m["search_gain"]["objects_at_rest"]["added"] == 1, m["search_gain"]["objects_at_rest"]
+    scene = Scene.from_yaml((out / "scene.yaml").read_text())
+    assert len(scene.objects) == 2
+    x, y, w, h = m["window"]["crop"]
+    size = (m["window"]["width"], m["window"]["height"])
+    _, true_frames = render_scene(truth, W, H, rgb=False, depth=False, flow=False)
+    with np.load(out / "masks.npz") as resim, np.load(out / "observation.npz") as o:
+        frames = o["source_frames"]
+        true = np.stack([cv2.resize(s[y:y + h, x:x + w].astype(np.int16), size, interpolation=cv2.INTER_NEAREST)
+                         for s in true_frames.seg[frames]]).astype(np.int8)
+        assert sorted(o["moving"].tolist()) == [False, True]
+        s = observation_scores(true, resim["seg"], [True, False])
+    assert s["still_iou"] >= 0.5, s["per_object"]
