@@ -725,7 +725,8 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
         duration: window length, s.
         flow: the ``flow`` section (``pipeline.flow.flow_of``; None = its defaults, DIS);
             ``gt`` means DIS here (a real video has no simulator truth).
-        mask_method: background model of the pseudo masks (``pipeline.masks.pseudo_masks``).
+        mask_method: how the masks are made (:data:`MASK_METHODS`; the main job passes params
+            ``realvideo.mask_method``, ``hybrid`` by default; this function keeps ``median``).
         max_objects: objects kept by the tracker.
     Raises:
         VideoError: unreadable video or window past its end.

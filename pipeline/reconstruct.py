@@ -90,7 +90,7 @@ class RealVideoConfig(BaseModel):
 
     fps: int = Field(30, ge=1)
     duration: float = Field(1.0, gt=0)
-    mask_method: str = "median"
+    mask_method: str = "hybrid"
     max_objects: int = Field(4, ge=1)
     popsize: int = Field(10, ge=2)
     iterations: int = Field(8, ge=1)
