@@ -128,7 +128,8 @@ def write_outputs(out: str | Path, video: str | Path, fps: float | None, obs: Ob
             "window": {"start_s": round(obs.start, 4), "chosen_automatically": obs.auto, "duration_s": duration,
                        "frames": len(obs.frames), "fps": scene_fps, "crop": list(obs.crop),
                        "width": W, "height": H, "original_size": list(clip.original_size)},
-            "ground_truth": "pseudo: masks from background subtraction, flow from the same estimator "
+            "ground_truth": f"pseudo: the observation's masks (realvideo.mask_method {obs.mask_method}; the "
+                            "search fits its moving objects), flow from the same estimator "
                             f"({obs.flow_method})",
             "objects_found": len(tracks),
             "objects_observed": {"moving": int(sum(obs.moving)) if obs.moving is not None else int(obs.seg.max()) + 1,
