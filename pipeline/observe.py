@@ -63,9 +63,11 @@ class Observation:
 
     Attributes:
         frames: ``(T, H, W, 3)`` uint8 RGB at the scene fps, working size (the crop).
-        seg: ``(T, H, W)`` int8 pseudo masks of the objects (background subtraction, Hungarian
-            tracking, only tracks that move: :func:`keep_objects`; objects that come to rest
-            held: :func:`pipeline.masks.hold_resting`), -1 background.
+        seg: ``(T, H, W)`` int8 pseudo masks of the objects, -1 background: with ``hybrid``
+            (the main job's default) every object moving or at rest (:func:`hybrid_objects`,
+            :attr:`moving` says which moves); with ``median``/``mog2`` background subtraction,
+            Hungarian tracking, only tracks that move (:func:`keep_objects`; objects that come
+            to rest held: :func:`pipeline.masks.hold_resting`).
         flow: ``(T-1, H, W, 2)`` float32 observed optical flow, px/frame.
         clip: the decoded source window (true fps, crop box in original px).
         start: window start, s; ``auto``: whether it was chosen automatically.
