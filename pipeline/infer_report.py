@@ -105,8 +105,7 @@ def write_outputs(out: str | Path, video: str | Path, fps: float | None, obs: Ob
                                ("size", np.asarray(obs.size, dtype=np.int64)), ("start", np.float64(obs.start)),
                                ("fps", np.float64(scene_fps)), ("source_fps", np.float64(obs.clip.fps)),
                                ("source_frames", source_frames(obs)),
-                               ("moving", np.asarray(obs.moving if obs.moving is not None
-                                                     else [True] * (int(obs.seg.max()) + 1), dtype=bool))):
+                               ("moving", np.asarray(obs.moving_flags, dtype=bool))):
                 npz.write(key, value)
         # for people: original frames at panel height, masks drawn over them
         orig = original_frames(obs, video, fps, height=rv.panel_height)
@@ -132,8 +131,8 @@ def write_outputs(out: str | Path, video: str | Path, fps: float | None, obs: Ob
                             "search fits its moving objects), flow from the same estimator "
                             f"({obs.flow_method})",
             "objects_found": len(tracks),
-            "objects_observed": {"moving": int(sum(obs.moving)) if obs.moving is not None else int(obs.seg.max()) + 1,
-                                 "at_rest": sum(not m for m in obs.moving) if obs.moving is not None else 0},
+            "objects_observed": {"moving": int(sum(obs.moving_flags)),
+                                 "at_rest": sum(not m for m in obs.moving_flags)},
             "object_pixels": [round(float(np.median(t.area)), 1) for t in tracks],
             "view": proposals.view if proposals else None,
             "perception_notes": notes, "model_note": model_note,

@@ -95,16 +95,22 @@ class Observation:
     tell movers from objects at rest; every object of ``median``/``mog2`` moves; None: all)."""
 
     @property
+    def moving_flags(self) -> tuple[bool, ...]:
+        """:attr:`moving` with one flag for every object id of ``seg`` (all True when None)."""
+        return self.moving if self.moving is not None else (True,) * (int(self.seg.max()) + 1)
+
+    @property
     def fit_seg(self) -> np.ndarray:
         """``(T, H, W)`` int8: what the search fits, the objects of ``seg`` that move, renumbered
         0..m-1 in their order in ``seg`` (-1 elsewhere); all of ``seg`` when none moves or
         :attr:`moving` is None. Objects at rest stay in ``seg`` (``observation.npz``): the scene
         language has no object held in place, and a still object the search must also explain
         pulls the movers' camera and view away from theirs (``docs/observation.md``)."""
-        if self.moving is None or all(self.moving) or not any(self.moving):
+        flags = self.moving_flags
+        if all(flags) or not any(flags):
             return self.seg
-        lut = np.full(len(self.moving) + 1, -1, dtype=np.int8)   # index -1 (background) -> -1
-        lut[[k for k, m in enumerate(self.moving) if m]] = np.arange(sum(self.moving), dtype=np.int8)
+        lut = np.full(len(flags) + 1, -1, dtype=np.int8)   # index -1 (background) -> -1
+        lut[[k for k, m in enumerate(flags) if m]] = np.arange(sum(flags), dtype=np.int8)
         return lut[self.seg.astype(np.int64)]
 
 

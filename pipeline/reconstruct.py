@@ -360,15 +360,17 @@ def add_objects_at_rest(scene: Scene, obs: Observation, scfg: SearchConfig, sim:
         ``(scene, report)``: the scene to write and, for ``metrics.json``, None when the
         observation has no object at rest, else ``{added, notes, candidates}``.
     """
-    if obs.moving is None or all(obs.moving) or not any(obs.moving):
+    flags = obs.moving_flags
+    if all(flags) or not any(flags):
         return scene, None
-    placed, notes = perception.place_at_rest(scene, obs.seg, obs.moving, *obs.size)
+    placed, notes = perception.place_at_rest(scene, obs.seg, flags, *obs.size)
     if placed is scene:
         return scene, {"added": 0, "notes": notes, "candidates": []}
     chosen, out, choice = choose_output([("with_objects_at_rest", placed), ("movers_only", scene)], obs.seg, obs.flow,
                                         scfg, sim, sanity)
-    added = len(placed.objects) - len(scene.objects) if chosen == 0 else 0
-    print(f"[infer] objects at rest: {len(placed.objects) - len(scene.objects)} placed, "
+    n_placed = len(placed.objects) - len(scene.objects)
+    added = n_placed if chosen == 0 else 0
+    print(f"[infer] objects at rest: {n_placed} placed, "
           f"{'added' if chosen == 0 else 'not added'} (fitness against the whole observation "
           f"{choice[0]['fitness']:.4f} with them, {choice[1]['fitness']:.4f} without)")
     return (out if chosen == 0 else scene), {"added": added, "notes": notes, "candidates": choice}
