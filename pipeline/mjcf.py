@@ -273,9 +273,15 @@ def build_mjcf(scene: Scene, options: SimOptions | None = None,
     return root
 
 
-def to_xml(scene: Scene, options: SimOptions | None = None) -> str:
-    """MJCF XML text of a scene (what the ``compile_mjcf`` stage stores)."""
-    return build_mjcf(scene, options).to_xml_string()
+def to_xml(scene: Scene, options: SimOptions | None = None, appearance: Appearance | None = None) -> str:
+    """MJCF XML text of a scene (what the ``compile_mjcf`` stage stores).
+
+    Raises:
+        ValueError: ``appearance`` has a PNG floor (an asset, which plain XML text cannot hold).
+    """
+    if appearance is not None and appearance.floor_png is not None:
+        raise ValueError("appearance: a PNG floor is an asset; to_xml holds builtin textures only")
+    return build_mjcf(scene, options, appearance).to_xml_string()
 
 
 def compile_model(scene_or_xml: Scene | str, options: SimOptions | None = None) -> mujoco.MjModel:

@@ -167,11 +167,18 @@ class GLResources:
 
     One per process (:func:`shared_gl`), or a private one owned by a single renderer. Not
     thread-safe. Close it (or use ``with``) before the process exits.
+
+    At most ``max_contexts`` shared contexts are kept (least recently used first out, and only
+    those no open renderer holds: :meth:`release`). A context holds the offscreen buffers and a
+    shadow map (~80 MB at MuJoCo's default 4096 px shadow size), so scenes that each look
+    different (``sample.look: random``) would otherwise fill the memory of a worker.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, max_contexts: int = 8) -> None:
         self._gl = None
-        self._contexts: dict[bytes, mujoco.MjrContext] = {}
+        self._contexts: dict[bytes, mujoco.MjrContext] = {}   # insertion order = last use
+        self._users: dict[int, int] = {}                       # id(context) -> open renderers
+        self.max_contexts = max_contexts
         self._bound: mujoco.MjrContext | None = None
 
     def make_current(self) -> None:
@@ -194,7 +201,9 @@ class GLResources:
         """
         self.make_current()
         key = _context_key(model, multisample)
-        con = self._contexts.get(key) if key is not None else None
+        con = self._contexts.pop(key, None) if key is not None else None
+        if con is not None:
+            self._contexts[key] = con   # most recently used last
         owned = False
         if con is None:
             samples = model.vis.quality.offsamples
@@ -208,7 +217,10 @@ class GLResources:
             if key is None:
                 owned = True
             else:
+                self._evict()
                 self._contexts[key] = con
+        if not owned:
+            self._users[id(con)] = self._users.get(id(con), 0) + 1
         # model-dependent scalars that mjr_makeContext copies (render_context.c)
         con.shadowClip = model.stat.extent * model.vis.map.shadowclip
         con.fogStart = float(np.float32(model.stat.extent * model.vis.map.fogstart))
@@ -216,6 +228,27 @@ class GLResources:
         self._bound = None
         self.bind(con)
         return con, owned
+
+    def release(self, con: mujoco.MjrContext) -> None:
+        """A renderer is done with a shared context (it may be freed once more than
+        ``max_contexts`` are cached)."""
+        n = self._users.get(id(con), 0) - 1
+        if n > 0:
+            self._users[id(con)] = n
+        else:
+            self._users.pop(id(con), None)
+
+    def _evict(self) -> None:
+        """Free least recently used contexts that no renderer holds, down to ``max_contexts - 1``."""
+        for key in list(self._contexts):
+            if len(self._contexts) < self.max_contexts:
+                break
+            con = self._contexts[key]
+            if self._users.get(id(con), 0) == 0:
+                if self._bound is con:
+                    self._bound = None
+                con.free()
+                del self._contexts[key]
 
     def bind(self, con: mujoco.MjrContext) -> None:
         """Make the GL context current and ``con``'s offscreen buffer the render target."""
@@ -236,6 +269,7 @@ class GLResources:
             for con in self._contexts.values():
                 con.free()
             self._contexts.clear()
+            self._users.clear()
             self._gl.free()
             self._gl = None
         self._bound = None
@@ -294,12 +328,11 @@ class FrameRenderer:
         self._own_gl = gl is None
         self._gl = GLResources() if gl is None else gl
         self._owned: list[mujoco.MjrContext] = []
+        self._shared: list[mujoco.MjrContext] = []
         self._con_rgb, owned = self._gl.context(model, multisample=True)
-        if owned:
-            self._owned.append(self._con_rgb)
+        (self._owned if owned else self._shared).append(self._con_rgb)
         self._con_ids, owned = self._gl.context(model, multisample=False)
-        if owned:
-            self._owned.append(self._con_ids)
+        (self._owned if owned else self._shared).append(self._con_ids)
         # room for every model geom plus decorations; checked after each scene update
         self._scene = mujoco.MjvScene(model, maxgeom=max(1000, 4 * model.ngeom + 100))
         self._option = mujoco.MjvOption()
@@ -322,6 +355,9 @@ class FrameRenderer:
         if self._closed:
             return
         self._closed = True
+        for con in self._shared:
+            self._gl.release(con)
+        self._shared.clear()
         if self._owned:
             self._gl.make_current()
             for con in self._owned:

@@ -15,6 +15,7 @@ Layouts that pass the paper's filters are drawn by :mod:`pipeline.sampler`.
 from __future__ import annotations
 
 import math
+from typing import Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
@@ -59,6 +60,8 @@ class SampleConfig(BaseModel):
     camera_height: Range = (0.8, 1.4)      # m
     camera_pitch: Range = (30.0, 50.0)     # deg below the horizon
     camera_fov: Range = (35.0, 50.0)       # deg, vertical
+    max_floor_distance: float | None = Field(None, gt=0)  # m from the eye's ground point; null = the horizon
+    look: Literal["fixed", "random"] = "fixed"  # random: floor, colours and light drawn per scene (pipeline.scene_look)
     gravity: float = Field(9.81, ge=0)
     duration: float = Field(1.0, gt=0)
     fps: int = Field(30, gt=0)
@@ -97,8 +100,8 @@ class SampleConfig(BaseModel):
     @classmethod
     def _counts(cls, v: dict) -> dict:
         for k in v:
-            if not 1 <= k <= 4:
-                raise ValueError(f"object counts must be in 1..4, got {k}")
+            if not 1 <= k <= 6:
+                raise ValueError(f"object counts must be in 1..6, got {k}")
         return v
 
     @field_validator("held_out")

@@ -87,13 +87,18 @@ def _size(rng: np.random.Generator, shape: str, extent: Range) -> dict[str, floa
             "height": round(_grid(e(), 0.002), 3)}
 
 
-def _floor_point(cam, u: float, v: float, z: float, width: int, height: int) -> np.ndarray | None:
-    """World point at height ``z`` seen at pixel (u, v); None above the horizon."""
+def _floor_point(cam, u: float, v: float, z: float, width: int, height: int,
+                 max_distance: float | None = None) -> np.ndarray | None:
+    """World point at height ``z`` seen at pixel (u, v); None above the horizon or, with
+    ``max_distance`` (m), farther than that from the eye's ground point."""
     eye = np.asarray(cam.eye, dtype=np.float64)
     ray = unproject(np.array([u, v]), np.array(1.0), cam, width, height) - eye
     if ray[2] >= -1e-6:
         return None
-    return eye + (z - eye[2]) / ray[2] * ray
+    point = eye + (z - eye[2]) / ray[2] * ray
+    if max_distance is not None and math.hypot(*(point - eye)[:2]) > max_distance:
+        return None
+    return point
 
 
 def _sample_layout(rng: np.random.Generator, cfg: SampleConfig, shapes: list[str],
@@ -132,8 +137,8 @@ def _sample_layout(rng: np.random.Generator, cfg: SampleConfig, shapes: list[str
             else:
                 z_floor = size["height"] / 2
             z = z_floor
-        start = _floor_point(camera, *pixel(), z_floor, W, H)
-        target = _floor_point(camera, *pixel(), z_floor, W, H)
+        start = _floor_point(camera, *pixel(), z_floor, W, H, cfg.max_floor_distance)
+        target = _floor_point(camera, *pixel(), z_floor, W, H, cfg.max_floor_distance)
         if start is None or target is None:
             return None
         vel, omega = np.zeros(3), np.zeros(3)
@@ -199,7 +204,7 @@ def _place_on_ramp(rng: np.random.Generator, cfg: SampleConfig, camera: Camera, 
     yaw = float(rng.uniform(-180.0, 180.0))
     th = math.radians(angle)
     u, v = float(rng.uniform(m, 1 - m)) * W, float(rng.uniform(0.3, 1 - m)) * H
-    top = _floor_point(camera, u, v, length / 2 * math.sin(th), W, H)
+    top = _floor_point(camera, u, v, length / 2 * math.sin(th), W, H, cfg.max_floor_distance)
     if top is None:
         return None
     box = make_ramp(angle, length, width, cfg.ramp_thickness, float(top[0]), float(top[1]), yaw)
@@ -245,7 +250,7 @@ class SceneFilter:
     """The paper's filters, with one compiled template model for the first-frame
     segmentation (a renderer per candidate would cost ~100 ms; this costs ~2 ms).
 
-    The template holds 4 bodies of each shape; a candidate scene is shown by editing the
+    The template holds 6 bodies of each shape; a candidate scene is shown by editing the
     template's geom sizes (and ``geom_rbound`` / ``geom_aabb``), poses and camera in place;
     unused bodies are parked behind the camera. ``tests/test_sampler.py`` checks that its
     segmentation equals a full render of the compiled scene. A scene with static geometry
@@ -255,7 +260,7 @@ class SceneFilter:
     Use as a context manager, or call :meth:`close`.
     """
 
-    MAX_PER_SHAPE = 4
+    MAX_PER_SHAPE = 6
 
     def __init__(self, cfg: SampleConfig, options: SimOptions | None = None):
         self.cfg = cfg

@@ -23,6 +23,7 @@ from pipeline.codec import SceneCodec
 from pipeline.entry import run_stage
 from pipeline.model import (CURVE_FILE, CURVE_PNG, ModelConfig, extend_tokenizer, load_tokenizer, plot_curve,
                             read_inputs, think_vocab, train)
+from pipeline.parallel import compute_from_params
 from pipeline.params import load_params, path_of
 
 log = logging.getLogger(__name__)
@@ -38,7 +39,8 @@ def main() -> None:
     torch.set_num_threads(cfg.threads)
     codec = SceneCodec.from_params(p)
     rows = [r for r in shards.read_table(path_of(p, "examples")).to_pylist() if r["split"] in ("train", "val")]
-    frames = read_inputs(path_of(p, "flow"), path_of(p, "video"), cfg, [r["scene_id"] for r in rows])
+    frames = read_inputs(path_of(p, "flow"), path_of(p, "video"), cfg, [r["scene_id"] for r in rows],
+                         workers=compute_from_params(p).n_workers)
     train_set = [(frames[r["scene_id"]], r["target"]) for r in rows if r["split"] == "train"]
     val_set = [(frames[r["scene_id"]], r["target"]) for r in rows if r["split"] == "val"]
     out = path_of(p, "model")

@@ -93,3 +93,9 @@ def collate(items: Sequence[tuple[np.ndarray, str | None]], tokenizer, cfg: Mode
     if any(t is not None for _, t in items):
         batch["labels"] = label_t
     return batch
+
+
+def to_device(batch: dict[str, torch.Tensor], device: torch.device | str) -> dict[str, torch.Tensor]:
+    """The batch's tensors on ``device`` (the same dict on the CPU)."""
+    device = torch.device(device)
+    return batch if device.type == "cpu" else {k: v.to(device, non_blocking=True) for k, v in batch.items()}

@@ -36,6 +36,10 @@ class ModelConfig(BaseModel):
     Training is measured in optimiser steps: linear warmup over ``warmup_steps``, then cosine
     decay to ``min_lr`` at ``max_steps``. ``max_minutes`` is only a safety cap on wall-clock
     time (``null`` = none); when it stops a run early the run's result says so.
+
+    ``device``: where training runs: ``cpu`` (the default profile's 2 cores), ``cuda`` (one GPU;
+    bf16 autocast there too) or ``auto`` (cuda when torch sees one). Checkpoints are the same
+    files on either; sampling (``dynamics infer``) always runs where the model was loaded.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -74,6 +78,7 @@ class ModelConfig(BaseModel):
     aux_weight: float = Field(0.5, ge=0)
     precision: Literal["bf16", "fp32"] = "bf16"
     threads: int = Field(2, ge=1)
+    device: Literal["cpu", "cuda", "auto"] = "cpu"
     eval_interval: int = Field(100, ge=1)
     eval_batches: int = Field(2, ge=1)
     eval_samples: int = Field(16, ge=0)

@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from pipeline.codec import END_THINK, THINK, CodecError, SceneCodec, split_completion
-from pipeline.model.batch import collate
+from pipeline.model.batch import collate, to_device
 from pipeline.model.config import ModelConfig, ModelError
 from pipeline.model.tokenizer import SPECIAL_TOKENS, decode_tokens
 from pipeline.scene import Scene
@@ -111,7 +111,7 @@ def generate_many(model, tokenizer, frames: Sequence[np.ndarray], cfg: ModelConf
     """
     from transformers import GenerationConfig, LogitsProcessorList
 
-    batch = collate([(f, None) for f in frames], tokenizer, cfg)
+    batch = to_device(collate([(f, None) for f in frames], tokenizer, cfg), next(model.parameters()).device)
     prompt_len = batch["input_ids"].shape[1]
     sample = cfg.temperature > 0
     gen = GenerationConfig(

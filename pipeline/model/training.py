@@ -19,7 +19,7 @@ import torch
 from tqdm.auto import tqdm
 
 from pipeline.codec import SceneCodec, composition_of, split_completion
-from pipeline.model.batch import collate
+from pipeline.model.batch import collate, to_device
 from pipeline.model.config import ModelConfig, ModelError
 from pipeline.model.network import (AUX_HEAD_FILE, CompositionHead, VisionTap, build_model, composition_targets,
                                     load_model, n_parameters)
@@ -60,8 +60,22 @@ def get_batch(examples: Sequence[Example], tokenizer, cfg: ModelConfig, step: in
     return collate(items, tokenizer, cfg), [composition_of(t.split()) for _, t in items]
 
 
-def _autocast(cfg: ModelConfig):
-    return torch.autocast("cpu", dtype=torch.bfloat16, enabled=cfg.precision == "bf16")
+def resolve_device(cfg: ModelConfig) -> torch.device:
+    """The torch device of ``cfg.device`` (``auto``: cuda when torch sees a GPU, else cpu).
+
+    Raises:
+        ModelError: ``cuda`` asked for where torch sees no GPU.
+    """
+    if cfg.device == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if cfg.device == "cuda" and not torch.cuda.is_available():
+        raise ModelError("model.device: cuda, but torch sees no GPU here (use cpu or auto)")
+    return torch.device(cfg.device)
+
+
+def _autocast(cfg: ModelConfig, device: torch.device | None = None):
+    kind = device.type if device is not None else "cpu"
+    return torch.autocast(kind, dtype=torch.bfloat16, enabled=cfg.precision == "bf16")
 
 
 @torch.no_grad()
@@ -75,11 +89,12 @@ def estimate_loss(model, examples: Sequence[Example], tokenizer, cfg: ModelConfi
         return float("nan")
     was_training = model.training
     model.eval()
+    device = next(model.parameters()).device
     n = min(len(examples), cfg.eval_batches * cfg.batch_size)
     losses = []
     for start in range(0, n, cfg.batch_size):
-        batch = collate(examples[start: min(n, start + cfg.batch_size)], tokenizer, cfg)
-        with _autocast(cfg):
+        batch = to_device(collate(examples[start: min(n, start + cfg.batch_size)], tokenizer, cfg), device)
+        with _autocast(cfg, device):
             losses.append(model(**batch, use_cache=False).loss.float().item())
     model.train(was_training)
     return float(np.mean(losses))
@@ -215,6 +230,9 @@ def train(
         head = (torch.load(out_dir / AUX_HEAD_FILE, map_location="cpu", weights_only=False)
                 if state is not None and (out_dir / AUX_HEAD_FILE).exists()
                 else CompositionHead(model.config.text_config.hidden_size, codec.max_objects))
+    device = resolve_device(cfg)
+    model.to(device)
+    head.to(device)
     head.train()
     tap = VisionTap(model)
     optimizer = configure_optimizer(list(model.parameters()) + list(head.parameters()), cfg)
@@ -236,13 +254,14 @@ def train(
         for group in optimizer.param_groups:
             group["lr"] = lr
         batch, comps = get_batch(train_examples, tokenizer, cfg, step)
-        with _autocast(cfg):
+        batch = to_device(batch, device)
+        with _autocast(cfg, device):
             lm_loss = model(**batch, use_cache=False).loss.float()
-            aux = torch.zeros(())
+            aux = torch.zeros((), device=device)
             if cfg.aux_weight > 0:
                 logits = head(tap.pooled(batch["video_grid_thw"])).float()
                 aux = torch.nn.functional.cross_entropy(
-                    logits.flatten(0, 1), composition_targets(comps, codec.max_objects).flatten())
+                    logits.flatten(0, 1), composition_targets(comps, codec.max_objects).to(device).flatten())
         loss = lm_loss + cfg.aux_weight * aux
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
@@ -284,7 +303,8 @@ def train(
 
 
 RESUMABLE_FIELDS = frozenset({"max_steps", "max_minutes", "eval_interval", "eval_batches", "eval_samples",
-                              "max_new_tokens", "k", "temperature", "top_p", "threads", "constrained", "init"})
+                              "max_new_tokens", "k", "temperature", "top_p", "threads", "constrained", "init",
+                              "device"})
 """Config fields that may change between a checkpoint and its resumed run (budget, sampling)."""
 
 

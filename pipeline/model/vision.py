@@ -6,6 +6,8 @@ The video patches are laid out exactly as transformers' Qwen2-VL video processor
 
 from __future__ import annotations
 
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
 from pathlib import Path
 from typing import Iterable
 
@@ -15,7 +17,7 @@ from tqdm.auto import tqdm
 
 from pipeline.flow import flow_to_rgb
 from pipeline.model.config import ModelConfig, ModelError
-from pipeline.shards import iter_array_shards, scene_ids_of
+from pipeline.shards import iter_array_shards, list_shards, open_arrays, scene_ids_of
 
 IMAGE_MEAN = (0.48145466, 0.4578275, 0.40821073)
 IMAGE_STD = (0.26862954, 0.26130258, 0.27577711)
@@ -147,11 +149,34 @@ def n_video_tokens(grid_thw: np.ndarray, cfg: ModelConfig) -> int:
     return int(np.prod(grid_thw)) // cfg.spatial_merge_size**2
 
 
+def _read_flow_shard(task: tuple[str, dict[str, tuple[str, int]], ModelConfig, set[str] | None]) -> dict[str, np.ndarray]:
+    """Model frames of the wanted scenes of one flow shard (``(flow shard, scene_id -> (video
+    shard, index)), cfg, wanted``)."""
+    flow_shard, rgb_at, cfg, wanted = task
+    group = open_arrays(flow_shard)
+    max_magnitude = group.attrs.get("max_magnitude")
+    use_rgb = cfg.input == "flow+rgb"
+    videos: dict[str, object] = {}
+    out: dict[str, np.ndarray] = {}
+    for i, sid in enumerate(scene_ids_of(group)):
+        if (wanted is not None and sid not in wanted) or (use_rgb and sid not in rgb_at):
+            continue
+        rgb = None
+        if use_rgb:
+            shard, j = rgb_at[sid]
+            if shard not in videos:
+                videos[shard] = open_arrays(shard)
+            rgb = np.asarray(videos[shard]["rgb"][j, :1])
+        out[sid] = model_input(rgb, np.asarray(group["flow"][i]), cfg, max_magnitude)
+    return out
+
+
 def read_inputs(
     flow_dir: str | Path | None,
     video_dir: str | Path | None,
     cfg: ModelConfig,
     scene_ids: Iterable[str] | None = None,
+    workers: int = 1,
 ) -> dict[str, np.ndarray]:
     """Model frames for scenes of the flow and video stage directories.
 
@@ -162,6 +187,8 @@ def read_inputs(
             ``flow+rgb``. Shards of both stages hold the same scenes in the same order.
         cfg: model config.
         scene_ids: scenes to read (default: all).
+        workers: processes reading flow shards at once (~12 ms a scene in one process; the
+            result is the same for any number).
 
     Returns:
         ``scene_id -> (cfg.n_input_frames, H, W, 3) uint8`` (see :func:`model_input`).
@@ -174,31 +201,32 @@ def read_inputs(
     if (use_flow and flow_dir is None) or (use_rgb and video_dir is None):
         raise ModelError(f"model.input {cfg.input!r}: needs {'flow and video' if use_flow and use_rgb else cfg.input} shards")
     wanted = None if scene_ids is None else set(scene_ids)
-    rgb_at: dict[str, tuple] = {}
+    rgb_at: dict[str, tuple[str, int]] = {}
     if use_rgb:
-        for _, group in iter_array_shards(video_dir):
+        for shard, group in iter_array_shards(video_dir):
             for i, sid in enumerate(scene_ids_of(group)):
                 if wanted is None or sid in wanted:
-                    rgb_at[sid] = (group, i)
+                    rgb_at[sid] = (str(shard), i)
     out: dict[str, np.ndarray] = {}
     bar = tqdm(total=len(wanted) if wanted is not None else None, desc=f"read {cfg.input} inputs", unit="scene",
                disable=wanted is not None and len(wanted) < 500)
     if use_flow:
-        for _, group in iter_array_shards(flow_dir):
-            max_magnitude = group.attrs.get("max_magnitude")
-            for i, sid in enumerate(scene_ids_of(group)):
-                if wanted is not None and sid not in wanted:
-                    continue
-                rgb = None
-                if use_rgb:
-                    if sid not in rgb_at:
-                        continue
-                    g, j = rgb_at[sid]
-                    rgb = np.asarray(g["rgb"][j, :1])
-                out[sid] = model_input(rgb, np.asarray(group["flow"][i]), cfg, max_magnitude)
-                bar.update(1)
+        tasks = [(str(shard), rgb_at, cfg, wanted) for shard in list_shards(flow_dir, "zarr")]
+        if workers > 1 and len(tasks) > 1:
+            with ProcessPoolExecutor(min(workers, len(tasks)), mp_context=get_context("spawn")) as pool:
+                parts = pool.map(_read_flow_shard, tasks)
+                for part in parts:
+                    out.update(part)
+                    bar.update(len(part))
+        else:
+            for task in tasks:
+                part = _read_flow_shard(task)
+                out.update(part)
+                bar.update(len(part))
     else:
-        for sid, (g, j) in rgb_at.items():
+        groups: dict[str, object] = {}
+        for sid, (shard, j) in rgb_at.items():
+            g = groups.setdefault(shard, open_arrays(shard))
             out[sid] = model_input(np.asarray(g["rgb"][j]), None, cfg)
             bar.update(1)
     bar.close()

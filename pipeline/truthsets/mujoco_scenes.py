@@ -24,7 +24,7 @@ from pipeline.render import FrameRenderer, GLResources, camera_matrices
 from pipeline.scene import Scene
 from pipeline.simulate import check_rollout, rollout
 from pipeline.truthsets.common import Accept, Rollout, TOUCH_DISTANCE
-from pipeline.truthsets.scenario import EngineLimits, Scenario, floor_image
+from pipeline.truthsets.scenario import EngineLimits, Look, Scenario, floor_image
 
 NAME = "mujoco"
 SALT = 1
@@ -51,7 +51,12 @@ def to_scene(sc: Scenario) -> Scene:
 
 def appearance(sc: Scenario) -> Appearance:
     """The MJCF look of a scenario."""
-    look = sc.look
+    return appearance_of(sc.look, tuple(o.rgb for o in sc.objects))
+
+
+def appearance_of(look: Look, object_rgb: tuple[tuple[float, float, float], ...]) -> Appearance:
+    """The MJCF look of a :class:`Look` and one RGB colour per object (``noise`` and ``stripes``
+    floors become a PNG asset, :func:`floor_image`)."""
     repeat = FLOOR_SIZE / look.floor_tile
     tex: dict = {"floor_texture": look.floor_kind, "floor_rgb1": look.floor_rgb1, "floor_rgb2": look.floor_rgb2}
     if look.floor_kind in ("noise", "stripes"):
@@ -60,7 +65,7 @@ def appearance(sc: Scenario) -> Appearance:
     elif look.floor_kind == "flat":
         tex["floor_rgb2"] = look.floor_rgb1
     grey = lambda x: (x, x, x)  # noqa: E731
-    return Appearance(**tex, floor_texrepeat=(repeat, repeat), object_rgb=tuple(o.rgb for o in sc.objects),
+    return Appearance(**tex, floor_texrepeat=(repeat, repeat), object_rgb=object_rgb,
                       object_checker=look.object_checker, light_dir=tuple(float(c) for c in look.light_dir),
                       light_diffuse=grey(look.light_diffuse), light_ambient=grey(look.light_ambient),
                       light_specular=grey(look.light_specular), light_castshadow=look.shadows,

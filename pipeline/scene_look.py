@@ -1,0 +1,48 @@
+"""Randomised looks of the synthetic training scenes (``sample.look: random``; issue 30).
+
+The scene language says nothing about how a scene looks. With ``sample.look: fixed`` every
+training clip is drawn with the project's one look (grey checker floor, fixed object colours,
+one light): real clips look nothing like it. With ``random`` the ``compile_mjcf`` stage draws,
+per scene, a floor texture (MuJoCo builtin ``checker``, ``gradient`` or ``flat``) with random
+colours and tile size, object colours (some close to the floor's), a checker on the objects or
+not, the light's direction and strengths, the headlight and, sometimes, shadows. The draw uses
+the truth sets' look sampler (:func:`pipeline.truthsets.scenario.sample_look`, the benchmark of
+the observation) restricted to textures that live in the MJCF text (the generated ``noise`` and
+``stripes`` images are assets, which the ``mjcf`` shards do not carry).
+
+Every scene's look is a function of ``(seed, scene_id)`` alone, so any one clip re-renders alike.
+"""
+
+from __future__ import annotations
+
+import zlib
+
+import numpy as np
+
+from pipeline.mjcf import Appearance
+from pipeline.truthsets.mujoco_scenes import appearance_of
+from pipeline.truthsets.scenario import EngineLimits, object_colour, sample_look
+
+TRAINING_LIMITS = EngineLimits(pitch=(0.0, 89.0), floor_kinds={"checker": 0.4, "gradient": 0.2, "flat": 0.4},
+                               p_shadows=0.15)
+"""Floor textures of training looks (builtin ones only) and the chance of shadows (~15x the RGB
+render time of a frame on the CPU, docs/design.md §10)."""
+P_LOW_CONTRAST = 0.15
+"""Chance that an object's colour is close to the floor's mean colour."""
+
+
+def random_appearance(seed: int, scene_id: str, n_objects: int) -> Appearance:
+    """The random look of one training scene.
+
+    Args:
+        seed: the run's seed (params ``seed``).
+        scene_id: the scene's id (``pipeline.shards.scene_id``); hashed with CRC-32.
+        n_objects: number of objects (one colour each).
+
+    Returns:
+        An :class:`pipeline.mjcf.Appearance` for :func:`pipeline.mjcf.build_mjcf`.
+    """
+    rng = np.random.default_rng([int(seed), zlib.crc32(scene_id.encode())])
+    look = sample_look(rng, TRAINING_LIMITS)
+    rgb = tuple(object_colour(rng, look, bool(rng.random() < P_LOW_CONTRAST)) for _ in range(n_objects))
+    return appearance_of(look, rgb)
