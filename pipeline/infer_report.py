@@ -50,12 +50,15 @@ def scene_scores(scene: Scene, obs: Observation, sim: SimOptions) -> tuple[dict,
 def source_summary(candidates: Sequence[Any], scores: list[dict], source: str) -> dict:
     """Per proposal source (``model``, ``perception``) of the main job's candidates
     (:class:`pipeline.reconstruct.Candidate`): how many, how many valid, and the best one's full
-    IoU and fitness (None when none is valid)."""
+    IoU, strict IoU and fitness (None when none is valid; strict IoU None when no observed object
+    is visible)."""
     mine = [s for c, s in zip(candidates, scores) if c.source == source]
     valid = [s for s in mine if s["valid"]]
     best = max(valid, key=lambda s: s["fitness"]) if valid else None
+    strict = None if best is None else best.get("strict_iou")
     return {"proposals": len(mine), "valid": len(valid),
             "best_full_iou": None if best is None else round(best["full_iou"], 4),
+            "best_strict_iou": None if strict is None or not np.isfinite(strict) else round(float(strict), 4),
             "best_fitness": None if best is None else round(best["fitness"], 4)}
 
 

@@ -62,6 +62,7 @@ class SampleConfig(BaseModel):
     camera_fov: Range = (35.0, 50.0)       # deg, vertical
     max_floor_distance: float | None = Field(None, gt=0)  # m from the eye's ground point; null = the horizon
     look: Literal["fixed", "random"] = "fixed"  # random: floor, colours and light drawn per scene (pipeline.scene_look)
+    look_shadows: float = Field(0.0, ge=0, le=1)  # random looks: chance of shadows (~15x a frame's RGB time on CPU)
     gravity: float = Field(9.81, ge=0)
     duration: float = Field(1.0, gt=0)
     fps: int = Field(30, gt=0)

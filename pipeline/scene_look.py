@@ -23,26 +23,26 @@ from pipeline.mjcf import Appearance
 from pipeline.truthsets.mujoco_scenes import appearance_of
 from pipeline.truthsets.scenario import EngineLimits, object_colour, sample_look
 
-TRAINING_LIMITS = EngineLimits(pitch=(0.0, 89.0), floor_kinds={"checker": 0.4, "gradient": 0.2, "flat": 0.4},
-                               p_shadows=0.15)
-"""Floor textures of training looks (builtin ones only) and the chance of shadows (~15x the RGB
-render time of a frame on the CPU, docs/design.md §10)."""
+FLOOR_KINDS = {"checker": 0.4, "gradient": 0.2, "flat": 0.4}
+"""Floor textures of training looks (builtin ones only) and their probabilities."""
 P_LOW_CONTRAST = 0.15
 """Chance that an object's colour is close to the floor's mean colour."""
 
 
-def random_appearance(seed: int, scene_id: str, n_objects: int) -> Appearance:
+def random_appearance(seed: int, scene_id: str, n_objects: int, p_shadows: float = 0.0) -> Appearance:
     """The random look of one training scene.
 
     Args:
         seed: the run's seed (params ``seed``).
         scene_id: the scene's id (``pipeline.shards.scene_id``); hashed with CRC-32.
         n_objects: number of objects (one colour each).
+        p_shadows: chance that the light casts shadows (``sample.look_shadows``; a shadowed frame
+            costs ~15x the RGB render time on the CPU, docs/design.md §10).
 
     Returns:
         An :class:`pipeline.mjcf.Appearance` for :func:`pipeline.mjcf.build_mjcf`.
     """
     rng = np.random.default_rng([int(seed), zlib.crc32(scene_id.encode())])
-    look = sample_look(rng, TRAINING_LIMITS)
+    look = sample_look(rng, EngineLimits(pitch=(0.0, 89.0), floor_kinds=FLOOR_KINDS, p_shadows=p_shadows))
     rgb = tuple(object_colour(rng, look, bool(rng.random() < P_LOW_CONTRAST)) for _ in range(n_objects))
     return appearance_of(look, rgb)

@@ -120,13 +120,16 @@ def content_columns(name: str, clip_out: Path) -> dict:
             "view_written": view, "view_true": truth["view"]}
 
 
-def run_clip(name: str, rel: str, fps: int | None, out: Path, mask_method: str | None = None) -> dict:
+def run_clip(name: str, rel: str, fps: int | None, out: Path, mask_method: str | None = None,
+             model: str | None = None) -> dict:
     """Run ``dynamics infer`` then ``dynamics simulate`` on one clip; one summary row
-    (``mask_method``: the observation, default params ``realvideo.mask_method``)."""
+    (``mask_method``: the observation, default params ``realvideo.mask_method``; ``model``: a
+    checkpoint folder instead of the shipped one)."""
     clip_out = out / name
     row: dict = {"clip": name, "file": rel, "fps": fps}
     cmd = ["dynamics", "infer", str(REAL / rel), "--out", str(clip_out)] + (["--fps", str(fps)] if fps else [])
     cmd += ["--mask-method", mask_method] if mask_method else []
+    cmd += ["--model", model] if model else []
     labels = LABELS / name.split("_")[0]          # hand labels (issue 36): scored against, never fitted
     if labels.is_dir():
         cmd += ["--labels", str(labels)]
@@ -143,6 +146,8 @@ def run_clip(name: str, rel: str, fps: int | None, out: Path, mask_method: str |
     row["written_strict"] = m["best_of_k_cmaes"].get("strict_full_iou")
     row["window_s"] = m["window"]["duration_s"]
     row["search_gain"] = m.get("search_gain")
+    row["model_best"] = m.get("sources", {}).get("model", {})   # the model's best proposal (issue 30)
+    row["best_of_k_source"] = m.get("best_of_k_source")
     row["against_labels"] = m.get("against_labels")
     W, H = m["window"]["width"], m["window"]["height"]
     sim_out = clip_out / "simulate"
@@ -203,6 +208,25 @@ def table(rows: list[dict]) -> str:
     return "\n".join(out)
 
 
+def model_table(rows: list[dict]) -> str:
+    """Markdown table of what the scene-writing model proposes on each clip (issue 30): its best
+    proposal's IoU against the pseudo ground truth (strict / all frames) and which source Best@K
+    picked."""
+    out = ["| clip | model's best proposal IoU strict / all frames | Best@K picked |", "|---|---|---|"]
+    fmt = lambda v: "–" if v is None else f"{v:.3f}"  # noqa: E731
+    ok = [r for r in rows if "error" not in r and r.get("model_best")]
+    for r in ok:
+        m = r["model_best"]
+        out.append(f"| {r['clip']} | {fmt(m.get('best_strict_iou'))} / {fmt(m.get('best_full_iou'))} | "
+                   f"{r.get('best_of_k_source', '–')} |")
+    if ok:
+        good = sum((r["model_best"].get("best_strict_iou") or 0) >= 0.3 for r in ok)
+        picked = sum(r.get("best_of_k_source") == "model" for r in ok)
+        out += ["", f"model's best proposal strict IoU >= 0.3: {good}/{len(ok)}; Best@K picked a model sample: "
+                    f"{picked}/{len(ok)}"]
+    return "\n".join(out)
+
+
 SHEET_WIDTH = 1200
 """px: width of the contact-sheet copies in ``OUT/contact_sheets`` (JPEG), small enough to commit."""
 
@@ -239,6 +263,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only", nargs="*", default=None, help="clip names to run (default: all)")
     ap.add_argument("--mask-method", default=None,
                     help="observation for every clip (dynamics infer --mask-method; default params realvideo.mask_method)")
+    ap.add_argument("--model", default=None, help="checkpoint folder for every clip (dynamics infer --model; "
+                                                   "default the shipped one)")
     ap.add_argument("--table-only", action="store_true",
                     help="rebuild table.md from OUT/summary.json and the clips' folders; run nothing")
     args = ap.parse_args(argv)
@@ -249,22 +275,26 @@ def main(argv: list[str] | None = None) -> int:
             if "error" not in row:
                 m = json.loads((args.out / row["clip"] / "metrics.json").read_text())
                 row["best_of_k_strict"] = m["best_of_k"].get("strict_full_iou")
+                row["model_best"] = m.get("sources", {}).get("model", {})
+                row["best_of_k_source"] = m.get("best_of_k_source")
                 row.update(content_columns(row["clip"], args.out / row["clip"]))
             rows.append(row)
     for name, rel, fps in ([] if args.table_only else CLIPS):
         if args.only and name not in args.only:
             continue
-        row = run_clip(name, rel, fps, args.out, args.mask_method)
+        row = run_clip(name, rel, fps, args.out, args.mask_method, args.model)
         print(json.dumps(row), flush=True, file=sys.stderr)
         rows.append(row)
     write_text(args.out / "summary.json", json.dumps(rows, indent=1) + "\n")
     sheets = contact_sheets(rows, args.out)
     text = (f"# Main job then dynamics simulate on all {len(CLIPS)} real clips\n\n"
             f"Command: `python scripts/realvideo_all.py --out {args.out}"
-            f"{' --mask-method ' + args.mask_method if args.mask_method else ''}` (IoU against pseudo ground truth: "
+            f"{' --mask-method ' + args.mask_method if args.mask_method else ''}"
+            f"{' --model ' + args.model if args.model else ''}` (IoU against pseudo ground truth: "
             "full-sequence IoU as the search reports it, and strict, over the frames where an object or its match "
             "is visible; \"re-sim vs scored masks\": foreground IoU of `dynamics simulate`'s masks against the masks "
             "the main job scored; labels: the hand labels on the window's labelled frames).\n\n" + table(rows)
+            + "\n\n## The scene-writing model's proposals\n\n" + model_table(rows)
             + f"\n\nContact sheets ({len(sheets)} clips): `contact_sheets/<clip>.jpg`.")
     write_text(args.out / "table.md", text + "\n")
     print(text)

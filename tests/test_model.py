@@ -375,3 +375,54 @@ def test_think_vocab_covers_every_event_phrase():
               Event("leave_view", 6, 0.5, ("sphere_3",))]
     for text in (events_to_text(events), NO_EVENTS):
         assert set(think_tokens(text)) <= vocab, set(think_tokens(text)) - vocab
+
+
+def _vision_attention_modules(model):
+    from transformers.models.qwen2_5_vl.modeling_qwen2_5_vl import Qwen2_5_VLVisionAttention
+    return [m for m in model.modules() if isinstance(m, Qwen2_5_VLVisionAttention)]
+
+
+@pytest.mark.parametrize("sizes", [[(32, 48)] * 3, [(32, 48), (64, 96)]], ids=["one size", "two sizes"])
+def test_batched_vision_attention_equals_the_library_loop(tokenizer, sizes):
+    """One SDPA call over all windows gives the logits of transformers' per-window loop, and
+    windows of different lengths (two frame sizes in one batch) fall back to that loop."""
+    model = M.build_model(TINY.model_copy(update={"window_size": 16}), tokenizer).eval()
+    mods = _vision_attention_modules(model)
+    assert mods and all("forward" in m.__dict__ for m in mods)   # patched by build_model
+    items = [(_frames(i, h=h, w=w), _target(SCENE)) for i, (h, w) in enumerate(sizes)]
+    batch = M.collate(items, tokenizer, TINY)
+    with torch.no_grad():
+        batched = model(**batch, use_cache=False).logits
+        for m in mods:
+            del m.forward
+        loop = model(**batch, use_cache=False).logits
+    torch.testing.assert_close(batched, loop, rtol=1e-4, atol=1e-5)
+
+
+def test_init_new_codec_keeps_the_weights_and_takes_the_params_codec(trained, tmp_path):
+    """A checkpoint whose token ranges differ is refused, unless model.init_new_codec: then its
+    weights are the start, the params' codec is saved, and missing words join the tokenizer."""
+    out, _, examples, cfg = trained
+    wide = SceneCodec.from_params({"sample": {"camera_pitch": [5.0, 85.0]}, "tokens": {"max_objects": 6}})
+    start = cfg.model_copy(update={"init": str(out), "max_steps": 2, "eval_interval": 2, "eval_samples": 0})
+    with pytest.raises(M.ModelError, match="init_new_codec"):
+        M.train(examples, [], start, tmp_path / "refused", codec=wide, progress=False)
+    words = M.think_vocab(PARAMS, 6)
+    result = M.train(examples, [], start.model_copy(update={"init_new_codec": True}), tmp_path / "new",
+                     codec=wide, think_words=words, progress=False)
+    assert result["step"] == 2 and math.isfinite(result["train_loss"])
+    assert result["train_loss"] < 1.0   # the overfit weights, not random ones (~6 nats)
+    codec, _ = M.load_codec(tmp_path / "new")
+    assert codec.to_dict() == wide.to_dict() and codec.to_dict() != CODEC.to_dict()
+    model, tok = M.load_model(tmp_path / "new")
+    assert set(words) <= set(tok.get_vocab())
+    assert all("forward" in m.__dict__ for m in _vision_attention_modules(model))   # load_model batches too
+
+
+def test_device_is_checked():
+    from pipeline.model.training import resolve_device
+    assert resolve_device(TINY.model_copy(update={"device": "auto"})).type == ("cuda" if torch.cuda.is_available()
+                                                                                 else "cpu")
+    if not torch.cuda.is_available():
+        with pytest.raises(M.ModelError, match="model.device: cuda"):
+            resolve_device(TINY.model_copy(update={"device": "cuda"}))

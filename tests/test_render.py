@@ -19,9 +19,10 @@ import pyarrow.parquet as pq
 import pytest
 import yaml
 
-from pipeline.mjcf import compile_model
+from pipeline.mjcf import Appearance, compile_model, to_xml
 from pipeline.render import FrameRenderer, GLResources, reference_frames
 from pipeline.scene import Scene
+from pipeline.scene_look import random_appearance
 from pipeline.simulate import rollout
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -84,6 +85,33 @@ def test_reused_gl_context_gives_the_frames_of_a_fresh_renderer(clips, reference
             assert np.isfinite(frames.flow).all() and frames.flow.shape == (len(qpos) - 1, H, W, 2)
         # one context per object count (textures differ), single- and multisampled
         assert gl.n_contexts == 2 * 3
+
+
+def test_random_looks_render_alike_with_a_bounded_context_cache():
+    """Scenes that each look different (sample.look: random) need a context each; the cache
+    keeps at most max_contexts of them and frees the oldest, and every scene still renders
+    exactly as with a renderer of its own."""
+    scene = Scene.from_dict(SCENES["box_and_cylinder"])
+    models = [compile_model(to_xml(scene, None, random_appearance(0, f"scene-{i:06d}", 2))) for i in range(4)]
+    qpos = rollout(models[0], 2, 3, scene.fps).qpos
+    refs = [reference_frames(m, qpos, W, H) for m in models]
+    assert not np.array_equal(refs[0][0], refs[1][0])   # the looks differ
+    with GLResources(max_contexts=2) as gl:
+        for m, ref in zip(models + models[:1], refs + refs[:1]):
+            with FrameRenderer(m, W, H, gl) as r:
+                frames = r.render(qpos)
+                assert gl.n_contexts <= 2 + 1   # a renderer holds its two; older ones are freed
+            _assert_same(frames, ref, "random look")
+        assert gl.n_contexts <= 2
+
+
+def test_random_look_is_a_function_of_seed_and_scene():
+    a, b = random_appearance(0, "scene-000001", 3), random_appearance(0, "scene-000001", 3)
+    assert a == b and len(a.object_rgb) == 3 and a.floor_texture in ("checker", "gradient", "flat")
+    others = {random_appearance(seed, sid, 3) for seed in (0, 1) for sid in ("scene-000001", "scene-000002")}
+    assert len(others) == 4
+    with pytest.raises(ValueError, match="PNG floor"):
+        to_xml(Scene.from_dict(SCENES["one_sphere"]), None, Appearance(floor_texture="png", floor_png=b"x"))
 
 
 def test_private_renderer_and_single_outputs_match(clips, references):

@@ -141,3 +141,23 @@ def test_config_is_validated():
         SampleConfig(n_objects={1: -0.5, 2: 1.0})
     assert SampleConfig(shapes={"box": 2, "sphere": 2}).shapes == {"box": 0.5, "sphere": 0.5}
     assert SampleConfig(held_out=[["sphere", "box", "box", "cylinder"]]).held_out == [("box", "box", "cylinder", "sphere")]
+
+
+def test_wide_profile_keeps_objects_within_max_floor_distance_and_in_the_frame():
+    """The pretrain profile's wide cameras (pitch 10-85 deg, height 0.3-1.6 m) with small objects:
+    every object starts within max_floor_distance of the eye's ground point, passes the size
+    filter, and 5-6 object scenes can be drawn (the generalisation split)."""
+    cfg = SampleConfig(n_train=8, n_val=0, n_test=0, n_test_comp=0, extent=(0.05, 0.4), camera_height=(0.3, 1.6),
+                       camera_pitch=(10.0, 85.0), camera_fov=(30.0, 60.0), min_pixel_fraction=0.006,
+                       max_floor_distance=2.0, n_objects={5: 0.5, 6: 0.5})
+    with SceneFilter(cfg) as f:
+        scenes = [scene for _, _, scene in iter_dataset(cfg, seed=3, filt=f)]
+        assert {len(s.objects) for s in scenes} <= {5, 6} and len(scenes) == 8
+        for s in scenes:
+            eye = np.asarray(s.camera.eye)
+            for o in s.objects:
+                assert np.hypot(*(np.asarray(o.position)[:2] - eye[:2])) <= 2.0 + 1e-6
+            seg = f.first_frame_segmentation(s)
+            assert all((seg == k).sum() >= 0.006 * seg.size for k in range(len(s.objects)))
+    with pytest.raises(ValidationError, match="1..6"):
+        SampleConfig(n_objects={7: 1.0})

@@ -37,6 +37,11 @@ class ModelConfig(BaseModel):
     decay to ``min_lr`` at ``max_steps``. ``max_minutes`` is only a safety cap on wall-clock
     time (``null`` = none); when it stops a run early the run's result says so.
 
+    ``init_new_codec``: start from ``init``'s weights although its codec (the token ranges of
+    ``sample`` and ``tokens``) differs from the params': every bin token keeps its embedding and
+    takes the params' meaning, which training re-learns; missing words are added to the
+    tokenizer. Off, such an init is refused.
+
     ``device``: where training runs: ``cpu`` (the default profile's 2 cores), ``cuda`` (one GPU;
     bf16 autocast there too) or ``auto`` (cuda when torch sees one). Checkpoints are the same
     files on either; sampling (``dynamics infer``) always runs where the model was loaded.
@@ -67,6 +72,7 @@ class ModelConfig(BaseModel):
     window_size: int = Field(32, ge=1)
     # training
     init: str = SHIPPED
+    init_new_codec: bool = False
     batch_size: int = Field(8, ge=1)
     lr: float = Field(2e-4, gt=0)
     min_lr: float = Field(2e-5, ge=0)

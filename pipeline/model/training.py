@@ -24,6 +24,7 @@ from pipeline.model.config import ModelConfig, ModelError
 from pipeline.model.network import (AUX_HEAD_FILE, CompositionHead, VisionTap, build_model, composition_targets,
                                     load_model, n_parameters)
 from pipeline.model.sampling import generate_many, load_codec, save_codec, to_scene
+from pipeline.model.tokenizer import extend_tokenizer
 from pipeline.shards import remove_stale_temps, replace_path, temp_dir_for, write_bytes, write_text
 
 CURVE_FILE = "train_curve.csv"
@@ -212,10 +213,15 @@ def train(
             model, tokenizer = load_model(cfg.init_dir)
             init_codec, init_words = load_codec(cfg.init_dir)
             if codec is not None and init_codec.to_dict() != codec.to_dict():
-                raise ModelError(f"model.init: {cfg.init}: its codec.json differs from params (tokens/sample "
-                                 f"ranges); use model.init: scratch or the same ranges")
-            codec, think_words = init_codec, init_words
-            if (cfg.init_dir / AUX_HEAD_FILE).exists():
+                if not cfg.init_new_codec:
+                    raise ModelError(f"model.init: {cfg.init}: its codec.json differs from params (tokens/sample "
+                                     f"ranges); use model.init: scratch, the same ranges, or model.init_new_codec")
+                # the init's weights, the params' codec: bins keep their tokens and change meaning
+                if extend_tokenizer(tokenizer, codec, think_words):
+                    model.resize_token_embeddings(len(tokenizer))
+            else:
+                codec, think_words = init_codec, init_words
+            if (cfg.init_dir / AUX_HEAD_FILE).exists() and init_codec.max_objects == codec.max_objects:
                 head = torch.load(cfg.init_dir / AUX_HEAD_FILE, map_location="cpu", weights_only=False)
         else:
             if tokenizer is None:
