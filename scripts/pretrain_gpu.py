@@ -124,6 +124,31 @@ def pack(model_dir: Path, out: Path) -> list[Path]:
     return parts
 
 
+def fixed_run(run: Run, args: argparse.Namespace, base: dict, work: Path, out: Path, train_model: dict,
+              numbers: dict) -> int:
+    """No calibration: ``--n-train`` scenes, then ``--max-steps`` steps capped by the time left."""
+    final = work / "run"
+    shutil.rmtree(final, ignore_errors=True)
+    sample = {"n_train": args.n_train, "n_val": 100, "n_test": 0, "n_test_comp": 0,
+              "shard_size": max(20, (args.n_train + 100) // (2 * args.workers))}
+    prof = write_profile(base, final, sample, {}, args.workers)
+    numbers.update(n_train=args.n_train, data_s=round(data(run, prof), 1))
+    left = run.left - args.reserve_s - 25.0
+    model = {**train_model, "max_steps": args.max_steps, "eval_interval": max(25, args.max_steps // 4),
+             "warmup_steps": min(50, args.max_steps // 10), "max_minutes": round(max(0.5, left) / 60, 2)}
+    prof = write_profile(base, final, sample, model, args.workers)
+    run.log(f"train: max_steps {args.max_steps}, cap {model['max_minutes']} min")
+    stage(run, "finetune", prof, "--no-progress")
+    result = json.loads((final / "model" / "result.json").read_text())
+    numbers.update(max_steps=args.max_steps, result=result)
+    shutil.copy2(prof, final / "model" / "profile.yaml")
+    for name in ("train_curve.csv", "result.json"):
+        shutil.copy2(final / "model" / name, out / name)
+    numbers["parts"] = [p.name for p in pack(final / "model", out)]
+    run.log(f"done: {result}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", required=True, help="folder for the log, the run's numbers and the model pieces")
@@ -139,6 +164,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--data-share", type=float, default=0.5, help="share of the time left after calibration for data")
     ap.add_argument("--max-train", type=int, default=40000, help="cap on n_train")
     ap.add_argument("--reserve-s", type=float, default=25.0, help="time kept for packing the model")
+    ap.add_argument("--init", default="scratch", help="model.init: scratch, shipped or a folder (a different codec is "
+                                                      "taken over: model.init_new_codec)")
+    ap.add_argument("--n-train", type=int, default=None, help="skip the calibration: this many training scenes ...")
+    ap.add_argument("--max-steps", type=int, default=None, help="... and this many steps (max_minutes = what is left)")
     args = ap.parse_args(argv)
 
     out, work = Path(args.out), Path(args.work)
@@ -147,12 +176,14 @@ def main(argv: list[str] | None = None) -> int:
     base = yaml.safe_load(Path(args.profile).read_text())
     shard = 200
     train_model = {"device": args.device, "batch_size": args.batch_size, "lr": args.lr, "threads": min(16, args.workers + 1),
-                   "eval_samples": 0, "constrained": False, "init": "scratch"}
+                   "eval_samples": 0, "constrained": False, "init": args.init, "init_new_codec": args.init != "scratch"}
     numbers: dict = {"budget_s": args.budget_s, "workers": args.workers, "batch_size": args.batch_size}
     try:
         import torch
         run.log(f"torch {torch.__version__}, cuda {torch.cuda.is_available()} "
                 f"{torch.cuda.get_device_name(0) if torch.cuda.is_available() else ''}, {os.cpu_count()} cores")
+        if args.n_train is not None:
+            return fixed_run(run, args, base, work, out, train_model, numbers)
         # 1. calibration: data rate, then training speed
         calib = work / "calib"
         n_cal = args.calib_scenes
