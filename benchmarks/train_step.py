@@ -5,7 +5,9 @@ Compares, in one run (so that a busy machine affects both alike):
 * ``before``: the round-1 set-up: fp32, 10 flow frames, digit-by-digit YAML targets
   (~271 tokens + EOS on average);
 * ``after``: bf16 autocast, flow+rgb input (12 frames), compact token targets (4-object
-  scenes: ~89 answer tokens + think; ``--target-tokens``), the aux composition head.
+  scenes: ~89 answer tokens + think; ``--target-tokens``), the aux composition head, and the
+  vision windows attended in one batched call (``pipeline.model.network.batch_vision_attention``);
+* ``after, window loop``: the same with transformers' own per-window attention loop.
 
 Each setting runs ``--warmup`` steps, then ``--steps`` timed steps; the time of each phase
 (collate, forward, backward, optimiser) is summed. Writes ``reports/bench_train_step.json``.
@@ -33,9 +35,13 @@ from pipeline.codec import SceneCodec, bin_token
 from pipeline.model.network import CompositionHead, VisionTap, composition_targets
 
 
-def _run(name: str, cfg: M.ModelConfig, n_target: int, steps: int, warmup: int, tok, codec) -> dict:
+def _run(name: str, cfg: M.ModelConfig, n_target: int, steps: int, warmup: int, tok, codec,
+         window_loop: bool = False) -> dict:
     rng = np.random.default_rng(0)
     model = M.build_model(cfg, tok)
+    if window_loop:   # transformers' own vision attention: a Python loop over windows
+        for m in model.modules():
+            m.__dict__.pop("forward", None)
     head = CompositionHead(cfg.hidden_size, 4)
     tap = VisionTap(model)
     opt = M.training.configure_optimizer(list(model.parameters()) + list(head.parameters()), cfg)
@@ -88,11 +94,12 @@ def main() -> None:
     settings = [
         ("before", base.model_copy(update={"precision": "fp32", "input": "flow", "aux_weight": 0.0}), 272),
         ("after, fp32", base.model_copy(update={"precision": "fp32"}), args.target_tokens),
+        ("after, window loop", base, args.target_tokens),
         ("after", base, args.target_tokens),
     ]
     rows = []
     for name, cfg, n in settings:
-        row = _run(name, cfg, n, args.steps, args.warmup, tok, codec)
+        row = _run(name, cfg, n, args.steps, args.warmup, tok, codec, window_loop=name.endswith("window loop"))
         rows.append(row)
         print(f"{name:12s} {row['examples_per_s']:7.2f} ex/s  {row['s_per_step']:.3f} s/step  seq {row['sequence_length']}  "
               + "  ".join(f"{k} {v:.0%}" for k, v in row["fraction"].items()))

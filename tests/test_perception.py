@@ -122,6 +122,7 @@ def _puck_clip_without_model(tmp_path, monkeypatch, iterations: int) -> tuple[Pa
     import pipeline.model as vlm
 
     monkeypatch.setattr(vlm, "SHIPPED_CHECKPOINT", tmp_path / "no_shipped_checkpoint")
+    monkeypatch.setattr(vlm, "WIDE_CHECKPOINT", tmp_path / "no_wide_checkpoint")
     puck = {"shape": "cylinder", "size": {"radius": 0.04, "height": 0.015}, "mass": 0.05,
             "material": {"sliding_friction": 0.03}}
     truth = _scene({"height": 1.0, "pitch": 89.0, "fov": 45.0},
@@ -281,6 +282,7 @@ def test_dynamics_infer_hybrid_fits_the_mover_and_adds_the_object_at_rest(tmp_pa
 
     import pipeline.model as vlm
     monkeypatch.setattr(vlm, "SHIPPED_CHECKPOINT", tmp_path / "no_shipped_checkpoint")
+    monkeypatch.setattr(vlm, "WIDE_CHECKPOINT", tmp_path / "no_wide_checkpoint")
     truth = _scene({"height": 1.2, "pitch": 40.0, "fov": 45.0},
                    [{"shape": "box", "size": {"width": 0.2, "depth": 0.2, "height": 0.2}, "mass": 2.0,
                      "position": [0.25, -0.6, 0.1]},

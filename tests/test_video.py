@@ -420,6 +420,26 @@ def test_shipped_checkpoint_passes_the_check_and_no_model_is_a_note(tmp_path, mo
     vlm.check_checkpoint(vlm.SHIPPED_CHECKPOINT)
     params = {"paths": {"root": str(tmp_path), "model": str(tmp_path / "model")}}
     monkeypatch.setattr(vlm, "SHIPPED_CHECKPOINT", tmp_path / "none")
+    monkeypatch.setattr(vlm, "WIDE_CHECKPOINT", tmp_path / "none")
     assert resolve_model_dir(None, params) is None
     with pytest.raises(vlm.ModelError, match="no such model folder"):
         resolve_model_dir(tmp_path / "missing", params)
+
+
+def test_realvideo_model_picks_the_scene_writer(tmp_path, monkeypatch):
+    """realvideo.model: wide (default) uses the shipped checkpoint for real clips when the package
+    holds it, else what dvc repro trained; trained: paths.model; a folder: that folder."""
+    import pipeline.model as vlm
+    from pipeline.reconstruct import default_model_dir
+
+    trained, wide = tmp_path / "model", tmp_path / "wide"
+    for d in (trained, wide):
+        d.mkdir()
+        (d / "config.json").write_text("{}")
+    params = {"paths": {"root": str(tmp_path), "model": str(trained)}}
+    monkeypatch.setattr(vlm, "WIDE_CHECKPOINT", wide)
+    assert default_model_dir(params) == wide
+    assert default_model_dir({**params, "realvideo": {"model": "trained"}}) == trained
+    assert default_model_dir({**params, "realvideo": {"model": str(tmp_path / "mine")}}) == tmp_path / "mine"
+    monkeypatch.setattr(vlm, "WIDE_CHECKPOINT", tmp_path / "none")
+    assert default_model_dir(params) == trained

@@ -26,7 +26,7 @@ Example::
 
 
 from pipeline.model.batch import IGNORE_INDEX, collate, encode_target, prompt_ids
-from pipeline.model.config import SCRATCH, SHIPPED, SHIPPED_CHECKPOINT, ModelConfig, ModelError
+from pipeline.model.config import SCRATCH, SHIPPED, SHIPPED_CHECKPOINT, WIDE_CHECKPOINT, ModelConfig, ModelError
 from pipeline.model.network import (CompositionHead, build_model, check_checkpoint, checkpoint_config, load_model,
                                     n_parameters)
 from pipeline.model.sampling import (CODEC_FILE, compiled_grammar, generate, generate_many, load_codec,
