@@ -17,11 +17,14 @@ from __future__ import annotations
 
 import zlib
 
+import cv2
 import numpy as np
 
 from pipeline.mjcf import Appearance
-from pipeline.truthsets.mujoco_scenes import appearance_of
-from pipeline.truthsets.scenario import EngineLimits, object_colour, sample_look
+from pipeline.truthsets.scenario import EngineLimits, Look, floor_image, object_colour, sample_look
+
+FLOOR_SIZE = 20.0
+"""m: side of the drawn floor (``pipeline.mjcf``: a plane of half size 10 m)."""
 
 FLOOR_KINDS = {"checker": 0.4, "gradient": 0.2, "flat": 0.4}
 """Floor textures of training looks (builtin ones only) and their probabilities."""
@@ -46,3 +49,21 @@ def random_appearance(seed: int, scene_id: str, n_objects: int, p_shadows: float
     look = sample_look(rng, EngineLimits(pitch=(0.0, 89.0), floor_kinds=FLOOR_KINDS, p_shadows=p_shadows))
     rgb = tuple(object_colour(rng, look, bool(rng.random() < P_LOW_CONTRAST)) for _ in range(n_objects))
     return appearance_of(look, rgb)
+
+
+def appearance_of(look: Look, object_rgb: tuple[tuple[float, float, float], ...]) -> Appearance:
+    """The MJCF look of a :class:`Look` and one RGB colour per object (``noise`` and ``stripes``
+    floors become a PNG asset, :func:`floor_image`)."""
+    repeat = FLOOR_SIZE / look.floor_tile
+    tex: dict = {"floor_texture": look.floor_kind, "floor_rgb1": look.floor_rgb1, "floor_rgb2": look.floor_rgb2}
+    if look.floor_kind in ("noise", "stripes"):
+        ok, png = cv2.imencode(".png", cv2.cvtColor(floor_image(look), cv2.COLOR_RGB2BGR))
+        tex = {"floor_texture": "png", "floor_png": png.tobytes()}
+    elif look.floor_kind == "flat":
+        tex["floor_rgb2"] = look.floor_rgb1
+    grey = lambda x: (x, x, x)  # noqa: E731
+    return Appearance(**tex, floor_texrepeat=(repeat, repeat), object_rgb=object_rgb,
+                      object_checker=look.object_checker, light_dir=tuple(float(c) for c in look.light_dir),
+                      light_diffuse=grey(look.light_diffuse), light_ambient=grey(look.light_ambient),
+                      light_specular=grey(look.light_specular), light_castshadow=look.shadows,
+                      headlight_ambient=grey(look.headlight_ambient), headlight_diffuse=grey(look.headlight_diffuse))

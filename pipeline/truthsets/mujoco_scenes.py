@@ -15,16 +15,16 @@ floors ``noise`` and ``stripes`` are generated PNG textures (:func:`floor_image`
 
 from __future__ import annotations
 
-import cv2
 import mujoco
 import numpy as np
 
 from pipeline.mjcf import Appearance, SimOptions, build_mjcf, object_ids
 from pipeline.render import FrameRenderer, GLResources, camera_matrices
 from pipeline.scene import Scene
+from pipeline.scene_look import appearance_of
 from pipeline.simulate import check_rollout, rollout
 from pipeline.truthsets.common import Accept, Rollout, TOUCH_DISTANCE
-from pipeline.truthsets.scenario import EngineLimits, Look, Scenario, floor_image
+from pipeline.truthsets.scenario import EngineLimits, Scenario
 
 NAME = "mujoco"
 SALT = 1
@@ -32,8 +32,6 @@ SALT = 1
 LIMITS = EngineLimits(pitch=(0.0, 89.0),
                       floor_kinds={"checker": 0.35, "gradient": 0.1, "flat": 0.15, "noise": 0.25, "stripes": 0.15},
                       p_shadows=0.25)
-FLOOR_SIZE = 20.0
-"""m: side of the drawn floor (``pipeline.mjcf``: a plane of half size 10 m)."""
 
 
 def to_scene(sc: Scenario) -> Scene:
@@ -52,24 +50,6 @@ def to_scene(sc: Scenario) -> Scene:
 def appearance(sc: Scenario) -> Appearance:
     """The MJCF look of a scenario."""
     return appearance_of(sc.look, tuple(o.rgb for o in sc.objects))
-
-
-def appearance_of(look: Look, object_rgb: tuple[tuple[float, float, float], ...]) -> Appearance:
-    """The MJCF look of a :class:`Look` and one RGB colour per object (``noise`` and ``stripes``
-    floors become a PNG asset, :func:`floor_image`)."""
-    repeat = FLOOR_SIZE / look.floor_tile
-    tex: dict = {"floor_texture": look.floor_kind, "floor_rgb1": look.floor_rgb1, "floor_rgb2": look.floor_rgb2}
-    if look.floor_kind in ("noise", "stripes"):
-        ok, png = cv2.imencode(".png", cv2.cvtColor(floor_image(look), cv2.COLOR_RGB2BGR))
-        tex = {"floor_texture": "png", "floor_png": png.tobytes()}
-    elif look.floor_kind == "flat":
-        tex["floor_rgb2"] = look.floor_rgb1
-    grey = lambda x: (x, x, x)  # noqa: E731
-    return Appearance(**tex, floor_texrepeat=(repeat, repeat), object_rgb=object_rgb,
-                      object_checker=look.object_checker, light_dir=tuple(float(c) for c in look.light_dir),
-                      light_diffuse=grey(look.light_diffuse), light_ambient=grey(look.light_ambient),
-                      light_specular=grey(look.light_specular), light_castshadow=look.shadows,
-                      headlight_ambient=grey(look.headlight_ambient), headlight_diffuse=grey(look.headlight_diffuse))
 
 
 def compile_scenario(sc: Scenario) -> mujoco.MjModel:
