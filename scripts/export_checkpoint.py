@@ -63,6 +63,8 @@ def main() -> None:
     ap.add_argument("dst")
     ap.add_argument("--params", default="params.yaml")
     ap.add_argument("--limit", type=int, default=100, help="test scenes per split to measure")
+    ap.add_argument("--card", default="model_card.md", help="model card template in scripts/ "
+                    "(model_card_wide.md for dynamics-wide)")
     args = ap.parse_args()
     torch.set_num_threads(1)
     src, dst = Path(args.src), Path(args.dst)
@@ -84,7 +86,7 @@ def main() -> None:
             result = {"step": last["step"], "seconds": last["seconds"], "stopped_by": "an intermediate checkpoint",
                       "examples_per_s": round(last["step"] * 8 / last["seconds"], 1)}
         cfg = json.loads((src / "dynamics_model.json").read_text())
-        card = Path(__file__).with_name("model_card.md").read_text().format(
+        card = Path(__file__).with_name(args.card).read_text().format(
             params=args.params, seed=cfg.get("seed"), steps=result.get("step"), max_steps=cfg.get("max_steps"),
             hours=round(result.get("seconds", 0) / 3600, 2), ex_s=result.get("examples_per_s"),
             n_params=M.n_parameters(model), size_mb=round(size / 2**20, 1), input=cfg.get("input"),

@@ -6,10 +6,12 @@
 #   bash scripts/pretrain.sh            # everything
 #   bash scripts/pretrain.sh data       # only the data stages
 # The checkpoint for real clips (issue 30), warm-started from dynamics-tiny:
-#   PROFILE=profiles/pretrain_wide.yaml DATA=data/pretrain_wide DEST=pipeline/checkpoints/dynamics-wide bash scripts/pretrain.sh
+#   PROFILE=profiles/pretrain_wide.yaml DATA=data/pretrain_wide DEST=pipeline/checkpoints/dynamics-wide \
+#     CARD=model_card_wide.md bash scripts/pretrain.sh
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PROFILE=${PROFILE:-profiles/pretrain.yaml} DATA=${DATA:-data/pretrain} DEST=${DEST:-pipeline/checkpoints/dynamics-tiny}
+CARD=${CARD:-model_card.md}
 export DYNAMICS_PARAMS=$PROFILE MUJOCO_GL=${MUJOCO_GL:-egl} HF_HUB_OFFLINE=1 TOKENIZERS_PARALLELISM=false
 PY=${PY:-.venv/bin/python}
 mkdir -p $DATA/logs
@@ -28,4 +30,4 @@ echo "$(date +%T) finetune"
 resume=""; [ -f $DATA/model/trainer_state.pt ] && resume="--resume"
 nice -n 5 $PY stages/finetune.py $resume --no-progress 2>&1 | tee -a $DATA/logs/finetune.log
 echo "$(date +%T) export"
-$PY scripts/export_checkpoint.py $DATA/model $DEST --params $PROFILE
+$PY scripts/export_checkpoint.py $DATA/model $DEST --params $PROFILE --card $CARD
