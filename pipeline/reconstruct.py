@@ -93,7 +93,7 @@ class RealVideoConfig(BaseModel):
     fps: int = Field(30, ge=1)
     duration: float = Field(1.0, gt=0)
     mask_method: str = "hybrid"
-    model: str = "wide"
+    model: str = "trained"
     max_objects: int = Field(4, ge=1)
     popsize: int = Field(10, ge=2)
     iterations: int = Field(8, ge=1)
@@ -121,10 +121,10 @@ def realvideo_config(params: dict) -> RealVideoConfig:
 def default_model_dir(params: dict) -> Path | None:
     """The model ``dynamics infer`` uses without ``--model``, by ``realvideo.model``:
 
-    * ``wide`` (default): the shipped checkpoint for real clips
-      (:data:`pipeline.model.WIDE_CHECKPOINT`), when the package holds it, else as ``trained``;
-    * ``trained``: ``paths.model`` when it holds a trained model (after ``dvc repro``), else the
-      shipped paper-like checkpoint (:data:`pipeline.model.SHIPPED_CHECKPOINT`) if present, else None;
+    * ``trained`` (default): ``paths.model`` when it holds a trained model (after ``dvc repro``),
+      else the shipped checkpoint (:data:`pipeline.model.SHIPPED_CHECKPOINT`) if present, else None;
+    * ``wide``: the shipped checkpoint trained on real-looking synthetic scenes
+      (:data:`pipeline.model.WIDE_CHECKPOINT`, issue 30), when the package holds it, else as ``trained``;
     * any other value: that folder.
     """
     from pipeline.model import SHIPPED_CHECKPOINT, WIDE_CHECKPOINT
@@ -479,9 +479,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fps", type=float, default=None, help="true frame rate (overrides the container's)")
     p.add_argument("--start", type=float, default=None,
                    help="start of the 1 s window, s (default: the window with the most object motion)")
-    p.add_argument("--model", default=None, help="model folder (default: params realvideo.model: wide = the shipped "
-                   "checkpoint for real clips pipeline/checkpoints/dynamics-wide; trained = params paths.model if "
-                   "trained, else pipeline/checkpoints/dynamics-tiny); a local "
+    p.add_argument("--model", default=None, help="model folder (default: params realvideo.model: trained = params "
+                   "paths.model if trained, else the shipped checkpoint pipeline/checkpoints/dynamics-tiny; wide = "
+                   "pipeline/checkpoints/dynamics-wide, trained on real-looking scenes); a local "
                    "Qwen2.5-VL folder works when params model.pretrained points at it")
     p.add_argument("--no-model", action="store_true", help="perception proposals only")
     p.add_argument("-k", type=int, default=None, help="samples for Best@K (default params model.k)")

@@ -427,8 +427,9 @@ def test_shipped_checkpoint_passes_the_check_and_no_model_is_a_note(tmp_path, mo
 
 
 def test_realvideo_model_picks_the_scene_writer(tmp_path, monkeypatch):
-    """realvideo.model: wide (default) uses the shipped checkpoint for real clips when the package
-    holds it, else what dvc repro trained; trained: paths.model; a folder: that folder."""
+    """realvideo.model: trained (default) is paths.model after dvc repro; wide is the shipped
+    checkpoint trained on real-looking scenes when the package holds it, else as trained; a folder:
+    that folder."""
     import pipeline.model as vlm
     from pipeline.reconstruct import default_model_dir
 
@@ -438,8 +439,8 @@ def test_realvideo_model_picks_the_scene_writer(tmp_path, monkeypatch):
         (d / "config.json").write_text("{}")
     params = {"paths": {"root": str(tmp_path), "model": str(trained)}}
     monkeypatch.setattr(vlm, "WIDE_CHECKPOINT", wide)
-    assert default_model_dir(params) == wide
-    assert default_model_dir({**params, "realvideo": {"model": "trained"}}) == trained
+    assert default_model_dir(params) == trained
+    assert default_model_dir({**params, "realvideo": {"model": "wide"}}) == wide
     assert default_model_dir({**params, "realvideo": {"model": str(tmp_path / "mine")}}) == tmp_path / "mine"
     monkeypatch.setattr(vlm, "WIDE_CHECKPOINT", tmp_path / "none")
-    assert default_model_dir(params) == trained
+    assert default_model_dir({**params, "realvideo": {"model": "wide"}}) == trained

@@ -21,11 +21,12 @@ SHIPPED = "shipped"
 """``model.init`` value that starts from :data:`SHIPPED_CHECKPOINT`, wherever the package is installed."""
 SHIPPED_CHECKPOINT = Path(__file__).resolve().parents[1] / "checkpoints" / "dynamics-tiny"
 """The checkpoint that ships inside the package (package data; see its README.md model card): the
-``model.init: shipped`` of the small profile's finetune stage, trained on paper-like synthetic scenes."""
+``model.init: shipped`` of the small profile's finetune stage and the default of ``dynamics infer``,
+trained on paper-like synthetic scenes."""
 WIDE_CHECKPOINT = Path(__file__).resolve().parents[1] / "checkpoints" / "dynamics-wide"
 """The shipped checkpoint for real clips (issue 30; ``profiles/pretrain_wide.yaml``): trained on
 synthetic scenes that cover what real clips show (cameras from side to top-down, small objects,
-random floors, colours and light). The default of ``dynamics infer`` (``realvideo.model: wide``)."""
+random floors, colours and light). ``dynamics infer`` uses it with ``realvideo.model: wide``."""
 
 
 class ModelConfig(BaseModel):
