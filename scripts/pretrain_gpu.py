@@ -124,6 +124,21 @@ def pack(model_dir: Path, out: Path) -> list[Path]:
     return parts
 
 
+def train_and_pack(run: Run, prof: Path, final: Path, out: Path, numbers: dict, max_steps: int) -> int:
+    """The finetune stage with ``prof``, then its result, curve and profile into ``out`` and the
+    model folder in pieces (:func:`pack`)."""
+    stage(run, "finetune", prof, "--no-progress")
+    result = json.loads((final / "model" / "result.json").read_text())
+    numbers.update(max_steps=max_steps, result=result)
+    shutil.copy2(prof, final / "model" / "profile.yaml")
+    for name in ("train_curve.csv", "result.json"):
+        shutil.copy2(final / "model" / name, out / name)
+    parts = pack(final / "model", out)
+    numbers["parts"] = [p.name for p in parts]
+    run.log(f"done: {result}; model in {len(parts)} pieces")
+    return 0
+
+
 def fixed_run(run: Run, args: argparse.Namespace, base: dict, work: Path, out: Path, train_model: dict,
               numbers: dict) -> int:
     """No calibration: ``--n-train`` scenes, then ``--max-steps`` steps capped by the time left."""
@@ -138,15 +153,7 @@ def fixed_run(run: Run, args: argparse.Namespace, base: dict, work: Path, out: P
              "warmup_steps": min(50, args.max_steps // 10), "max_minutes": round(max(0.5, left) / 60, 2)}
     prof = write_profile(base, final, sample, model, args.workers)
     run.log(f"train: max_steps {args.max_steps}, cap {model['max_minutes']} min")
-    stage(run, "finetune", prof, "--no-progress")
-    result = json.loads((final / "model" / "result.json").read_text())
-    numbers.update(max_steps=args.max_steps, result=result)
-    shutil.copy2(prof, final / "model" / "profile.yaml")
-    for name in ("train_curve.csv", "result.json"):
-        shutil.copy2(final / "model" / name, out / name)
-    numbers["parts"] = [p.name for p in pack(final / "model", out)]
-    run.log(f"done: {result}")
-    return 0
+    return train_and_pack(run, prof, final, out, numbers, args.max_steps)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -226,16 +233,7 @@ def main(argv: list[str] | None = None) -> int:
         prof = write_profile(base, final, {"n_train": n_train, "n_val": 200, "n_test": 0, "n_test_comp": 0,
                                            "shard_size": shard}, model, args.workers)
         run.log(f"train: max_steps {max_steps} (~{train_s:.0f} s at {steps_s:.2f} steps/s; start-up ~{load_s:.0f} s)")
-        stage(run, "finetune", prof, "--no-progress")
-        result = json.loads((final / "model" / "result.json").read_text())
-        numbers.update(max_steps=max_steps, result=result)
-        shutil.copy2(prof, final / "model" / "profile.yaml")
-        for name in ("train_curve.csv", "result.json"):
-            shutil.copy2(final / "model" / name, out / name)
-        parts = pack(final / "model", out)
-        numbers["parts"] = [p.name for p in parts]
-        run.log(f"done: {result}; model in {len(parts)} pieces")
-        return 0
+        return train_and_pack(run, prof, final, out, numbers, max_steps)
     except Exception as exc:  # the log must come back whatever happened
         run.log(f"ERROR {type(exc).__name__}: {exc}")
         for log in sorted(work.glob("*/*.log"))[-5:]:   # at most 8 files come back
