@@ -187,6 +187,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--mask-method", default=None,
                     help="comma list of realvideo.mask_method values to compare (median, mog2, segmenter, hybrid); "
                          "default: the params' one")
+    ap.add_argument("--splits", default="dev,heldout",
+                    help="comma list of rendered splits (dev: look and choose; heldout: report, never choose on)")
     ap.add_argument("--no-generate", action="store_true", help="use the clips that are there")
     ap.add_argument("--limit", type=int, default=None, help="first N clips per rendered set (quick looks)")
     ap.add_argument("--params", default=None, help="params.yaml (default ./params.yaml)")
@@ -204,7 +206,7 @@ def main(argv: list[str] | None = None) -> int:
         params.setdefault("realvideo", {})["mask_method"] = method
         tag = f"{method}{' (default)' if method == default else ''}: "
         for (engine, split) in SETS:
-            if engine not in only:
+            if engine not in only or split not in args.splits.split(","):
                 continue
             folder = ensure_set(args.sets, engine, split, not args.no_generate)
             if not folder.is_dir():

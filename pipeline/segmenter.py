@@ -30,6 +30,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import multiprocessing
+import re
 import time
 from pathlib import Path
 
@@ -59,10 +61,15 @@ def _block(cin: int, cout: int) -> nn.Sequential:
 
 
 class UNet(nn.Module):
-    """The segmenter network (module docstring): ``(B, 4, H, W)`` -> ``(B, 2, H, W)`` logits."""
+    """The segmenter network (module docstring): ``(B, 4, H, W)`` -> ``(B, 2, H, W)`` logits.
+
+    Args:
+        channels: feature channels per level, finest first (the checkpoint stores them).
+    """
 
     def __init__(self, channels: tuple[int, ...] = CHANNELS, inputs: int = 4, outputs: int = 2) -> None:
         super().__init__()
+        self.channels = tuple(int(c) for c in channels)
         self.down = nn.ModuleList()
         c = inputs
         for k in channels:
@@ -126,6 +133,10 @@ def targets(seg: np.ndarray, contact_px: int = CONTACT_PX) -> np.ndarray:
 class Segmenter:
     """A loaded segmenter: :meth:`__call__` gives per-pixel probabilities.
 
+    A checkpoint holds one network (``{"channels", "state_dict"}``) or an ensemble
+    (``{"members": [{"channels", "state_dict"}, ...]}``, :func:`ensemble`), whose probabilities are
+    the mean of its members'.
+
     Args:
         weights: checkpoint path (default :data:`DEFAULT_WEIGHTS`).
     Raises:
@@ -138,16 +149,31 @@ class Segmenter:
             raise SegmenterError(f"{path}: no segmenter checkpoint (train one: python -m pipeline.segmenter train)")
         try:
             ckpt = torch.load(path, map_location="cpu", weights_only=True)
-            self.net = UNet(tuple(ckpt.get("channels", CHANNELS)))
-            self.net.load_state_dict(ckpt["state_dict"])
+            self.nets = []
+            for member in ckpt.get("members", [ckpt]):
+                net = UNet(tuple(member.get("channels", CHANNELS)))
+                net.load_state_dict(member["state_dict"])
+                self.nets.append(net.eval())
+            if not self.nets:
+                raise ValueError("an ensemble of no network")
         except Exception as exc:   # noqa: BLE001 - any unreadable checkpoint is one error
             raise SegmenterError(f"{path}: not a segmenter checkpoint ({exc})") from None
-        self.net.eval()
         self.path = path
+
+    @property
+    def net(self) -> UNet:
+        """The network of a one-network checkpoint (what training and interpolation start from).
+
+        Raises:
+            SegmenterError: the checkpoint is an ensemble.
+        """
+        if len(self.nets) != 1:
+            raise SegmenterError(f"{self.path}: an ensemble of {len(self.nets)} networks, not one network")
+        return self.nets[0]
 
     @torch.no_grad()
     def __call__(self, frames: np.ndarray, background: np.ndarray, batch: int = 16) -> tuple[np.ndarray, np.ndarray]:
-        """Probabilities of foreground and contact.
+        """Probabilities of foreground and contact (an ensemble's: the mean of its members').
 
         Args:
             frames: ``(T, H, W, 3)`` uint8 RGB.
@@ -161,9 +187,32 @@ class Segmenter:
         for a in range(0, T, batch):
             x = torch.from_numpy(network_input(frames[a:a + batch], background))
             x = F.pad(x, (0, pw, 0, ph), mode="replicate")
-            out.append(torch.sigmoid(self.net(x))[:, :, :H, :W].numpy())
+            p = sum(torch.sigmoid(net(x)) for net in self.nets) / len(self.nets)
+            out.append(p[:, :, :H, :W].numpy())
         p = np.concatenate(out)
         return p[:, 0], p[:, 1]
+
+
+def ensemble(paths: list[Path], out: Path) -> dict:
+    """Write one checkpoint holding the networks of ``paths`` (one-network checkpoints of any
+    channels), whose probabilities :class:`Segmenter` averages, atomically.
+
+    Averaging the predictions of independently trained networks (Lakshminarayanan et al.,
+    "Simple and scalable predictive uncertainty estimation using deep ensembles", NeurIPS 2017)
+    is more robust than either alone; unlike :func:`interpolate` the networks need not share an
+    initialisation or a shape.
+
+    Raises:
+        SegmenterError: fewer than two paths, or a path is missing, not a checkpoint or an ensemble.
+    """
+    if len(paths) < 2:
+        raise SegmenterError(f"ensemble: needs at least two checkpoints, got {len(paths)}")
+    members = [{"channels": list(Segmenter(p).net.channels), "state_dict": Segmenter(p).net.state_dict()}
+               for p in paths]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(out, suffix=".pt") as tmp:
+        torch.save({"members": members}, tmp)
+    return {"members": [str(p) for p in paths], "channels": [m["channels"] for m in members], "out": str(out)}
 
 
 _SHIPPED: dict[str, Segmenter] = {}
@@ -203,16 +252,63 @@ def _read_clip(folder: Path, size: tuple[int, int]) -> tuple[np.ndarray, np.ndar
     return frames, seg
 
 
-def _load_set(folders: list[Path], size: tuple[int, int], per_clip: int, rng: np.random.Generator):
-    """Frames, backgrounds and targets of rendered clips at ``size = (W, H)``."""
-    xs, ys = [], []
-    for folder in folders:
-        frames, seg = _read_clip(folder, size)
-        bg = median_background(frames)
-        pick = rng.choice(len(frames), size=min(per_clip, len(frames)), replace=False)
-        xs.append(network_input(frames[pick], bg).astype(np.float16))
-        ys.append(targets(seg[pick]).astype(np.uint8))
-    return np.concatenate(xs), np.concatenate(ys)
+def _clip_folders(data: list[Path]) -> list[Path]:
+    """The complete clip folders (``clip-NNNNN`` with ``truth.npz`` and ``video.mp4``) of set folders;
+    the temporary folder of a clip whose writer was killed is not one."""
+    return sorted(c for d in data for c in Path(d).iterdir()
+                  if re.fullmatch(r"clip-\d+", c.name) and (c / "truth.npz").is_file() and (c / "video.mp4").is_file())
+
+
+def _clip_inputs(job: tuple[Path, tuple[int, int], int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """Network inputs ``(per_clip, 4, H, W)`` float16 and targets ``(per_clip, 2, H, W)`` uint8 of
+    ``per_clip`` frames of one clip folder, drawn with ``seed`` (a pool task of :func:`_load_set`)."""
+    folder, size, per_clip, seed = job
+    frames, seg = _read_clip(folder, size)
+    bg = median_background(frames)
+    pick = np.random.default_rng(seed).choice(len(frames), size=min(per_clip, len(frames)), replace=False)
+    return network_input(frames[pick], bg).astype(np.float16), targets(seg[pick]).astype(np.uint8)
+
+
+def _load_set(folders: list[Path], size: tuple[int, int], per_clip: int, rng: np.random.Generator,
+              workers: int = 0):
+    """Frames, backgrounds and targets of rendered clips at ``size = (W, H)``, read in ``workers``
+    processes (0: in this one); the frames taken per clip depend on ``rng`` only, not on ``workers``."""
+    jobs = [(folder, size, per_clip, int(s)) for folder, s in zip(folders, rng.integers(0, 2**31, len(folders)))]
+    if workers > 0:
+        with multiprocessing.get_context("spawn").Pool(workers) as pool:
+            parts = pool.map(_clip_inputs, jobs, chunksize=4)
+    else:
+        parts = [_clip_inputs(job) for job in jobs]
+    return np.concatenate([x for x, _ in parts]), np.concatenate([y for _, y in parts])
+
+
+class _Batches(torch.utils.data.IterableDataset):
+    """An endless stream of augmented training batches ``(x (B, 4, 120, 160) float32, y (B, 2, 120,
+    160) float32)`` drawn from the loaded frames; each DataLoader worker draws its own stream
+    (seed + worker id), so batch making scales with the CPU cores while the network trains."""
+
+    def __init__(self, X: torch.Tensor, Y: torch.Tensor, batch: int, seed: int, realism: bool,
+                 realism_fraction: float) -> None:
+        super().__init__()
+        self.X, self.Y, self.batch, self.seed = X, Y, batch, seed
+        self.realism, self.realism_fraction = realism, realism_fraction
+
+    def __iter__(self):
+        info = torch.utils.data.get_worker_info()
+        seed = self.seed + (0 if info is None else 1000 * (info.id + 1))
+        gen = torch.Generator().manual_seed(seed)
+        rng = np.random.default_rng(seed)
+        if info is not None:                    # one thread per batch-making process
+            torch.set_num_threads(1)
+            cv2.setNumThreads(1)
+        while True:
+            idx = torch.randint(0, len(self.X), (self.batch,), generator=gen)
+            x, y = _augment(self.X[idx], self.Y[idx], gen)
+            if self.realism and rng.random() < self.realism_fraction:
+                xn, yn = x.numpy().copy(), y.numpy().copy()
+                frame_realism.realism(xn, yn, rng)
+                x, y = torch.from_numpy(xn), torch.from_numpy(yn)
+            yield x, y
 
 
 def _augment(x: torch.Tensor, y: torch.Tensor, gen: torch.Generator, out: tuple[int, int] = (160, 120)
@@ -252,7 +348,8 @@ def loss_fn(logits: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
 def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 12, lr: float = 3e-3,
           size: tuple[int, int] = (320, 240), per_clip: int = 12, seed: int = 0,
           max_minutes: float | None = None, log_every: int = 50, init: Path | None = None,
-          realism: bool = False) -> dict:
+          realism: bool = False, realism_fraction: float = 1.0, channels: tuple[int, ...] = CHANNELS,
+          device: str = "cpu", workers: int = 0, time_schedule: bool = False) -> dict:
     """Train the segmenter on rendered clips and save the checkpoint atomically.
 
     Args:
@@ -262,39 +359,55 @@ def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 12, lr: f
         size: ``(W, H)`` px the clips are read at (crops of them are resized to 160 x 120, :func:`_augment`).
         per_clip: frames taken per clip.
         max_minutes: stop early after this much wall time.
-        init: checkpoint to start from (fine-tuning), else random initialisation.
-        realism: add static scenery, camera noise and zoom-out to every batch
-            (:func:`pipeline.frame_realism.realism`).
+        init: checkpoint to start from (fine-tuning; its channels win), else random initialisation.
+        realism: add static scenery, camera noise and zoom-out (:func:`pipeline.frame_realism.realism`)
+            to a ``realism_fraction`` of the batches.
+        channels: U-Net channels per level for a network from scratch.
+        device: torch device of the network (``cpu``, ``cuda``); batches are made on the CPU.
+        workers: processes that read the clips and make the batches (0: this one; the batch stream
+            then depends on ``seed`` alone).
+        time_schedule: with ``max_minutes``, the cosine decay runs over the wall time instead of the
+            steps, so a run on a machine of unknown speed ends its schedule at the deadline
+            (``steps`` is then only an upper bound; the card records the steps done).
     Returns:
         the card dict (data, steps done, seconds, final losses).
+    Raises:
+        SegmenterError: no clip folder in ``data``, a bad ``init`` checkpoint, or ``time_schedule``
+            without ``max_minutes``.
     """
+    if time_schedule and max_minutes is None:
+        raise SegmenterError("time_schedule: needs max_minutes (the deadline the schedule ends at)")
+    if not 0.0 <= realism_fraction <= 1.0:
+        raise SegmenterError(f"realism_fraction: must be in [0, 1], got {realism_fraction}")
     torch.manual_seed(seed)
     torch.set_num_threads(max(1, torch.get_num_threads()))
     rng = np.random.default_rng(seed)
-    folders = sorted(c for d in data for c in Path(d).iterdir() if (c / "truth.npz").exists())
+    folders = _clip_folders(data)
     if not folders:
         raise SegmenterError(f"{', '.join(map(str, data))}: no clip folders with truth.npz")
     t0 = time.time()
-    X, Y = _load_set(folders, size, per_clip, rng)
+    X, Y = _load_set(folders, size, per_clip, rng, workers)
     print(f"[segmenter] {len(X)} frames from {len(folders)} clips in {time.time() - t0:.0f} s", flush=True)
     X, Y = torch.from_numpy(X), torch.from_numpy(Y)
-    net = Segmenter(init).net.train() if init is not None else UNet()
+    net = Segmenter(init).net.train() if init is not None else UNet(channels)
+    net = net.to(device)
+    if str(device).startswith("cuda"):
+        torch.backends.cudnn.benchmark = True     # fixed batch shape: let cuDNN pick its kernels
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
-    gen = torch.Generator().manual_seed(seed)
+    stream = torch.utils.data.DataLoader(_Batches(X, Y, batch, seed, realism, realism_fraction), batch_size=None,
+                                         num_workers=workers, pin_memory=device != "cpu",
+                                         persistent_workers=workers > 0)
     t1 = time.time()
     history = []
     done = 0
-    for step in range(steps):
-        if max_minutes is not None and time.time() - t1 > 60 * max_minutes:
+    for step, (x, y) in enumerate(stream):
+        elapsed = time.time() - t1
+        if step >= steps or (max_minutes is not None and elapsed > 60 * max_minutes):
             break
+        progress = elapsed / (60 * max_minutes) if time_schedule else step / steps
         for g in opt.param_groups:
-            g["lr"] = lr * 0.5 * (1 + math.cos(math.pi * step / steps))
-        idx = torch.randint(0, len(X), (batch,), generator=gen)
-        x, y = _augment(X[idx], Y[idx], gen)
-        if realism:
-            xn, yn = x.numpy().copy(), y.numpy().copy()
-            frame_realism.realism(xn, yn, rng)
-            x, y = torch.from_numpy(xn), torch.from_numpy(yn)
+            g["lr"] = lr * 0.5 * (1 + math.cos(math.pi * min(1.0, progress)))
+        x, y = x.to(device, non_blocking=True), y.to(device, non_blocking=True)
         loss = loss_fn(net(x), y)
         opt.zero_grad()
         loss.backward()
@@ -309,18 +422,22 @@ def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 12, lr: f
     _save(net, out)
     card = {"data": [str(d) for d in data], "clips": len(folders), "frames": int(len(X)), "size": list(size),
             "steps": done, "batch": batch, "lr": lr, "seconds": round(time.time() - t1, 1),
+            "first_loss": round(float(np.mean(history[:10])), 4) if history else None,
             "final_loss": round(float(np.mean(history[-100:])), 4) if history else None,
             "parameters": int(sum(p.numel() for p in net.parameters())), "threads": torch.get_num_threads(),
             "per_clip": per_clip, "contact_px": CONTACT_PX, "init": str(init) if init is not None else None,
-            "realism": realism}
+            "realism": realism, "realism_fraction": realism_fraction if realism else 0.0,
+            "channels": list(net.channels), "device": str(device), "workers": workers,
+            "schedule": "time" if time_schedule else "steps"}
     write_json(out.with_suffix(".json"), card)
     return card
 
 
 def _save(net: UNet, out: Path) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
+    state = {k: v.detach().cpu() for k, v in net.state_dict().items()}
     with atomic_path(out, suffix=".pt") as tmp:
-        torch.save({"channels": list(CHANNELS), "state_dict": net.state_dict()}, tmp)
+        torch.save({"channels": list(net.channels), "state_dict": state}, tmp)
 
 
 def interpolate(a: Path, b: Path, out: Path, alpha: float = 0.5) -> dict:
@@ -342,7 +459,7 @@ def interpolate(a: Path, b: Path, out: Path, alpha: float = 0.5) -> dict:
         raise SegmenterError(f"{a}, {b}: not the same network")
     mixed = {k: ((1 - alpha) * na[k].float() + alpha * nb[k].float()).to(na[k].dtype)
              if na[k].is_floating_point() else nb[k] for k in na}
-    net = UNet()
+    net = UNet(Segmenter(a).net.channels)
     net.load_state_dict(mixed)
     _save(net, out)
     return {"a": str(a), "b": str(b), "alpha": alpha, "out": str(out)}
@@ -351,7 +468,7 @@ def interpolate(a: Path, b: Path, out: Path, alpha: float = 0.5) -> dict:
 def evaluate(data: list[Path], weights: Path | None = None, size: tuple[int, int] = (320, 240)) -> dict:
     """Foreground IoU of the segmenter (threshold 0.5) per clip of rendered sets, and its mean."""
     seg_net = Segmenter(weights)
-    folders = sorted(c for d in data for c in Path(d).iterdir() if (c / "truth.npz").exists())
+    folders = _clip_folders(data)
     ious = []
     for folder in folders:
         frames, seg = _read_clip(folder, size)
@@ -377,25 +494,40 @@ def main(argv: list[str] | None = None) -> int:
     t.add_argument("--init", type=Path, default=None, help="checkpoint to fine-tune (default: from scratch)")
     t.add_argument("--realism", action="store_true",
                    help="add static scenery, camera noise and zoom-out to the batches (pipeline.frame_realism)")
+    t.add_argument("--realism-fraction", type=float, default=1.0,
+                   help="with --realism: the fraction of batches that get it (default %(default)s)")
+    t.add_argument("--channels", type=int, nargs="+", default=list(CHANNELS),
+                   help="U-Net channels per level, finest first, from scratch (default %(default)s)")
+    t.add_argument("--device", default="cpu", help="torch device of the network: cpu, cuda (default %(default)s)")
+    t.add_argument("--workers", type=int, default=0,
+                   help="processes reading clips and making batches (default %(default)s: this one)")
+    t.add_argument("--time-schedule", action="store_true",
+                   help="with --max-minutes: the cosine decay runs over the wall time (deadline runs)")
     e = sub.add_parser("eval", help="foreground IoU on rendered clips")
     e.add_argument("--data", type=Path, nargs="+", required=True)
     e.add_argument("--weights", type=Path, default=None)
+    en = sub.add_parser("ensemble", help="one checkpoint whose probabilities are the mean of several networks'")
+    en.add_argument("members", type=Path, nargs="+")
+    en.add_argument("--out", type=Path, required=True)
     m = sub.add_parser("interpolate", help="(1 - alpha) * A + alpha * B of two checkpoints (WiSE-FT)")
     m.add_argument("a", type=Path)
     m.add_argument("b", type=Path)
     m.add_argument("--alpha", type=float, default=0.5)
     m.add_argument("--out", type=Path, required=True)
     args = ap.parse_args(argv)
-    if args.cmd == "interpolate":
+    if args.cmd in ("interpolate", "ensemble"):
         try:
-            card = interpolate(args.a, args.b, args.out, args.alpha)
+            card = (interpolate(args.a, args.b, args.out, args.alpha) if args.cmd == "interpolate"
+                    else ensemble(args.members, args.out))
         except SegmenterError as exc:
             print(f"error: {exc}")
             return 2
     elif args.cmd == "train":
         card = train(args.data, args.out, steps=args.steps, batch=args.batch, lr=args.lr,
                      max_minutes=args.max_minutes, seed=args.seed, per_clip=args.per_clip, init=args.init,
-                     realism=args.realism)
+                     realism=args.realism, realism_fraction=args.realism_fraction,
+                     channels=tuple(args.channels), device=args.device, workers=args.workers,
+                     time_schedule=args.time_schedule)
     else:
         card = evaluate(args.data, args.weights)
     print(json.dumps(card, indent=1))

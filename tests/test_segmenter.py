@@ -294,3 +294,71 @@ def test_observe_with_hybrid_flags_the_object_at_rest_and_fits_the_mover(tmp_pat
     assert s["n_pred"] == 2 and s["still_iou"] >= 0.7 and s["moving_iou"] >= 0.6, s["per_object"]
     ball = observation_scores(np.where(truth == 1, 0, -1).astype(np.int8), obs.fit_seg, [False])
     assert int(obs.fit_seg.max()) == 0 and ball["moving_iou"] >= 0.6, ball["per_object"]
+
+
+@pytest.fixture(scope="module")
+def two_clips(tmp_path_factory):
+    """Two rendered truth-set clips (MuJoCo, split seed 40) and the temporary folder a killed writer leaves."""
+    from pipeline.truthsets.__main__ import generate_set
+    out = tmp_path_factory.mktemp("clips")
+    generate_set("mujoco", 2, 40, out, width=160, height=120, duration=0.5, progress=False)
+    stale = out / ".clip-00002.abcd.tmp"
+    stale.mkdir()
+    (stale / "truth.npz").write_bytes((out / "clip-00000" / "truth.npz").read_bytes())
+    return out
+
+
+def test_load_set_takes_the_same_frames_in_any_number_of_processes(two_clips):
+    """The frames drawn per clip depend on the seed only; a killed writer's folder is no clip."""
+    from pipeline.segmenter import _clip_folders, _load_set
+    folders = _clip_folders([two_clips])
+    assert [f.name for f in folders] == ["clip-00000", "clip-00001"]
+    x0, y0 = _load_set(folders, (160, 120), 5, np.random.default_rng(3), workers=0)
+    x2, y2 = _load_set(folders, (160, 120), 5, np.random.default_rng(3), workers=2)
+    assert x0.shape == (10, 4, 120, 160) and x0.dtype == np.float16 and y0.shape == (10, 2, 120, 160)
+    np.testing.assert_array_equal(x0, x2)
+    np.testing.assert_array_equal(y0, y2)
+    assert y0[:, 0].any()                                   # the objects are in the targets
+
+
+def test_training_with_batch_workers_lowers_the_loss_and_keeps_its_channels(two_clips, tmp_path):
+    """A network of other channels trains with batch-making processes and a time schedule, its loss
+    falls, and the checkpoint loads back as that network."""
+    from pipeline.segmenter import train
+    card = train([two_clips], tmp_path / "s.pt", steps=40, batch=4, size=(160, 120), per_clip=6, seed=1,
+                 channels=(8, 16, 24), workers=2, realism=True, realism_fraction=0.5, log_every=1000)
+    assert card["steps"] == 40 and card["channels"] == [8, 16, 24] and card["workers"] == 2
+    net = Segmenter(tmp_path / "s.pt").net
+    assert net.channels == (8, 16, 24)
+    assert card["first_loss"] > card["final_loss"]
+    with pytest.raises(SegmenterError, match="time_schedule: needs max_minutes"):
+        train([two_clips], tmp_path / "t.pt", steps=2, time_schedule=True)
+    with pytest.raises(SegmenterError, match="realism_fraction"):
+        train([two_clips], tmp_path / "t.pt", steps=2, realism=True, realism_fraction=1.5)
+    assert not (tmp_path / "t.pt").exists()
+
+
+def test_an_ensemble_gives_the_mean_of_its_members_probabilities(tmp_path):
+    """pipeline.segmenter.ensemble: networks of different channels in one checkpoint, whose
+    probabilities are the mean of each member's; an ensemble is no network to fine-tune."""
+    from pipeline.segmenter import _save, ensemble
+    torch.manual_seed(0)
+    _save(UNet((8, 16)), tmp_path / "a.pt")
+    _save(UNet((4, 8, 12)), tmp_path / "b.pt")
+    ensemble([tmp_path / "a.pt", tmp_path / "b.pt"], tmp_path / "e.pt")
+    rng = np.random.default_rng(0)
+    frames = rng.integers(0, 255, (3, 20, 28, 3), dtype=np.uint8)
+    bg = median_background(frames)
+    fa, ca = Segmenter(tmp_path / "a.pt")(frames, bg)
+    fb, cb = Segmenter(tmp_path / "b.pt")(frames, bg)
+    fe, ce = Segmenter(tmp_path / "e.pt")(frames, bg)
+    assert fe.shape == (3, 20, 28)
+    np.testing.assert_allclose(fe, (fa + fb) / 2, atol=1e-6)
+    np.testing.assert_allclose(ce, (ca + cb) / 2, atol=1e-6)
+    with pytest.raises(SegmenterError, match="an ensemble of 2 networks"):
+        Segmenter(tmp_path / "e.pt").net
+    with pytest.raises(SegmenterError, match="at least two"):
+        ensemble([tmp_path / "a.pt"], tmp_path / "x.pt")
+    with pytest.raises(SegmenterError, match="an ensemble of 2"):
+        ensemble([tmp_path / "e.pt", tmp_path / "a.pt"], tmp_path / "x.pt")
+    assert not (tmp_path / "x.pt").exists()
