@@ -61,6 +61,7 @@ from pipeline.params import ParamsError, load_params, path_of, section, typed_se
 from pipeline.sanity import PhysicsError, SanityConfig, check_simulation, resolve_overlaps
 from pipeline.scene import Scene, SceneError
 from pipeline.search import EvaluatorPool, SearchConfig, best_of_k, simplest_within
+from pipeline.segmenter import SegmenterError, resolve_weights, use_weights
 from pipeline.search.staged import at_width, score_scene, staged_refine
 from pipeline.video import VideoError, read_video
 
@@ -76,7 +77,9 @@ class RealVideoConfig(BaseModel):
     """Params section ``realvideo``: the main job ``dynamics infer VIDEO``.
 
     The window (``fps`` frames per s of scene time, ``duration`` s), the observation
-    (``mask_method``, one of :data:`pipeline.observe.MASK_METHODS`; ``max_objects`` tracks), the
+    (``mask_method``, one of :data:`pipeline.observe.MASK_METHODS`; ``max_objects`` tracks;
+    ``segmenter_weights``: the object segmenter's checkpoint, None = the shipped one, ``wide`` = the
+    GPU-trained wider one, or a path, :func:`pipeline.segmenter.resolve_weights`), the
     scene writer without ``--model`` (``model``: ``wide``, ``trained`` or a folder,
     :func:`default_model_dir`), the
     staged CMA-ES (``popsize`` and ``iterations`` per stage, ``restarts`` of the first stage,
@@ -93,6 +96,7 @@ class RealVideoConfig(BaseModel):
     fps: int = Field(30, ge=1)
     duration: float = Field(1.0, gt=0)
     mask_method: str = "hybrid"
+    segmenter_weights: str | None = None
     model: str = "trained"
     max_objects: int = Field(4, ge=1)
     popsize: int = Field(10, ge=2)
@@ -431,6 +435,10 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
                                    "epe_pixels": rv.epe_pixels})
     sim = typed_section(params, "sim", SimOptions, required=True)
     sanity = typed_section(params, "sanity", SanityConfig)
+    try:                                       # the segmenter the observation uses, checked before any decoding
+        use_weights(resolve_weights(rv.segmenter_weights, getattr(params, "root", None)))
+    except SegmenterError as exc:
+        raise ParamsError(f"{getattr(params, 'source', 'params.yaml')}: realvideo.segmenter_weights: {exc}") from None
     frames = int(round(rv.fps * rv.duration))
     if not 2 <= frames <= MAX_WINDOW_FRAMES:   # before any video is decoded
         raise ParamsError(f"{getattr(params, 'source', 'params.yaml')}: realvideo.duration * realvideo.fps: must give "
@@ -493,6 +501,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mask-method", default=None, choices=MASK_METHODS,
                    help="how the observation's masks are made (default params realvideo.mask_method; "
                         "docs/observation.md)")
+    p.add_argument("--segmenter-weights", default=None, metavar="PT",
+                   help="object segmenter checkpoint of the observation: wide (the GPU-trained wider network, "
+                        "pipeline/weights/segmenter.md) or a .pt file (default params realvideo.segmenter_weights, "
+                        "else the shipped pipeline/weights/segmenter.pt)")
     p.add_argument("--flow-method", default=None, choices=("dis", "farneback", "raft"),
                    help="optical flow of the observation and the model input (default params flow.method)")
     p.add_argument("--raft-weights", default=None, metavar="PTH",
@@ -505,6 +517,9 @@ def main_cli(args: argparse.Namespace) -> int:
     params = load_params(args.params)
     if args.mask_method is not None:
         params.setdefault("realvideo", {})["mask_method"] = args.mask_method
+    if args.segmenter_weights is not None:   # a command-line path is relative to the working folder
+        w = args.segmenter_weights
+        params.setdefault("realvideo", {})["segmenter_weights"] = w if w in ("wide", "shipped") else str(Path(w).resolve())
     if args.flow_method is not None:
         params.setdefault("flow", {})["method"] = args.flow_method
     if args.raft_weights is not None:   # a command-line path is relative to the working folder

@@ -48,6 +48,9 @@ from pipeline.video import read_video
 DEFAULT_WEIGHTS = Path(__file__).resolve().parent / "weights" / "segmenter.pt"
 """The shipped checkpoint (package data)."""
 
+WIDE_WEIGHTS = DEFAULT_WEIGHTS.parent / "segmenter_wide.pt"
+"""The wider network trained on a GPU (package data; card ``segmenter.md``), ``realvideo.segmenter_weights: wide``."""
+
 CHANNELS = (12, 24, 32, 48)
 
 
@@ -213,6 +216,18 @@ def ensemble(paths: list[Path], out: Path) -> dict:
     with atomic_path(out, suffix=".pt") as tmp:
         torch.save({"members": members}, tmp)
     return {"members": [str(p) for p in paths], "channels": [m["channels"] for m in members], "out": str(out)}
+
+
+def resolve_weights(choice: str | None, root: str | Path | None = None) -> Path | None:
+    """The checkpoint of a ``realvideo.segmenter_weights`` value: None (or ``shipped``) keeps the
+    default (:data:`DEFAULT_WEIGHTS`, returned as None), ``wide`` is :data:`WIDE_WEIGHTS`, any other
+    value a path, relative to ``root`` (the params file's folder) unless absolute."""
+    if choice is None or choice == "shipped":
+        return None
+    if choice == "wide":
+        return WIDE_WEIGHTS
+    path = Path(choice)
+    return path if path.is_absolute() or root is None else Path(root) / path
 
 
 _SHIPPED: dict[str, Segmenter] = {}

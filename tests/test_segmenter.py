@@ -362,3 +362,31 @@ def test_an_ensemble_gives_the_mean_of_its_members_probabilities(tmp_path):
     with pytest.raises(SegmenterError, match="an ensemble of 2"):
         ensemble([tmp_path / "e.pt", tmp_path / "a.pt"], tmp_path / "x.pt")
     assert not (tmp_path / "x.pt").exists()
+
+
+def test_realvideo_segmenter_weights_pick_the_observations_network(tmp_path):
+    """realvideo.segmenter_weights: null keeps the shipped network, wide the GPU-trained one (a
+    wider network), a relative path is the params folder's; a missing file stops `dynamics infer`
+    in one line naming the field, before any video is read."""
+    from pipeline import segmenter as S
+    from pipeline.params import ParamsError, load_params
+    from pipeline.reconstruct import reconstruct
+    from pipeline.video import VideoError
+    assert S.resolve_weights(None) is None and S.resolve_weights("shipped") is None
+    assert S.resolve_weights("wide") == S.WIDE_WEIGHTS and S.WIDE_WEIGHTS.is_file()
+    assert S.resolve_weights("w/a.pt", tmp_path) == tmp_path / "w" / "a.pt"
+    wide, shipped = Segmenter(S.WIDE_WEIGHTS), Segmenter()
+    assert sum(p.numel() for p in wide.net.parameters()) > 3 * sum(p.numel() for p in shipped.net.parameters())
+    params = load_params(None)
+    params["realvideo"]["segmenter_weights"] = str(tmp_path / "missing.pt")
+    try:
+        with pytest.raises(ParamsError, match=r"realvideo\.segmenter_weights: .*missing\.pt: no segmenter checkpoint"):
+            reconstruct(tmp_path / "no_video.mp4", tmp_path / "out", params)
+        assert not (tmp_path / "out").exists()
+        params["realvideo"]["segmenter_weights"] = "wide"
+        with pytest.raises(VideoError, match="no_video.mp4"):   # past the weights: the video is what is missing
+            reconstruct(tmp_path / "no_video.mp4", tmp_path / "out", params)
+        assert S.shipped().path == S.WIDE_WEIGHTS      # the observation's segmenter is the wide one
+    finally:
+        S.use_weights(None)
+    assert S.shipped().path == DEFAULT_WEIGHTS
