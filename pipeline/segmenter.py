@@ -20,9 +20,13 @@ Usage::
 
     python -m pipeline.segmenter train --data data/truthsets/mujoco/train --out pipeline/weights/segmenter.pt
     python -m pipeline.segmenter eval --data data/truthsets/pybullet/dev
+    python -m pipeline.segmenter train --data ... --device cuda --workers 14 --channels 24 48 64 96 \
+        --batch 64 --max-minutes 3 --time-schedule          # on a GPU machine (scripts/segmenter_gpu.py)
+    python -m pipeline.segmenter ensemble a.pt b.pt --out ab.pt
 
 The shipped weights are ``pipeline/weights/segmenter.pt`` (``DEFAULT_WEIGHTS``), with a card beside
-them (``segmenter.md``: data, steps, time, scores).
+them (``segmenter.md``: data, steps, time, scores); ``segmenter_wide.pt`` (``WIDE_WEIGHTS``) is a wider
+network trained on a GPU, chosen with ``realvideo.segmenter_weights: wide``.
 """
 
 from __future__ import annotations
@@ -210,8 +214,8 @@ def ensemble(paths: list[Path], out: Path) -> dict:
     """
     if len(paths) < 2:
         raise SegmenterError(f"ensemble: needs at least two checkpoints, got {len(paths)}")
-    members = [{"channels": list(Segmenter(p).net.channels), "state_dict": Segmenter(p).net.state_dict()}
-               for p in paths]
+    nets = [Segmenter(p).net for p in paths]
+    members = [{"channels": list(net.channels), "state_dict": net.state_dict()} for net in nets]
     out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(out, suffix=".pt") as tmp:
         torch.save({"members": members}, tmp)
