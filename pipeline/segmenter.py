@@ -368,7 +368,7 @@ def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 12, lr: f
           size: tuple[int, int] = (320, 240), per_clip: int = 12, seed: int = 0,
           max_minutes: float | None = None, log_every: int = 50, init: Path | None = None,
           realism: bool = False, realism_fraction: float = 1.0, channels: tuple[int, ...] = CHANNELS,
-          device: str = "cpu", workers: int = 0, time_schedule: bool = False) -> dict:
+          device: str = "cpu", workers: int = 0, time_schedule: bool = False, mp_context: str = "spawn") -> dict:
     """Train the segmenter on rendered clips and save the checkpoint atomically.
 
     Args:
@@ -385,6 +385,9 @@ def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 12, lr: f
         device: torch device of the network (``cpu``, ``cuda``); batches are made on the CPU.
         workers: processes that read the clips and make the batches (0: this one; the batch stream
             then depends on ``seed`` alone).
+        mp_context: how batch-making processes start: ``spawn`` (safe in any process; the frames go
+            to shared memory) or ``fork`` (copy-on-write, no shared memory needed; only in a fresh
+            process: a child forked after the parent ran OpenMP work can hang in it).
         time_schedule: with ``max_minutes``, the cosine decay runs over the wall time instead of the
             steps, so a run on a machine of unknown speed ends its schedule at the deadline
             (``steps`` is then only an upper bound; the card records the steps done).
@@ -415,7 +418,8 @@ def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 12, lr: f
     opt = torch.optim.AdamW(net.parameters(), lr=lr, weight_decay=1e-4)
     stream = torch.utils.data.DataLoader(_Batches(X, Y, batch, seed, realism, realism_fraction), batch_size=None,
                                          num_workers=workers, pin_memory=device != "cpu",
-                                         persistent_workers=workers > 0)
+                                         persistent_workers=workers > 0,
+                                         multiprocessing_context=mp_context if workers > 0 else None)
     t1 = time.time()
     history = []
     done = 0
@@ -447,7 +451,7 @@ def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 12, lr: f
             "per_clip": per_clip, "contact_px": CONTACT_PX, "init": str(init) if init is not None else None,
             "realism": realism, "realism_fraction": realism_fraction if realism else 0.0,
             "channels": list(net.channels), "device": str(device), "workers": workers,
-            "schedule": "time" if time_schedule else "steps"}
+            "schedule": "time" if time_schedule else "steps", "mp_context": mp_context}
     write_json(out.with_suffix(".json"), card)
     return card
 
@@ -520,6 +524,9 @@ def main(argv: list[str] | None = None) -> int:
     t.add_argument("--device", default="cpu", help="torch device of the network: cpu, cuda (default %(default)s)")
     t.add_argument("--workers", type=int, default=0,
                    help="processes reading clips and making batches (default %(default)s: this one)")
+    t.add_argument("--mp-context", choices=("spawn", "fork"), default="spawn",
+                   help="how batch-making processes start (fork: copy-on-write frames, for a fresh process on a "
+                        "machine with little shared memory; default %(default)s)")
     t.add_argument("--time-schedule", action="store_true",
                    help="with --max-minutes: the cosine decay runs over the wall time (deadline runs)")
     e = sub.add_parser("eval", help="foreground IoU on rendered clips")
@@ -546,7 +553,7 @@ def main(argv: list[str] | None = None) -> int:
                      max_minutes=args.max_minutes, seed=args.seed, per_clip=args.per_clip, init=args.init,
                      realism=args.realism, realism_fraction=args.realism_fraction,
                      channels=tuple(args.channels), device=args.device, workers=args.workers,
-                     time_schedule=args.time_schedule)
+                     time_schedule=args.time_schedule, mp_context=args.mp_context)
     else:
         card = evaluate(args.data, args.weights)
     print(json.dumps(card, indent=1))

@@ -151,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
                "--out", str(args.out / f"{name}.pt"), "--steps", "1000000", "--batch", str(args.batch),
                "--lr", str(args.lr), "--max-minutes", f"{minutes:.3f}", "--time-schedule", "--seed", str(k),
                "--per-clip", str(args.per_clip), "--channels", *map(str, channels), "--device", args.device,
-               "--workers", str(workers)]
+               "--workers", str(workers), "--mp-context", "fork"]   # a fresh process: copy-on-write frames
         if fraction > 0:
             cmd += ["--realism", "--realism-fraction", str(fraction)]
         ps[name] = (subprocess.Popen(cmd, cwd=ROOT, env=env, stdout=open(args.out / f"{name}.log", "w"),
