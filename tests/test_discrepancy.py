@@ -20,7 +20,7 @@ import pytest
 
 from pipeline import discrepancy as D
 from pipeline import effects as fx
-from pipeline.discrepancy.benchmark import _bench_summary, _trial_job
+from pipeline.discrepancy.benchmark import _bench_summary, _trial_job, merge, run_benchmark, summarize
 from pipeline.cli import main as dynamics_main
 from pipeline.discrepancy.clip_model import clip_scene, simulate_clips
 from pipeline.discrepancy.intervals import format_interval, interval_coverage
@@ -671,6 +671,40 @@ def test_benchmark_scores_the_exact_set_and_the_noise_floor():
     assert s["naming_accuracy"] == 0.5
     assert s["gap_within_1p5_noise"] == 0.5
     assert s["median_shrink"] == pytest.approx(0.85)
+
+
+def _trial(seed: int, group: str, truth: str | None, named: list[str], value: float = 0.0) -> dict:
+    """A benchmark trial record with the fields the summary reads (torsional friction, truth 0.02)."""
+    return {"seed": seed, "group": group, "truth": truth, "named": named, "null_valued": [],
+            "correct": named == ([truth] if truth else []),
+            "truth_parameters": {"mu_torsion": 0.02} if truth == "torsional_friction" else {},
+            "named_parameters": {e: {"mu_torsion": value} for e in named},
+            "named_ci": {e: {"mu_torsion": [0.7 * value, 1.3 * value]} for e in named},
+            "shrink": 0.9, "excess_shrink": 0.9, "gap_after": 0.001, "noise": 0.001}
+
+
+def test_benchmark_rerun_of_some_trials_merges_by_seed():
+    """``merge``: a rerun's trials replace the earlier ones of the same seeds, the summary is
+    recomputed from the merged trials, the rerun is recorded; a seed outside the plan is
+    refused; ``only`` with an unknown effect is refused before any trial runs."""
+    t = "torsional_friction"
+    bench = summarize({"summary": {"runtime_s": 60.0}, "trials": [
+        _trial(1, "effect", t, [t], 0.01), _trial(2, "effect", "wind", ["wind"]),
+        _trial(3, "null", None, []), _trial(4, "single", t, [t], 0.02)]})
+    assert bench["summary"]["ci_coverage"]["reported"]["held"] == 0        # 0.02 outside [0.007, 0.013]
+    rerun = {"summary": {"runtime_s": 5.0}, "trials": [_trial(1, "effect", t, [t], 0.019)]}
+    merged = merge(bench, rerun, "dynamics discrepancy-benchmark --only torsional_friction")
+    assert [r["seed"] for r in merged["trials"]] == [1, 2, 3, 4]
+    assert merged["trials"][0]["named_parameters"][t]["mu_torsion"] == 0.019
+    assert merged["summary"]["ci_coverage"]["reported"] == {"held": 1, "coefficients": 1, "fraction": 1.0}
+    assert merged["reruns"] == [{"command": "dynamics discrepancy-benchmark --only torsional_friction",
+                                 "seeds": [1], "runtime_s": 5.0}]
+    with pytest.raises(ValueError, match="seed 9"):
+        merge(merged, {"summary": {"runtime_s": 1.0}, "trials": [_trial(9, "effect", t, [t])]})
+    with pytest.raises(ValueError, match="seed 3"):   # same seed, another group: another plan
+        merge(merged, {"summary": {"runtime_s": 1.0}, "trials": [_trial(3, "effect", t, [t])]})
+    with pytest.raises(ValueError, match="only: unknown effect"):
+        run_benchmark(6, 0, only=["air_drag"])
 
 
 def test_interval_coverage_counts_each_coefficient_of_a_rightly_named_effect():

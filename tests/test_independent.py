@@ -125,6 +125,22 @@ def test_torsional_friction_stops_spin_linearly():
     assert tr.angular_velocities[0, 2] == w0
 
 
+@pytest.mark.parametrize("mut", [0.002, 0.02])
+def test_torsional_friction_through_a_bounce(mut):
+    """The Coulomb torsional law integrated over the impact: the spin about z loses
+    mu_torsion J_n / I (J_n = m (1 + e) |v_n|), stopping at zero; constant in flight before
+    and after."""
+    r, m, e, w0, h = 0.03, 0.01, 0.9, 40.0, 0.5
+    vn = math.sqrt(2 * G * (h - r))
+    t_hit = vn / G
+    tr = simulate_sphere([0, 0, h], [0, 0, 0], [0, 0, w0], r, m, 0.5, [0.5 * t_hit, t_hit + 0.05],
+                         restitution=e, mu_torsion=mut)
+    dw = mut * m * (1 + e) * vn / (0.4 * m * r ** 2)
+    assert tr.angular_velocities[0, 2] == w0
+    assert tr.positions[1, 2] > r + 0.01                      # back in flight after the bounce
+    np.testing.assert_allclose(tr.angular_velocities[1, 2], max(w0 - dw, 0.0), rtol=1e-6, atol=1e-9)
+
+
 def test_magnus_lift_initial_acceleration():
     r, m, lift, v0, w0 = 0.03, 0.01, 1.5, np.array([2.0, 0, 0]), np.array([0, 0, 50.0])
     h = 1e-6

@@ -117,7 +117,8 @@ def run_benchmark(trials: int, null_trials: int, seed: int = 1000, jobs: int | C
                   cfg: DiscrepancyConfig | None = None, hidden: HiddenConfig | None = None,
                   options: SimOptions | None = None, log=None, single_trials: int = 0,
                   single_duration: float = 1.5, engine: str = "mujoco",
-                  independent: IndependentConfig | None = None) -> dict[str, Any]:
+                  independent: IndependentConfig | None = None,
+                  only: Sequence[str] | None = None) -> dict[str, Any]:
     """Naming accuracy over hidden-effect trials and false-positive rate over no-effect trials.
 
     Effect trials cycle through the library (so each effect gets ``trials / 6`` trials), each
@@ -136,6 +137,9 @@ def run_benchmark(trials: int, null_trials: int, seed: int = 1000, jobs: int | C
             no-effect trials; scored apart (``summary["single"]``, ``per_effect_single``).
         engine: data generator (:data:`ENGINES`); ``independent`` uses ``independent``'s
             settings (clips, noise, outliers, dropped frames) instead of ``hidden``'s.
+        only: run only the trials whose hidden effect is one of these (``"none"``: the
+            no-effect trials), with the seeds they have in the whole plan, e.g. to rerun one
+            effect's trials after a change and :func:`merge` them into the earlier run.
 
     Naming is scored as the exact set: a trial is correct when the named effects are exactly
     the hidden one (or none), so an extra effect is a miss. ``gap_within_1p5_noise`` is the
@@ -156,6 +160,11 @@ def run_benchmark(trials: int, null_trials: int, seed: int = 1000, jobs: int | C
     plan = [(seed + i, names[i % len(names)], data) for i in range(trials)]
     plan += [(seed + trials + i, "none", data) for i in range(null_trials)]
     plan += [(seed + trials + null_trials + i, names[i % len(names)], single) for i in range(single_trials)]
+    if only is not None:
+        unknown = sorted(set(only) - set(names) - {"none"})
+        if unknown:
+            raise ValueError(f"only: unknown effect(s) {', '.join(unknown)}, must be among {', '.join(names)}, none")
+        plan = [p for p in plan if p[1] in set(only)]
     cfg = cfg or DiscrepancyConfig()
     compute = jobs if isinstance(jobs, ComputeConfig) else ComputeConfig(workers=jobs)
     if compute.backend == "ray" or compute.n_workers > 1:  # one rollout thread per worker process
@@ -197,6 +206,30 @@ def summarize(bench: dict[str, Any]) -> dict[str, Any]:
     s["single"] = {**_bench_summary(one), "trials": len(one), "duration_s": s.get("single", {}).get("duration_s")}
     bench["per_effect"], bench["per_effect_single"] = _per_effect(eff, names), _per_effect(one, names)
     return bench
+
+
+def merge(bench: dict[str, Any], rerun: dict[str, Any], command: str = "") -> dict[str, Any]:
+    """``bench`` with the trials of ``rerun`` (a run of the same plan restricted with
+    ``only``) put in place of those with the same seeds, and its summary recomputed.
+
+    Args:
+        bench: the whole earlier run (:func:`run_benchmark`'s output).
+        rerun: the partial run; its trials' seeds must be in ``bench``, with the same group.
+        command: the rerun's command line, recorded in ``bench["reruns"]`` with its seeds and
+            runtime.
+
+    Raises:
+        ValueError: a rerun trial whose seed or group ``bench`` does not have (another plan).
+    """
+    by_seed = {r["seed"]: i for i, r in enumerate(bench["trials"])}
+    for r in rerun["trials"]:
+        i = by_seed.get(r["seed"])
+        if i is None or bench["trials"][i]["group"] != r["group"]:
+            raise ValueError(f"rerun: trial seed {r['seed']} ({r['group']}) is not in the earlier run's plan")
+        bench["trials"][i] = r
+    bench.setdefault("reruns", []).append({"command": command, "seeds": [r["seed"] for r in rerun["trials"]],
+                                          "runtime_s": rerun["summary"]["runtime_s"]})
+    return summarize(bench)
 
 
 def rescore(bench: dict[str, Any], cfg: DiscrepancyConfig) -> dict[str, Any]:
@@ -297,6 +330,9 @@ def benchmark_markdown(bench: Mapping[str, Any], command: str = "") -> str:
     if bench.get("rescored"):
         rows.append(["reported intervals", f"rescored with ci_model_error {bench['rescored']['ci_model_error']:g} "
                                            "(`--rescore`: the naming does not depend on them)"])
+    for rr in bench.get("reruns", []):
+        rows.append(["rerun and merged", f"{len(rr['seeds'])} trials (seeds {', '.join(map(str, rr['seeds']))}), "
+                                         f"{rr['runtime_s'] / 60:.1f} min: `{rr['command']}`"])
     lines += [*table_lines(["metric", "value"], rows), "",
               "Naming is scored as the exact set of named effects (an extra effect is a miss).", ""]
     for title, per in (("", bench["per_effect"]), ("single clip ", bench.get("per_effect_single") or {})):

@@ -14,7 +14,7 @@ from pydantic import ValidationError
 
 from pipeline import effects as fx
 from pipeline import infer_tracks
-from pipeline.discrepancy.benchmark import benchmark_markdown, rescore, run_benchmark
+from pipeline.discrepancy.benchmark import benchmark_markdown, merge, rescore, run_benchmark
 from pipeline.discrepancy.config import DiscrepancyConfig
 from pipeline.discrepancy.hidden import HiddenConfig
 from pipeline.discrepancy.readers import clips_from_infer_dir, read_trajectories
@@ -155,6 +155,12 @@ def add_benchmark_arguments(parser: argparse.ArgumentParser) -> None:
                         help="JSON output (.md written beside it; default reports/discrepancy_benchmark.json, "
                              "with --engine independent reports/discrepancy_benchmark_independent.json)")
     parser.add_argument("--params", default=None, help="params.yaml (sections discrepancy, measure_hidden, sim)")
+    parser.add_argument("--only", default=None, metavar="EFFECT[,EFFECT]",
+                        help="run only the trials of these hidden effects (none: the no-effect trials), with the "
+                             "seeds they have in the whole plan; with --merge, put them in place in an earlier run")
+    parser.add_argument("--merge", default=None, metavar="JSON",
+                        help="with --only: the earlier whole run (same plan) whose trials of those seeds are "
+                             "replaced by the rerun; its summary is recomputed and the rerun recorded (reruns)")
     parser.add_argument("--rescore", default=None, metavar="JSON",
                         help="instead of running trials, recompute an earlier run's reported intervals, null-valued "
                              "names and summary with the current interval rule (discrepancy.ci_model_error); the naming "
@@ -190,17 +196,37 @@ def benchmark_cli(args: argparse.Namespace) -> int:
     if args.out is None:
         args.out = ("reports/discrepancy_benchmark.json" if args.engine == "mujoco"
                     else "reports/discrepancy_benchmark_independent.json")
-    bench = run_benchmark(args.trials, args.null_trials, args.seed, jobs, cfg, hidden, sim,
-                          log=logger.info, single_trials=args.single_trials,
-                          single_duration=args.single_duration, engine=args.engine)
+    only = [e.strip() for e in args.only.split(",") if e.strip()] if args.only else None
+    if args.merge and only is None:
+        raise DiscrepancyInputError("--merge: needs --only (the effects whose trials are rerun)")
+    earlier = None
+    if args.merge:
+        try:
+            earlier = json.loads(Path(args.merge).read_text())
+        except (OSError, ValueError) as exc:
+            raise DiscrepancyInputError(f"{args.merge}: cannot read a benchmark JSON: {exc}") from None
+    try:
+        bench = run_benchmark(args.trials, args.null_trials, args.seed, jobs, cfg, hidden, sim,
+                              log=logger.info, single_trials=args.single_trials,
+                              single_duration=args.single_duration, engine=args.engine, only=only)
+    except ValueError as exc:
+        raise DiscrepancyInputError(f"--only: {exc}") from None
     out = Path(args.out)
     command = "dynamics discrepancy-benchmark " + " ".join(
         f"--{k.replace('_', '-')} {v}" for k, v in (("trials", args.trials), ("null_trials", args.null_trials),
                                                    ("single_trials", args.single_trials),
                                                    ("single_duration", args.single_duration),
                                                    ("seed", args.seed), ("jobs", args.jobs), ("engine", args.engine),
-                                                   ("out", args.out)))
-    bench["command"] = command
+                                                   ("only", args.only), ("merge", args.merge), ("out", args.out))
+        if v is not None)
+    if earlier is not None:
+        try:
+            bench = merge(earlier, bench, command)
+        except ValueError as exc:
+            raise DiscrepancyInputError(f"{args.merge}: {exc}") from None
+        command = bench.get("command", command)
+    else:
+        bench["command"] = command
     write_json(out, bench)
     write_text(out.with_suffix(".md"), benchmark_markdown(bench, command))
     s = bench["summary"]

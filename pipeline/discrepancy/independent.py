@@ -34,7 +34,10 @@ rad/s (world frame) and orientation ``q (4,)`` (unit quaternion w, x, y, z; worl
   the project's critically damped base contact); the contact-point
   slip ``s = v_t + w x (-r z_hat)`` is opposed by a tangential impulse
   ``min(2/7 m |s|, mu m (1 + e) |v_n|)`` (``2/7 m |s|`` stops the slip of a solid sphere),
-  applied to ``v`` and, through the torque ``(-r z_hat) x J``, to ``w``. A rebound lower than
+  applied to ``v`` and, through the torque ``(-r z_hat) x J``, to ``w``. With torsional
+  friction the same Coulomb law holds through the impact: the torque ``mu_torsion N(t)``
+  integrates to the angular impulse ``min(mu_torsion m (1 + e) |v_n|, I |w_z|)`` against
+  ``w_z`` (the spin stops, never reverses). A rebound lower than
   a 0.5 mm hop (normal speed ``< sqrt(2 g_n 0.5 mm)``) ends the bouncing: contact phase.
 * Contact phase (``z = r``, ``v_z = 0``): normal force ``N = -(m g_z + F_air,z + F_lift,z)``;
   where it would be negative the ball takes off (flight). Sliding (slip above
@@ -313,6 +316,8 @@ class _Sphere:
         if ns > 0:
             jt = min(2.0 / 7.0 * self.m * ns, self.mu * jn)
             self.apply_tangential_impulse(y, -jt / ns * s)
+        if self.mu_torsion > 0 and y[8] != 0:   # torsional friction through the impact
+            y[8] = math.copysign(max(abs(y[8]) - self.mu_torsion * jn / self.inertia, 0.0), y[8])
         y[2] = self.r
         y[5] = -self.e * vn
         if y[5] < self.v_hop:
