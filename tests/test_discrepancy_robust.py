@@ -5,6 +5,9 @@ stop when nothing is left to explain, and the benchmark's count of null-valued n
 
 from __future__ import annotations
 
+import math
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -13,7 +16,8 @@ from pipeline.discrepancy.benchmark import null_value, null_valued
 from pipeline.discrepancy.noise import drop_outliers, find_outliers
 from pipeline.discrepancy.trajectories import Clip, ObjectSpec, Track
 from pipeline.discrepancy.fit import Fit
-from pipeline.discrepancy.workflow import _excess, _explains, _null_test
+from pipeline.discrepancy import workflow as W
+from pipeline.discrepancy.workflow import _excess, _explains, _MismatchProfile, _null_test
 from pipeline.mjcf import SimOptions
 
 OPTS = SimOptions(textured=False)
@@ -317,6 +321,51 @@ def test_mismatch_check_blocks_an_effect_that_a_scale_error_explains():
     assert not lift["eligible"] and lift["reason"].startswith("mismatch check"), lift["reason"]
     prof = step["mismatch"]["scale_error"]
     assert prof["gain"] > lift["profile_gain"] + 10 and -0.1 <= prof["parameters"]["scale"] <= -0.05, prof
+
+
+class _QuadraticScaleWorkspace:
+    """A stand-in workspace whose fits of the scale-error term come out at the chi-square
+    ``floor + k (s - s0)^2`` (a convex profile with its minimum at ``s0``); records every
+    profiled scale."""
+
+    def __init__(self, s0: float, k: float = 1e6, floor: float = 1000.0):
+        self.clips, self.s0, self.k, self.floor, self.calls = [None], s0, k, floor, []
+
+    def rss(self, s: float) -> float:
+        return self.floor + self.k * (s - self.s0) ** 2
+
+    def fit_many(self, jobs, *args, **kwargs):
+        scales = [effects["scale_error"]["scale"] for _, _, effects in jobs]
+        self.calls += scales
+        return [SimpleNamespace(rss=self.rss(s)) for s in scales]
+
+
+def _mismatch_profile(ws: _QuadraticScaleWorkspace) -> _MismatchProfile:
+    return _MismatchProfile(ws, [0], SimpleNamespace(effects={}), SimpleNamespace(rss=ws.rss(0.0)),
+                            D.DiscrepancyConfig())
+
+
+@pytest.mark.parametrize("s0", [-0.07, -0.03, -0.012, 0.0, 0.01, 0.05])
+def test_mismatch_profile_stops_early_only_where_its_bound_holds(s0, monkeypatch):
+    """The lazy mismatch profile: after its two inner points (scale -0.02, 0.02) it stops only
+    where the bound on the gain leaves the candidate's gain clear by the margin; on convex
+    profiles the bound holds the true gain (and so whatever the whole profile, the grid, its
+    edge doubled and the parabola's vertex, finds); a later, weaker candidate completes the
+    profile from the points already fitted."""
+    monkeypatch.setattr(W, "initial_nuisance", lambda clip: None)
+    ws = _QuadraticScaleWorkspace(s0)
+    whole = _mismatch_profile(ws).gains()["scale_error"]
+    true_gain = ws.k * s0 ** 2                     # at the minimum, within the reach (|s| <= 0.08)
+    assert 0.8 * true_gain <= whole["gain"] <= true_gain + 1e-9
+    ws.calls.clear()
+    lazy = _mismatch_profile(ws)
+    first = lazy.gains(need=math.inf)["scale_error"]
+    assert first["pruned"] and sorted(ws.calls) == [-0.02, 0.02] and first["points"] == 2
+    assert true_gain <= first["bound"] + 1e-9
+    need = first["bound"] + D.DiscrepancyConfig().mismatch_margin   # not clear: the rest is profiled
+    second = lazy.gains(need=need)["scale_error"]
+    assert "pruned" not in second and second["gain"] == pytest.approx(whole["gain"])
+    assert len(ws.calls) == len(set(ws.calls)) == second["points"]          # no point fitted twice
 
 
 def test_excess_and_explains_by_hand():
