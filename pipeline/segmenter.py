@@ -271,7 +271,7 @@ def _read_clip(folder: Path, size: tuple[int, int]) -> tuple[np.ndarray, np.ndar
     return frames, seg
 
 
-def _clip_folders(data: list[Path]) -> list[Path]:
+def clip_folders(data: list[Path]) -> list[Path]:
     """The complete clip folders (``clip-NNNNN`` with ``truth.npz`` and ``video.mp4``) of set folders;
     the temporary folder of a clip whose writer was killed is not one."""
     return sorted(c for d in data for c in Path(d).iterdir()
@@ -404,7 +404,7 @@ def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 12, lr: f
     torch.manual_seed(seed)
     torch.set_num_threads(max(1, torch.get_num_threads()))
     rng = np.random.default_rng(seed)
-    folders = _clip_folders(data)
+    folders = clip_folders(data)
     if not folders:
         raise SegmenterError(f"{', '.join(map(str, data))}: no clip folders with truth.npz")
     t0 = time.time()
@@ -491,7 +491,7 @@ def interpolate(a: Path, b: Path, out: Path, alpha: float = 0.5) -> dict:
 def evaluate(data: list[Path], weights: Path | None = None, size: tuple[int, int] = (320, 240)) -> dict:
     """Foreground IoU of the segmenter (threshold 0.5) per clip of rendered sets, and its mean."""
     seg_net = Segmenter(weights)
-    folders = _clip_folders(data)
+    folders = clip_folders(data)
     ious = []
     for folder in folders:
         frames, seg = _read_clip(folder, size)

@@ -42,6 +42,9 @@ from pathlib import Path
 import torch
 
 ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:   # run as a script from any folder, with or without the package installed
+    sys.path.insert(0, str(ROOT))
+from pipeline.segmenter import clip_folders  # noqa: E402
 RUN_RE = re.compile(r"([A-Za-z0-9_-]+):(\d+(?:,\d+)+):([0-9.]+)")
 
 
@@ -77,9 +80,8 @@ def parse_run(text: str) -> tuple[str, list[int], float]:
 
 
 def count_clips(folder: Path) -> int:
-    """Complete clip folders under ``folder`` (``*/clip-NNNNN`` with ``truth.npz`` and ``video.mp4``)."""
-    return sum(1 for c in folder.glob("*/clip-*")
-               if re.fullmatch(r"clip-\d+", c.name) and (c / "truth.npz").is_file() and (c / "video.mp4").is_file())
+    """Complete clip folders in the set folders under ``folder`` (:func:`pipeline.segmenter.clip_folders`)."""
+    return len(clip_folders([d for d in folder.iterdir() if d.is_dir()]))
 
 
 def generate(log: Log, work: Path, procs: int, seconds: float, first_seed: int, env: dict) -> list[Path]:

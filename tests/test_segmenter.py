@@ -310,8 +310,8 @@ def two_clips(tmp_path_factory):
 
 def test_load_set_takes_the_same_frames_in_any_number_of_processes(two_clips):
     """The frames drawn per clip depend on the seed only; a killed writer's folder is no clip."""
-    from pipeline.segmenter import _clip_folders, _load_set
-    folders = _clip_folders([two_clips])
+    from pipeline.segmenter import _load_set, clip_folders
+    folders = clip_folders([two_clips])
     assert [f.name for f in folders] == ["clip-00000", "clip-00001"]
     x0, y0 = _load_set(folders, (160, 120), 5, np.random.default_rng(3), workers=0)
     x2, y2 = _load_set(folders, (160, 120), 5, np.random.default_rng(3), workers=2)
