@@ -57,7 +57,7 @@ from pipeline.metrics import observation_scores  # noqa: E402
 from pipeline.observe import observe, truth_in_window  # noqa: E402
 from pipeline.params import load_params  # noqa: E402
 from pipeline.reconstruct import realvideo_config  # noqa: E402
-from pipeline.segmenter import use_weights  # noqa: E402
+from pipeline.segmenter import shipped  # noqa: E402
 
 SETS = {("mujoco", "dev"): (0, 24), ("mujoco", "heldout"): (1, 12),
         ("pybullet", "dev"): (0, 24), ("pybullet", "heldout"): (1, 12)}
@@ -80,14 +80,15 @@ def ensure_set(root: Path, engine: str, split: str, generate: bool = True) -> Pa
     return out
 
 
-def rendered_clip(folder: Path, params: dict) -> dict:
-    """Observe one rendered clip as ``dynamics infer`` does and score it against its truth."""
+def rendered_clip(folder: Path, params: dict, segmenter=None) -> dict:
+    """Observe one rendered clip as ``dynamics infer`` does (``segmenter``: that of the learned
+    mask methods, None: the shipped one) and score it against its truth."""
     rv = realvideo_config(params)
     fcfg = flow_config(params)
     truth = np.load(folder / "truth.npz", allow_pickle=False)
     t0 = time.perf_counter()
     obs = observe(folder / "video.mp4", float(truth["fps"]), None, rv.fps, rv.duration, fcfg,
-                  rv.mask_method, rv.max_objects)
+                  rv.mask_method, rv.max_objects, segmenter)
     seconds = time.perf_counter() - t0
     seg, frames = truth_in_window(truth["seg"], obs)
     pos = truth["pos"][frames]                                              # (T, n, 3) m
@@ -112,8 +113,9 @@ def rendered_clip(folder: Path, params: dict) -> dict:
             **{k: v for k, v in s.items() if k != "per_object"}, "per_object": s["per_object"]}
 
 
-def real_clip(name: str, spec: dict, fixtures: Path, video_dir: Path, params: dict) -> dict:
-    """Score the observation of one real clip on its hand-labelled frames."""
+def real_clip(name: str, spec: dict, fixtures: Path, video_dir: Path, params: dict, segmenter=None) -> dict:
+    """Score the observation of one real clip on its hand-labelled frames (``segmenter``: as in
+    :func:`rendered_clip`)."""
     from pipeline.observe import observe_frames
     idx = sorted(int(i) for i in spec["frames"])
     folder = fixtures / name
@@ -123,7 +125,7 @@ def real_clip(name: str, spec: dict, fixtures: Path, video_dir: Path, params: di
     t0 = time.perf_counter()
     rv = realvideo_config(params)
     pred = observe_frames(video_dir / spec["file"], spec.get("fps"), idx, size,
-                          max_objects=rv.max_objects, mask_method=rv.mask_method)
+                          max_objects=rv.max_objects, mask_method=rv.mask_method, segmenter=segmenter)
     seconds = time.perf_counter() - t0
     n = len(spec["objects"])
     diag = math.hypot(*size)
@@ -196,7 +198,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--segmenter-weights", type=Path, default=None,
                     help="segmenter checkpoint to score (default: the shipped pipeline/weights/segmenter.pt)")
     args = ap.parse_args(argv)
-    use_weights(args.segmenter_weights)
+    segmenter = shipped(args.segmenter_weights)
     params = load_params(args.params)
     default = realvideo_config(params).mask_method
     methods = args.mask_method.split(",") if args.mask_method else [default]
@@ -212,7 +214,7 @@ def main(argv: list[str] | None = None) -> int:
             if not folder.is_dir():
                 continue
             clips = sorted(p for p in folder.iterdir() if (p / "truth.npz").exists())[: args.limit]
-            sets[f"{tag}{engine} {split}"] = [rendered_clip(c, params) for c in tqdm(clips, desc=f"{method} {engine}/{split}")]
+            sets[f"{tag}{engine} {split}"] = [rendered_clip(c, params, segmenter) for c in tqdm(clips, desc=f"{method} {engine}/{split}")]
         if "real" in only:
             from label_masks import FIXTURES, load_spec, spec_video_dir
             for name, spec_file in (("real shared (6)", FIXTURES / "labels.yaml"),
@@ -227,7 +229,7 @@ def main(argv: list[str] | None = None) -> int:
                     if not all((FIXTURES / clip / f"{int(i):04d}.png").exists() for i in spec["frames"]):
                         print(f"{clip}: label PNGs missing, skipped (python scripts/label_masks.py --spec {spec_file})")
                         continue
-                    rows.append(real_clip(clip, spec, FIXTURES, vdir, params))
+                    rows.append(real_clip(clip, spec, FIXTURES, vdir, params, segmenter))
                 sets[f"{tag}{name}"] = rows
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
     report = {"command": "python benchmarks/observation_truth.py " + " ".join(argv if argv is not None else sys.argv[1:]),

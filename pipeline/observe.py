@@ -35,7 +35,7 @@ from pipeline.flow import FlowConfig, estimate_flow, flow_of
 from pipeline.image_tracks import find_tracks, object_tracks, still_tracks
 from pipeline.masks import (cut_by_colour, drop_ghosts, hold_resting, label_objects, merge_touching, pseudo_ground_truth,
                             pseudo_masks)
-from pipeline.segmenter import median_background, shipped
+from pipeline.segmenter import Segmenter, median_background, shipped
 from pipeline.video import Clip, VideoError, declared_length, read_video, resample
 
 DETECT_LONG_SIDE = 320
@@ -179,7 +179,7 @@ a part of the wall it crosses."""
 
 
 def segment_objects(frames: np.ndarray, context: np.ndarray, method: str, max_objects: int,
-                    explain: list | None = None) -> np.ndarray:
+                    explain: list | None = None, segmenter: Segmenter | None = None) -> np.ndarray:
     """Masks of the objects in ``frames``, split into tracks (before :func:`keep_objects`).
 
     ``median`` / ``mog2``: background subtraction against ``context``
@@ -194,6 +194,7 @@ def segment_objects(frames: np.ndarray, context: np.ndarray, method: str, max_ob
             video spread over the clip (the background model's).
         method: one of :data:`MASK_METHODS`.
         explain: ``hybrid`` only: one dict per object (:func:`hybrid_objects`).
+        segmenter: the learned methods' segmenter (None: :func:`pipeline.segmenter.shipped`).
     Returns:
         ``(T, H, W)`` int8 track ids, -1 background.
     Raises:
@@ -205,10 +206,10 @@ def segment_objects(frames: np.ndarray, context: np.ndarray, method: str, max_ob
         masks = pseudo_masks(frames, method=method, background=context)
         return label_objects(masks, max_objects=max_objects)
     if method == "hybrid":
-        return hybrid_objects(frames, context, max_objects, explain)
+        return hybrid_objects(frames, context, max_objects, explain, segmenter)
     if method == "anchored":    # needs the flow-checked movers: observe() / observe_frames() run it
         raise ValueError("segment_objects: 'anchored' runs in observe(), after the median movers are kept")
-    fg, contact = shipped()(frames, median_background(context))
+    fg, contact = (segmenter or shipped())(frames, median_background(context))
     return _segmenter_tracks(fg > FG_THRESHOLD, contact > 0.5, max_objects, frames)
 
 
@@ -235,7 +236,7 @@ def _segmenter_tracks(fg: np.ndarray, contact: np.ndarray, max_objects: int,
 
 
 def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
-                   explain: list | None = None) -> np.ndarray:
+                   explain: list | None = None, segmenter: Segmenter | None = None) -> np.ndarray:
     """The segmenter first, background subtraction where it misses (``mask_method: hybrid``).
 
     The segmenter (:mod:`pipeline.segmenter`) gives whole silhouettes of objects moving or at
@@ -276,12 +277,13 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
         max_objects: most objects kept.
         explain: if given, one dict per kept object is appended: ``kind`` (``mover``,
             ``mover_bs_only``, ``at_rest``), ``area`` (median px), ``frames`` (seen in).
+        segmenter: the object segmenter (None: :func:`pipeline.segmenter.shipped`).
     Returns:
         ``(T, H, W)`` int8 object ids, -1 background.
     """
     T, H, W = frames.shape[:3]
     flow = estimate_flow(frames, method="dis", preset="fast")   # for flow_moves
-    fg, contact = shipped()(frames, median_background(context))
+    fg, contact = (segmenter or shipped())(frames, median_background(context))
     sg = _segmenter_tracks(fg > FG_THRESHOLD, contact > 0.5, 16, frames)
     bs = label_objects(pseudo_masks(frames, background=context), max_objects=max(max_objects, 8))
     bs, _ = keep_objects(bs, None, max(max_objects, 8))
@@ -474,7 +476,7 @@ median area of the components that qualify for that mover over the window."""
 
 
 def anchored_objects(frames: np.ndarray, context: np.ndarray, movers: np.ndarray, max_objects: int,
-                     explain: list | None = None) -> np.ndarray:
+                     explain: list | None = None, segmenter: Segmenter | None = None) -> np.ndarray:
     """Movers from background subtraction, made whole and joined by objects at rest from the
     segmenter (``mask_method: anchored``).
 
@@ -507,11 +509,12 @@ def anchored_objects(frames: np.ndarray, context: np.ndarray, movers: np.ndarray
         explain: if given, one dict per object is appended: ``kind`` (``mover``, ``at_rest``),
             ``area`` (median px), ``frames`` (seen in), ``completed`` (frames a segmenter
             component was added to a mover).
+        segmenter: the object segmenter (None: :func:`pipeline.segmenter.shipped`).
     Returns:
         ``(T, H, W)`` int8 object ids (movers first, as numbered in ``movers``), -1 background.
     """
     T, H, W = frames.shape[:3]
-    fg, contact = shipped()(frames, median_background(context))
+    fg, contact = (segmenter or shipped())(frames, median_background(context))
     fgb, cb = fg > FG_THRESHOLD, contact > 0.5
     core = fgb & ~cb
     out = np.asarray(movers, dtype=np.int8).copy()
@@ -721,7 +724,7 @@ def window_duration(video, available: float, video_fps: float, scene_fps: int, d
 
 def observe(video, fps: float | None, start: float | None, scene_fps: int, duration: float,
             flow: FlowConfig | None = None, mask_method: str = "median",
-            max_objects: int = 4) -> Observation:
+            max_objects: int = 4, segmenter: Segmenter | None = None) -> Observation:
     """Read a window of a real video at its working crop and size; pseudo masks and flow.
 
     Args:
@@ -736,6 +739,9 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
         mask_method: how the masks are made (:data:`MASK_METHODS`; the main job passes params
             ``realvideo.mask_method``, ``hybrid`` by default; this function keeps ``median``).
         max_objects: objects kept by the tracker.
+        segmenter: the object segmenter of the learned mask methods (None: the shipped
+            weights, :func:`pipeline.segmenter.shipped`; the main job passes params
+            ``realvideo.segmenter_weights``).
     Raises:
         VideoError: unreadable video or window past its end.
     """
@@ -759,7 +765,7 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     _, det_frames, det_ctx = window(dsize, full)
     anchored = mask_method == "anchored"      # movers as median decides them, then the segmenter
     bs_method = "median" if anchored else mask_method
-    det_seg = segment_objects(det_frames, det_ctx, bs_method, max_objects)
+    det_seg = segment_objects(det_frames, det_ctx, bs_method, max_objects, segmenter=segmenter)
     det_flow = estimate_flow(det_frames, method="dis", preset="fast")
     learned = bs_method in LEARNED
     det_seg, tracks = keep_objects(det_seg if learned else hold_resting(det_seg, min_frames=HELD_MIN_FRAMES),
@@ -770,7 +776,7 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     size = working_size(crop, diameter * scale)
     clip, frames, ctx = window(size, crop)
     kinds: list = []
-    seg = segment_objects(frames, ctx, bs_method, max_objects, kinds)
+    seg = segment_objects(frames, ctx, bs_method, max_objects, kinds, segmenter)
     flow = flow or FlowConfig()
     flow_px = flow_of(frames, flow)
     seg, kept = keep_objects(seg if learned else hold_resting(seg, min_frames=HELD_MIN_FRAMES), flow_px,
@@ -778,7 +784,7 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     moving = None
     if anchored:
         kinds = []
-        seg = anchored_objects(frames, ctx, seg, max_objects, kinds)
+        seg = anchored_objects(frames, ctx, seg, max_objects, kinds, segmenter)
         moving = tuple(k["kind"] != "at_rest" for k in kinds)
     elif kinds:   # hybrid: kept tracks carry its ids
         moving = tuple(kinds[t.label]["kind"] != "at_rest" for t in kept)
@@ -798,14 +804,16 @@ def original_frames(obs: Observation, video, fps: float | None, height: int = 32
 
 
 def observe_frames(video, fps: float | None, frame_indices, size: tuple[int, int] | None = None,
-                   max_objects: int = 4, mask_method: str = "median") -> np.ndarray:
+                   max_objects: int = 4, mask_method: str = "median",
+                   segmenter: Segmenter | None = None) -> np.ndarray:
     """The observation's masks of chosen source frames of a whole clip (for scoring against hand
     labels, which are spread over the clip rather than one window): the same masks as
     :func:`observe`, tracked over the whole clip at ``size`` (at most :data:`MAX_LONG_SIDE` px long,
     scaled up to ``size``; :func:`pipeline.masks.pseudo_ground_truth` or the segmenter),
     keeping the tracks that are objects (seen in 4 tracked frames or more, the centroid travels half
     a diameter, a median area within 1/4..4 times that of the track seen longest, the
-    ``max_objects`` seen longest; no flow over the whole clip, so no flow check).
+    ``max_objects`` seen longest; no flow over the whole clip, so no flow check). ``segmenter``:
+    as in :func:`observe`.
 
     Returns:
         ``(len(frame_indices), H, W)`` int8 object ids, -1 background.
@@ -845,9 +853,9 @@ def observe_frames(video, fps: float | None, frame_indices, size: tuple[int, int
     if mask_method == "anchored":   # the median method's movers, completed and joined by the segmenter
         movers = pseudo_ground_truth(video, fps, tracked, work, max_objects=max_objects, keep=objects,
                                      method="median", crop=(0, 0, *probe.original_size))
-        seg = anchored_objects(clip.frames[tracked], clip.frames[fit], movers, max_objects)
+        seg = anchored_objects(clip.frames[tracked], clip.frames[fit], movers, max_objects, segmenter=segmenter)
     else:
-        seg = segment_objects(clip.frames[tracked], clip.frames[fit], mask_method, max_objects)
+        seg = segment_objects(clip.frames[tracked], clip.frames[fit], mask_method, max_objects, segmenter=segmenter)
         seg, _ = keep_objects(seg, None, max_objects, still=True)
     where = {t: k for k, t in enumerate(tracked)}
     out = seg[[where[i] for i in wanted]]

@@ -61,7 +61,7 @@ from pipeline.params import ParamsError, load_params, path_of, section, typed_se
 from pipeline.sanity import PhysicsError, SanityConfig, check_simulation, resolve_overlaps
 from pipeline.scene import Scene, SceneError
 from pipeline.search import EvaluatorPool, SearchConfig, best_of_k, simplest_within
-from pipeline.segmenter import SegmenterError, resolve_weights, use_weights
+from pipeline.segmenter import SegmenterError, resolve_weights, shipped
 from pipeline.search.staged import at_width, score_scene, staged_refine
 from pipeline.video import VideoError, read_video
 
@@ -436,7 +436,7 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     sim = typed_section(params, "sim", SimOptions, required=True)
     sanity = typed_section(params, "sanity", SanityConfig)
     try:                                       # the segmenter the observation uses, checked before any decoding
-        use_weights(resolve_weights(rv.segmenter_weights, getattr(params, "root", None)))
+        segmenter = shipped(resolve_weights(rv.segmenter_weights, getattr(params, "root", None)))
     except SegmenterError as exc:
         raise ParamsError(f"{getattr(params, 'source', 'params.yaml')}: realvideo.segmenter_weights: {exc}") from None
     frames = int(round(rv.fps * rv.duration))
@@ -467,7 +467,7 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
             why = (f"recorded at a lower rate than {rv.fps} fps" if scene_fps < rv.fps else
                    f"too short for {MIN_WINDOW_FRAMES} frames at {rv.fps} fps")
             print(f"[infer] {video}: {why}: the scene runs at {scene_fps} fps")
-    obs = observe(video, fps, start, scene_fps, rv.duration, fcfg, rv.mask_method, rv.max_objects)
+    obs = observe(video, fps, start, scene_fps, rv.duration, fcfg, rv.mask_method, rv.max_objects, segmenter)
     W, H = obs.size
     print(f"[infer] {video}: window {obs.start:.3f}-{obs.start + obs.duration:.3f} s"
           f"{' (chosen automatically)' if obs.auto else ''}, {len(obs.frames)} frames at {scene_fps} fps, "

@@ -235,27 +235,17 @@ def resolve_weights(choice: str | None, root: str | Path | None = None) -> Path 
 
 
 _SHIPPED: dict[str, Segmenter] = {}
-_DEFAULT: list[Path] = []
 
 
-def use_weights(weights: str | Path | None) -> None:
-    """Make ``weights`` the process-wide default checkpoint of :func:`shipped` (None: back to
-    :data:`DEFAULT_WEIGHTS`); what the benchmarks' ``--segmenter-weights`` sets.
+def shipped(weights: str | Path | None = None) -> Segmenter:
+    """The segmenter of the checkpoint ``weights`` (default :data:`DEFAULT_WEIGHTS`), loaded
+    once per process and kept by path. The observation (``pipeline.observe``) takes one as its
+    ``segmenter`` argument; the main job passes the one of ``realvideo.segmenter_weights``.
 
     Raises:
         SegmenterError: the file is missing or not a segmenter checkpoint.
     """
-    _DEFAULT.clear()
-    if weights is not None:
-        shipped(weights)                       # fail now, in one line, not inside an observation
-        _DEFAULT.append(Path(weights))
-
-
-def shipped(weights: str | Path | None = None) -> Segmenter:
-    """The segmenter of ``weights`` (default: :func:`use_weights`' choice, else
-    :data:`DEFAULT_WEIGHTS`), loaded once per process."""
-    default = _DEFAULT[0] if _DEFAULT else DEFAULT_WEIGHTS
-    key = str(Path(weights) if weights is not None else default)
+    key = str(Path(weights) if weights is not None else DEFAULT_WEIGHTS)
     if key not in _SHIPPED:
         _SHIPPED[key] = Segmenter(key)
     return _SHIPPED[key]

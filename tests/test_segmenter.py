@@ -4,6 +4,8 @@ throughout a rendered clip, which background subtraction cannot see."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -364,10 +366,12 @@ def test_an_ensemble_gives_the_mean_of_its_members_probabilities(tmp_path):
     assert not (tmp_path / "x.pt").exists()
 
 
-def test_realvideo_segmenter_weights_pick_the_observations_network(tmp_path):
+def test_realvideo_segmenter_weights_pick_the_observations_network(tmp_path, monkeypatch):
     """realvideo.segmenter_weights: null keeps the shipped network, wide the GPU-trained one (a
     wider network), a relative path is the params folder's; a missing file stops `dynamics infer`
-    in one line naming the field, before any video is read."""
+    in one line naming the field, before any video is read; the chosen network is the one the
+    main job passes to the observation (no process-wide default: the shipped one stays the
+    default of every other caller)."""
     from pipeline import segmenter as S
     from pipeline.params import ParamsError, load_params
     from pipeline.reconstruct import reconstruct
@@ -379,14 +383,21 @@ def test_realvideo_segmenter_weights_pick_the_observations_network(tmp_path):
     assert sum(p.numel() for p in wide.net.parameters()) > 3 * sum(p.numel() for p in shipped.net.parameters())
     params = load_params(None)
     params["realvideo"]["segmenter_weights"] = str(tmp_path / "missing.pt")
-    try:
-        with pytest.raises(ParamsError, match=r"realvideo\.segmenter_weights: .*missing\.pt: no segmenter checkpoint"):
-            reconstruct(tmp_path / "no_video.mp4", tmp_path / "out", params)
-        assert not (tmp_path / "out").exists()
-        params["realvideo"]["segmenter_weights"] = "wide"
-        with pytest.raises(VideoError, match="no_video.mp4"):   # past the weights: the video is what is missing
-            reconstruct(tmp_path / "no_video.mp4", tmp_path / "out", params)
-        assert S.shipped().path == S.WIDE_WEIGHTS      # the observation's segmenter is the wide one
-    finally:
-        S.use_weights(None)
-    assert S.shipped().path == DEFAULT_WEIGHTS
+    with pytest.raises(ParamsError, match=r"realvideo\.segmenter_weights: .*missing\.pt: no segmenter checkpoint"):
+        reconstruct(tmp_path / "no_video.mp4", tmp_path / "out", params)
+    assert not (tmp_path / "out").exists()
+    params["realvideo"]["segmenter_weights"] = "wide"
+    with pytest.raises(VideoError, match="no_video.mp4"):   # past the weights: the video is what is missing
+        reconstruct(tmp_path / "no_video.mp4", tmp_path / "out", params)
+    passed = []
+
+    def observe_stub(*args, **kwargs):   # stands in for the observation: records its segmenter
+        passed.append(kwargs.get("segmenter", args[8] if len(args) > 8 else None))
+        raise VideoError("observation reached")
+    monkeypatch.setattr("pipeline.reconstruct.observe", observe_stub)
+    for choice, path in (("wide", S.WIDE_WEIGHTS), (None, DEFAULT_WEIGHTS)):
+        params["realvideo"]["segmenter_weights"] = choice
+        with pytest.raises(VideoError, match="observation reached"):
+            reconstruct(tmp_path / "no_video.mp4", tmp_path / "out", params, start=0.0)
+        assert Path(passed[-1].path) == path
+    assert Path(S.shipped().path) == DEFAULT_WEIGHTS       # the default of every other caller
