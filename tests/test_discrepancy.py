@@ -387,6 +387,13 @@ def test_single_clip_forward_gap_foam_ball():
     assert gap["after"] < gap["before"] and gap["excess_shrink"] >= 0.7, gap
     assert rep["gap"]["variants"][0]["damping"] == "held at 0"
     assert "damping held at 0" in D.report_markdown(rep)
+    # the mismatch check: here its whole profile (the inner points' bound does not leave drag
+    # clear); where it stops at the inner points, the report says so and gives the bound
+    drag = next(cd for cd in rep["steps"][0]["candidates"] if cd["effect"] == "quadratic_drag")
+    assert "bound" not in drag["mismatch"] and rep["steps"][0]["mismatch"]["scale_error"]["points"] >= 4
+    assert "its profile stopped" not in D.report_markdown(rep)
+    drag["mismatch"]["bound"] = 123.4
+    assert "its profile stopped at its two inner points: its gain is at most 123.4" in D.report_markdown(rep)
 
 
 def test_forward_variant_is_chosen_on_the_first_part_only():

@@ -208,7 +208,10 @@ def report_markdown(rep: Mapping[str, Any]) -> str:
             lines.append("Mismatch check (an eligible effect's profile must gain `mismatch_margin` more χ² than a "
                          "nuisance term's, every clip refitted from the data): " + ", ".join(
                              f"{cd['effect']} {cd['profile_gain']:.1f} against {cd['mismatch']['term']} "
-                             f"{cd['mismatch']['gain']:.1f}" for cd in checked) + ".")
+                             f"{cd['mismatch']['gain']:.1f}"
+                             + (f" (its profile stopped at its two inner points: its gain is at most "
+                                f"{cd['mismatch']['bound']:.1f} if the profile is convex)" if "bound" in cd["mismatch"] else "")
+                             for cd in checked) + ".")
         lines.append("")
         clip_names = list(st["candidates"][0].get("per_clip_gain", {})) if st["candidates"] else []
         if clip_names:
