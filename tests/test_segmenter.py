@@ -257,6 +257,48 @@ def test_join_movers_joins_a_mover_lost_and_found_again_only():
     assert len(join_movers(movers)) == 2
 
 
+def test_attached_parts_drop_a_cast_shadow_and_keep_objects_that_touch():
+    """A ball's cast shadow is segmented as a second mover: smaller, touching the ball in every
+    frame, flowing with it. It is a part, not an object. Two balls that touch only while they
+    collide stay two, and so does a small ball rolling along a larger region it lends its flow
+    to (it moves more than that region)."""
+    from pipeline.observe import attached_parts
+
+    T, H, W = 10, 40, 80
+    flow = np.zeros((T - 1, H, W, 2), np.float32)
+
+    def moving(rows, cols0, step, speed):
+        m = np.zeros((T, H, W), bool)
+        for t in range(T):
+            x = cols0[0] + int(round(step * t))
+            m[t, rows[0]:rows[1], x:x + cols0[1]] = True
+            if t < T - 1:
+                flow[t][m[t]] = (speed, 0.0)
+        return m
+
+    ball = moving((6, 14), (2, 8), 2.0, 2.0)            # 8 x 8 px, 2 px / frame
+    shadow = moving((15, 18), (2, 8), 2.0, 2.0)         # 3 x 8 px just under it (1 px gap)
+    assert attached_parts([ball, shadow], flow) == {1}
+    assert attached_parts([shadow, ball], flow) == {0}
+
+    flow[:] = 0
+    left = moving((24, 32), (2, 8), 3.0, 3.0)           # 3 px / frame to the right
+    right = np.zeros((T, H, W), bool)                    # at 36..41 until hit at t = 8, then away
+    for t in range(T):
+        x = 36 if t < 8 else 36 + 3 * (t - 7)
+        right[t, 24:32, x:x + 6] = True
+        if t < T - 1:
+            flow[t][right[t]] = (3.0 if t >= 7 else 0.0, 0.0)
+    assert attached_parts([left, right], flow) == set()
+
+    flow[:] = 0
+    region = np.zeros((T, H, W), bool)
+    region[:, 20:34, 10:70] = True                       # a large region with a little flow
+    flow[:, 20:34, 10:70] = (0.3, 0.0)
+    small = moving((14, 20), (10, 6), 4.0, 4.0)          # a small ball rolling along its top edge
+    assert attached_parts([region, small], flow) == set()
+
+
 def test_fit_seg_keeps_the_movers_renumbered_and_all_when_none_moves():
     """``Observation.fit_seg``: what the search fits is the observed objects that move, numbered
     0..m-1 in their order; with no mover (or no flags) it is the whole observation."""
