@@ -401,12 +401,12 @@ def attached_parts(masks: list, flow: np.ndarray) -> set[int]:
     on a table or the floor (dev/05, 02), a fragment at its edge where it bounces (dev/03), part of
     a hand or an arm (dev/08), a face of a cube (dev/13). Such a piece touches (within 2 px) the
     same mover in nearly every frame where it is seen (:data:`ATTACHED`), is smaller than it, and
-    moves less than it: its summed flow (:func:`_flow_speeds`) is below the other's. All three
+    moves no more than it: its summed flow (:func:`_flow_speeds`) is at most the other's. All three
     are needed: two objects that roll or slide together (a box pushing another, rendered clip
     pairs touching in 67-73 % of their frames) are kept, and so is a small ball that passes in front
     of a larger region it lends its flow to (dev/09's ball in front of a laptop edge: smaller, but
-    it moves more). Measured on the candidates of the rendered dev sets and the 19 real clips in
-    ``docs/observation.md``.
+    it moves more). Measured on the candidates of MuJoCo dev, the first 5 PyBullet dev clips and the
+    19 real clips (``docs/observation.md``).
 
     Args:
         masks: ``(T, H, W)`` bool masks, one per mover.
@@ -421,7 +421,7 @@ def attached_parts(masks: list, flow: np.ndarray) -> set[int]:
     area = [float(np.median(m.sum(axis=(1, 2))[s])) if s.any() else 0.0 for m, s in zip(masks, seen)]
     path = [float(_flow_speeds(m, flow).sum()) for m in masks]
     kernel = np.ones((5, 5), np.uint8)
-    grown = [np.stack([cv2.dilate(f.astype(np.uint8), kernel) > 0 if f.any() else f for f in m]) for m in masks]
+    grown = [np.stack([cv2.dilate(f.astype(np.uint8), kernel) > 0 for f in m]) for m in masks]
     parts = set()
     for i in range(n):
         if not seen[i].any():
