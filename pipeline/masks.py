@@ -654,6 +654,14 @@ def solidity(mask: np.ndarray) -> float:
     return float(np.count_nonzero(mask)) / (cv2.contourArea(hull) + 0.5 * cv2.arcLength(hull, True) + 1.0)
 
 
+KMEANS_SEED = 0
+"""Seed of OpenCV's RNG before each k-means of :func:`cut_by_colour`. ``cv2.kmeans`` picks its
+k-means++ centres with the calling thread's RNG (``cv::theRNG``), whose state carries over from every
+earlier call in that thread: unseeded, the cut of a component (and so the objects the observation
+reports) depended on what the process had observed before and on which thread ran it (a PyBullet
+clip gave one object alone and none after 60 other clips, ``docs/observation.md``)."""
+
+
 def cut_by_colour(mask: np.ndarray, frame: np.ndarray, min_area: int, min_share: float = 0.15,
                   coherent: float = 0.85) -> np.ndarray:
     """Cut each connected component of a foreground mask that holds two objects of clearly
@@ -666,7 +674,8 @@ def cut_by_colour(mask: np.ndarray, frame: np.ndarray, min_area: int, min_share:
     standard deviations apart (Fisher's criterion), and each cluster is one spatial region (its
     largest 4-connected part holds ``coherent`` of it: a checkered or striped object, whose
     colours interleave, is not cut). The pixels of either part that touch the other are removed,
-    so the two parts are separate components; a tracker gives them back (nearest part).
+    so the two parts are separate components; a tracker gives them back (nearest part). The
+    k-means is seeded (:data:`KMEANS_SEED`), so the same input gives the same cut in any process.
 
     Args:
         mask: ``(H, W)`` bool foreground.
@@ -693,6 +702,7 @@ def cut_by_colour(mask: np.ndarray, frame: np.ndarray, min_area: int, min_share:
         if lit.sum() < 2 * min_area:
             continue
         feats = np.ascontiguousarray(chroma[y:y + h, x:x + w][lit])
+        cv2.setRNGSeed(KMEANS_SEED)   # k-means++ draws from the thread's RNG: same input, same cut
         _, assign, centres = cv2.kmeans(feats, 2, None, crit, 2, cv2.KMEANS_PP_CENTERS)
         assign = assign.ravel()
         sizes = np.bincount(assign, minlength=2)

@@ -69,3 +69,26 @@ def test_solidity_of_convex_and_waisted_shapes():
     cv2.circle(two, (60, 60), 18, 1, -1)
     cv2.circle(two, (96, 60), 18, 1, -1)
     assert solidity(two) < 0.9
+
+
+
+def test_the_cut_does_not_depend_on_earlier_random_draws():
+    """``cv2.kmeans`` draws its k-means++ centres from the thread's RNG, whose state carries over from
+    earlier calls. The cut seeds it first: whatever state the RNG was left in, the k-means starts from
+    the same one (the draws right after the cut agree) and the cut is the same."""
+    frame, mask = _scene()
+    for (cx, colour) in ((60, (40, 160, 40)), (95, (40, 40, 170))):      # non-convex: k-means runs
+        disc = np.zeros_like(mask, np.uint8)
+        cv2.circle(disc, (cx, 60), 18, 1, -1)
+        mask |= disc > 0
+        frame[disc > 0] = colour
+    cuts, after = [], []
+    for seed in range(4):
+        cv2.setRNGSeed(1000 + seed)                      # as if other code had drawn before
+        cuts.append(cut_by_colour(mask, frame, min_area=30))
+        draw = np.zeros(4, np.float32)
+        cv2.randu(draw, 0.0, 1.0)
+        after.append(draw)
+    for c, d in zip(cuts[1:], after[1:]):
+        np.testing.assert_array_equal(c, cuts[0])
+        np.testing.assert_array_equal(d, after[0])
