@@ -662,6 +662,28 @@ reports) depended on what the process had observed before and on which thread ra
 clip gave one object alone and none after 60 other clips, ``docs/observation.md``)."""
 
 
+def majority_smooth(part: np.ndarray, lit: np.ndarray) -> np.ndarray:
+    """3x3 majority vote between two labels, blind to their numbering.
+
+    Each ``lit`` pixel takes the label that more of its lit 3x3 neighbours (itself included) carry,
+    and keeps its own on a tie; unlit pixels are 0. Swapping labels 1 and 2 swaps the result, which
+    a median filter of the label image does not do (it orders 0 < 1 < 2, so at the edge, where the
+    window holds 0s, label 1 wins ties that label 2 loses): with it, the cut depended on which
+    cluster k-means happened to number first.
+
+    Args:
+        part: ``(H, W)`` uint8, 1 or 2 on ``lit`` pixels.
+        lit: ``(H, W)`` bool.
+    Returns:
+        ``(H, W)`` uint8, 0 off ``lit``.
+    """
+    box = np.ones((3, 3), np.float32)
+    votes = [cv2.filter2D(((part == k) & lit).astype(np.float32), -1, box, borderType=cv2.BORDER_CONSTANT)
+             for k in (1, 2)]
+    out = np.where(votes[0] > votes[1], 1, np.where(votes[1] > votes[0], 2, part))
+    return np.where(lit, out, 0).astype(np.uint8)
+
+
 def cut_by_colour(mask: np.ndarray, frame: np.ndarray, min_area: int, min_share: float = 0.15,
                   coherent: float = 0.85) -> np.ndarray:
     """Cut each connected component of a foreground mask that holds two objects of clearly
@@ -675,7 +697,9 @@ def cut_by_colour(mask: np.ndarray, frame: np.ndarray, min_area: int, min_share:
     largest 4-connected part holds ``coherent`` of it: a checkered or striped object, whose
     colours interleave, is not cut). The pixels of either part that touch the other are removed,
     so the two parts are separate components; a tracker gives them back (nearest part). The
-    k-means is seeded (:data:`KMEANS_SEED`), so the same input gives the same cut in any process.
+    k-means is seeded (:data:`KMEANS_SEED`), so the same input gives the same cut in any process,
+    and the clusters are smoothed by a vote blind to their numbering (:func:`majority_smooth`),
+    so the cut does not depend on which one k-means numbers first.
 
     Args:
         mask: ``(H, W)`` bool foreground.
@@ -714,7 +738,7 @@ def cut_by_colour(mask: np.ndarray, frame: np.ndarray, min_area: int, min_share:
             continue
         part = np.zeros(comp.shape, np.uint8)                   # 0 none, 1 / 2 the clusters
         part[lit] = assign + 1
-        part = np.where(lit, cv2.medianBlur(part, 3), 0)
+        part = majority_smooth(part, lit)
         if (comp & (part == 0)).any():                          # dark pixels: nearest lit part
             _, (iy, ix) = ndimage.distance_transform_edt(part == 0, return_indices=True)
             part = np.where(comp, part[iy, ix], 0)

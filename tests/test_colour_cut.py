@@ -4,7 +4,7 @@ texture is not (pipeline.masks.cut_by_colour, issue 36)."""
 import cv2
 import numpy as np
 
-from pipeline.masks import cut_by_colour, solidity
+from pipeline.masks import cut_by_colour, majority_smooth, solidity
 
 
 def _components(mask: np.ndarray) -> int:
@@ -92,3 +92,47 @@ def test_the_cut_does_not_depend_on_earlier_random_draws():
     for c, d in zip(cuts[1:], after[1:]):
         np.testing.assert_array_equal(c, cuts[0])
         np.testing.assert_array_equal(d, after[0])
+
+
+def test_majority_smooth_is_blind_to_the_label_numbering():
+    """Swapping labels 1 and 2 swaps the vote's result; a lone pixel inside the other label flips;
+    pixels off ``lit`` are 0."""
+    rng = np.random.default_rng(0)
+    lit = np.zeros((40, 50), bool)
+    cv2.circle(lit.view(np.uint8), (25, 20), 15, 1, -1)
+    part = np.where(lit, rng.integers(1, 3, lit.shape), 0).astype(np.uint8)
+    swapped = np.where(lit, 3 - part, 0).astype(np.uint8)
+    a, b = majority_smooth(part, lit), majority_smooth(swapped, lit)
+    np.testing.assert_array_equal(b, np.where(lit, 3 - a, 0))
+    assert not a[~lit].any()
+    block = np.where(lit, 1, 0).astype(np.uint8)
+    block[20, 25] = 2
+    assert majority_smooth(block, lit)[20, 25] == 1
+
+
+def test_the_cut_does_not_depend_on_which_cluster_kmeans_numbers_first(monkeypatch):
+    """Two touching discs, a tenth of each disc's pixels the other's colour: the cut is the same
+    whether k-means calls the green disc cluster 0 or cluster 1 (a median filter of the label image
+    favoured label 1 at the edge, and the cuts differed by 100-150 px)."""
+    rng = np.random.default_rng(0)
+    frame, mask = _scene()
+    colours = [(40, 150, 50), (50, 60, 160)]
+    for i, cx in enumerate((60, 93)):
+        disc = np.zeros_like(mask, np.uint8)
+        cv2.circle(disc, (cx, 60), 18, 1, -1)
+        disc = disc > 0
+        mask |= disc
+        speck = rng.random(disc.shape) < 0.1
+        frame[disc & ~speck] = colours[i]
+        frame[disc & speck] = colours[1 - i]
+    first = cut_by_colour(mask, frame, min_area=30)
+    kmeans = cv2.kmeans
+
+    def swapped(*args, **kwargs):
+        compactness, assign, centres = kmeans(*args, **kwargs)
+        return compactness, 1 - assign, centres[::-1].copy()
+
+    monkeypatch.setattr(cv2, "kmeans", swapped)
+    second = cut_by_colour(mask, frame, min_area=30)
+    assert _components(first) == 2
+    np.testing.assert_array_equal(first, second)
