@@ -299,6 +299,32 @@ def test_attached_parts_drop_a_cast_shadow_and_keep_objects_that_touch():
     assert attached_parts([region, small], flow) == set()
 
 
+def test_rigid_size_keeps_objects_entering_or_hidden_and_drops_flicker():
+    """A disc crossing the frame, one entering it from the edge and one hidden behind a post for
+    a few frames keep the size of one rigid body; a speck that flashes to a large blob in a few
+    frames (flicker over a backdrop, a caption) does not."""
+    from pipeline.observe import rigid_size
+
+    T, H, W, r = 30, 60, 120, 8
+    yy, xx = np.mgrid[0:H, 0:W]
+
+    def disc(cx):
+        return (xx - cx) ** 2 + (yy - 30) ** 2 <= r * r
+
+    crossing = np.stack([disc(20 + 2 * t) for t in range(T)])
+    entering = np.stack([disc(-r - 1 + t) for t in range(T)])      # from outside the left edge
+    hidden = crossing.copy()
+    hidden[:, :, 50:62] = False                                      # a post in front
+    assert crossing.sum(axis=(1, 2)).min() > 0 and entering[0].sum() == 0
+    assert rigid_size(crossing) and rigid_size(entering) and rigid_size(hidden)
+    assert rigid_size(np.zeros((T, H, W), bool))
+
+    flicker = np.zeros((T, H, W), bool)
+    flicker[:, 30, 60] = True                                        # a 1 px speck ...
+    flicker[[5, 17, 23]] |= disc(60)                                 # ... and a large blob in 3 frames
+    assert not rigid_size(flicker)
+
+
 def test_fit_seg_keeps_the_movers_renumbered_and_all_when_none_moves():
     """``Observation.fit_seg``: what the search fits is the observed objects that move, numbered
     0..m-1 in their order; with no mover (or no flags) it is the whole observation."""
