@@ -71,7 +71,6 @@ def test_solidity_of_convex_and_waisted_shapes():
     assert solidity(two) < 0.9
 
 
-
 def test_the_cut_does_not_depend_on_earlier_random_draws():
     """``cv2.kmeans`` draws its k-means++ centres from the thread's RNG, whose state carries over from
     earlier calls. The cut seeds it first: whatever state the RNG was left in, the k-means starts from
