@@ -11,7 +11,8 @@ Three kinds of truth:
   of ``shared/data/real/dev``).
 
 Each rendered set has a development split (seed 0) and a **held-out** split (seed 1) that is
-reported apart: nothing was tuned on it.
+reported apart: nothing was tuned on it. A second development split (``dev2``, seed 2, only with
+``--splits dev2``) is fresh data for checking a rule chosen after ``dev`` has been looked at.
 
 Rendered clips are observed exactly as ``dynamics infer`` observes a video
 (:func:`pipeline.observe.observe` with the ``realvideo`` params: window, crop, working size, masks,
@@ -60,7 +61,8 @@ from pipeline.reconstruct import realvideo_config  # noqa: E402
 from pipeline.segmenter import shipped  # noqa: E402
 
 SETS = {("mujoco", "dev"): (0, 24), ("mujoco", "heldout"): (1, 12),
-        ("pybullet", "dev"): (0, 24), ("pybullet", "heldout"): (1, 12)}
+        ("pybullet", "dev"): (0, 24), ("pybullet", "heldout"): (1, 12),
+        ("mujoco", "dev2"): (2, 24), ("pybullet", "dev2"): (2, 24)}
 """(engine, split) -> (seed, clips) of the rendered sets."""
 
 STILL_M = 0.005
@@ -190,7 +192,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="comma list of realvideo.mask_method values to compare (median, mog2, segmenter, hybrid); "
                          "default: the params' one")
     ap.add_argument("--splits", default="dev,heldout",
-                    help="comma list of rendered splits (dev: look and choose; heldout: report, never choose on)")
+                    help="comma list of rendered splits (dev: look and choose; heldout: report, never choose on; "
+                         "dev2: a second development split)")
     ap.add_argument("--no-generate", action="store_true", help="use the clips that are there")
     ap.add_argument("--limit", type=int, default=None, help="first N clips per rendered set (quick looks)")
     ap.add_argument("--params", default=None, help="params.yaml (default ./params.yaml)")

@@ -179,7 +179,8 @@ a part of the wall it crosses."""
 
 
 def segment_objects(frames: np.ndarray, context: np.ndarray, method: str, max_objects: int,
-                    explain: list | None = None, segmenter: Segmenter | None = None) -> np.ndarray:
+                    explain: list | None = None, segmenter: Segmenter | None = None,
+                    candidates: list | None = None) -> np.ndarray:
     """Masks of the objects in ``frames``, split into tracks (before :func:`keep_objects`).
 
     ``median`` / ``mog2``: background subtraction against ``context``
@@ -195,6 +196,7 @@ def segment_objects(frames: np.ndarray, context: np.ndarray, method: str, max_ob
         method: one of :data:`MASK_METHODS`.
         explain: ``hybrid`` only: one dict per object (:func:`hybrid_objects`).
         segmenter: the learned methods' segmenter (None: :func:`pipeline.segmenter.shipped`).
+        candidates: ``hybrid`` only: one dict per segmenter candidate track (:func:`hybrid_objects`).
     Returns:
         ``(T, H, W)`` int8 track ids, -1 background.
     Raises:
@@ -206,7 +208,7 @@ def segment_objects(frames: np.ndarray, context: np.ndarray, method: str, max_ob
         masks = pseudo_masks(frames, method=method, background=context)
         return label_objects(masks, max_objects=max_objects)
     if method == "hybrid":
-        return hybrid_objects(frames, context, max_objects, explain, segmenter)
+        return hybrid_objects(frames, context, max_objects, explain, segmenter, candidates)
     if method == "anchored":    # needs the flow-checked movers: observe() / observe_frames() run it
         raise ValueError("segment_objects: 'anchored' runs in observe(), after the median movers are kept")
     fg, contact = (segmenter or shipped())(frames, median_background(context))
@@ -236,7 +238,8 @@ def _segmenter_tracks(fg: np.ndarray, contact: np.ndarray, max_objects: int,
 
 
 def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
-                   explain: list | None = None, segmenter: Segmenter | None = None) -> np.ndarray:
+                   explain: list | None = None, segmenter: Segmenter | None = None,
+                   candidates: list | None = None) -> np.ndarray:
     """The segmenter first, background subtraction where it misses (``mask_method: hybrid``).
 
     The segmenter (:mod:`pipeline.segmenter`) gives whole silhouettes of objects moving or at
@@ -282,6 +285,14 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
         explain: if given, one dict per kept object is appended: ``kind`` (``mover``,
             ``mover_bs_only``, ``at_rest``), ``area`` (median px), ``frames`` (seen in).
         segmenter: the object segmenter (None: :func:`pipeline.segmenter.shipped`).
+        candidates: if given, one dict per segmenter candidate track (seen in 15 % of the frames),
+            before the later filters (parts, rigid size, size class, ``max_objects``): ``mask``
+            (``(T, H, W)`` bool), ``seen`` (fraction of frames), ``area`` (median px),
+            ``travel`` (centroid travel / diameter), ``flow_moves``, ``confidence`` (mean
+            probability), ``stability`` (:func:`mask_stability`), ``fill``, ``aspect`` (rotated
+            box long / short side), ``in_view`` (:func:`_in_view`), ``decision`` (``mover``,
+            ``at_rest``, ``slow`` or ``rejected``) and ``kept`` (inside one of the objects
+            returned). ``benchmarks/observation_candidates.py`` scores them against the truth.
     Returns:
         ``(T, H, W)`` int8 object ids, -1 background.
     """
@@ -304,11 +315,25 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
         overlap += inside
         fill_in = [k for k in range(n_bs) if inside[k] and inside[k] >= 0.3 * bs_masks[k].sum()]
         shifts = tr.travel >= 0.25 * tr.diameter or fill_in
-        if shifts and flow_moves(m, flow, tr.diameter) and float(fg[m].mean()) >= MOVER_CONFIDENT:
+        moves = bool(shifts) and flow_moves(m, flow, tr.diameter)
+        if moves and float(fg[m].mean()) >= MOVER_CONFIDENT:
             movers.append((tr, m, fill_in))
             linked.update(fill_in)
-        elif _whole_object_at_rest(tr, m, fg, T) or (shifts and _slow_object(tr, m, fg, T)):
+            decision = "mover"
+        elif _whole_object_at_rest(tr, m, fg, T):
             stills.append((tr, m))
+            decision = "at_rest"
+        elif shifts and _slow_object(tr, m, fg, T):
+            stills.append((tr, m))
+            decision = "slow"
+        else:
+            decision = "rejected"
+        if candidates is not None:
+            candidates.append({"mask": m, "seen": len(tr.frames) / T, "area": float(np.median(tr.area)),
+                               "travel": tr.travel / max(tr.diameter, 1e-6), "flow_moves": moves,
+                               "confidence": float(fg[m].mean()), "stability": mask_stability(m, tr.frames),
+                               "fill": float(tr.fill), "aspect": tr.size[0] / max(tr.size[1], 1e-6),
+                               "in_view": _in_view(m), "decision": decision})
     movers = join_movers(movers)
     unseen = [(None, m, []) for k, m in enumerate(bs_masks)   # movers only background subtraction saw
               if k not in linked and m.any() and overlap[k] <= 0.2 * m.sum()]
@@ -337,6 +362,10 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
         for k in fill_in:
             mask[missing] |= bs[missing] == k
         out[mask & (out < 0)] = n
+    if candidates is not None:   # kept: inside one returned object (a mover joined from pieces holds them all)
+        kept = [m for _, m, _ in ranked[:max_objects]]
+        for c in candidates:
+            c["kept"] = any(not (c["mask"] & ~k).any() for k in kept)
     return out
 
 
@@ -681,9 +710,20 @@ def _at_rest(mask: np.ndarray, fg: np.ndarray, frames: np.ndarray, T: int) -> bo
     """
     if len(frames) < REST_SEEN * T:
         return False
+    return mask_stability(mask, frames) >= REST_STABLE and float(fg[mask].mean()) >= REST_CONFIDENT
+
+
+def mask_stability(mask: np.ndarray, frames: np.ndarray) -> float:
+    """Median IoU of a track's masks in consecutive frames where it is seen (:func:`_at_rest`):
+    1.0 for a silhouette that does not change, 0.0 for one seen in fewer than two frames.
+
+    Args:
+        mask: ``(T, H, W)`` bool masks of the track; frames: ``(N,)`` int frames where it is seen.
+    """
+    if len(frames) < 2:
+        return 0.0
     a, b = mask[frames[:-1]], mask[frames[1:]]
-    iou = (a & b).sum(axis=(1, 2)) / np.maximum(1, (a | b).sum(axis=(1, 2)))
-    return float(np.median(iou)) >= REST_STABLE and float(fg[mask].mean()) >= REST_CONFIDENT
+    return float(np.median((a & b).sum(axis=(1, 2)) / np.maximum(1, (a | b).sum(axis=(1, 2)))))
 
 
 def _keep_components(mask: np.ndarray, min_area: int) -> np.ndarray:
@@ -813,7 +853,8 @@ def window_duration(video, available: float, video_fps: float, scene_fps: int, d
 
 def observe(video, fps: float | None, start: float | None, scene_fps: int, duration: float,
             flow: FlowConfig | None = None, mask_method: str = "median",
-            max_objects: int = 4, segmenter: Segmenter | None = None) -> Observation:
+            max_objects: int = 4, segmenter: Segmenter | None = None,
+            candidates: list | None = None) -> Observation:
     """Read a window of a real video at its working crop and size; pseudo masks and flow.
 
     Args:
@@ -831,6 +872,8 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
         segmenter: the object segmenter of the learned mask methods (None: the shipped
             weights, :func:`pipeline.segmenter.shipped`; the main job passes params
             ``realvideo.segmenter_weights``).
+        candidates: ``hybrid`` only: if given, the segmenter candidate tracks of the working window
+            are appended (:func:`hybrid_objects`), for diagnosis.
     Raises:
         VideoError: unreadable video or window past its end.
     """
@@ -865,7 +908,7 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     size = working_size(crop, diameter * scale)
     clip, frames, ctx = window(size, crop)
     kinds: list = []
-    seg = segment_objects(frames, ctx, bs_method, max_objects, kinds, segmenter)
+    seg = segment_objects(frames, ctx, bs_method, max_objects, kinds, segmenter, candidates)
     flow = flow or FlowConfig()
     flow_px = flow_of(frames, flow)
     seg, kept = keep_objects(seg if learned else hold_resting(seg, min_frames=HELD_MIN_FRAMES), flow_px,

@@ -110,6 +110,45 @@ def test_hybrid_finds_the_mover_first_and_the_object_at_rest():
 
 
 @pytest.mark.skipif(not DEFAULT_WEIGHTS.exists(), reason="no shipped segmenter weights")
+def test_hybrid_candidates_record_each_track_and_its_decision_without_changing_the_result():
+    """``hybrid_objects(..., candidates=[])`` records every segmenter candidate with the decision the
+    rules took (``benchmarks/observation_candidates.py`` scores them): the rolling ball is a mover,
+    the box an object at rest with an unchanging silhouette; the objects returned are the same."""
+    from pipeline.observe import hybrid_objects
+
+    fr = _box_at_rest_and_rolling_ball()
+    cands: list = []
+    seg = hybrid_objects(fr.rgb, fr.rgb, 4, candidates=cands)
+    assert np.array_equal(seg, hybrid_objects(fr.rgb, fr.rgb, 4))
+    by_truth = {}
+    for c in cands:
+        assert c["mask"].shape == fr.seg.shape and c["mask"].dtype == bool
+        ious = [((c["mask"] & (fr.seg == k)).sum() / max(1, (c["mask"] | (fr.seg == k)).sum()), k) for k in (0, 1)]
+        iou, k = max(ious)
+        if iou >= 0.5:
+            by_truth[k] = c
+    assert by_truth[1]["decision"] == "mover" and by_truth[1]["travel"] >= 1.0, by_truth[1]
+    assert by_truth[0]["decision"] == "at_rest" and by_truth[0]["stability"] >= 0.95 and by_truth[0]["seen"] == 1.0
+    assert by_truth[0]["kept"] and by_truth[1]["kept"]
+    assert all(not c["kept"] for c in cands if c["decision"] == "rejected")
+
+
+def test_mask_stability_is_the_median_overlap_of_consecutive_silhouettes():
+    """A square of side s shifted by d px per frame overlaps its last silhouette at IoU
+    (s - d) / (s + d); one that does not move at 1; one seen once at 0."""
+    from pipeline.observe import mask_stability
+
+    T, s, d = 6, 10, 5
+    m = np.zeros((T, 40, 60), bool)
+    for t in range(T):
+        m[t, 10:10 + s, 2 + d * t: 2 + d * t + s] = True
+    assert mask_stability(m, np.arange(T)) == pytest.approx((s - d) / (s + d))
+    still = np.repeat(m[:1], T, axis=0)
+    assert mask_stability(still, np.arange(T)) == 1.0
+    assert mask_stability(m, np.array([3])) == 0.0
+
+
+@pytest.mark.skipif(not DEFAULT_WEIGHTS.exists(), reason="no shipped segmenter weights")
 def test_anchored_keeps_the_movers_of_motion_makes_them_whole_and_adds_the_object_at_rest():
     """``mask_method: anchored``: the movers are background subtraction's (here: the ball's
     true masks cut to a crescent, the part a slow object shows), the segmenter completes them

@@ -1,0 +1,180 @@
+"""Where the observation loses objects (issue 36): every candidate track of ``hybrid``'s segmenter,
+what :func:`pipeline.observe.hybrid_objects` decided about it, and whether it is a true object.
+
+For each rendered clip (``benchmarks/observation_truth.py``'s sets), the clip is observed exactly as
+``dynamics infer`` observes it, and the segmenter candidate tracks of the working window are
+recorded (``observe(..., candidates=...)``) with the features the decision reads (seen fraction,
+travel, own flow, confidence, silhouette stability, fill, aspect, in view). A candidate *is* a true
+object when its mean IoU with one, over the frames where either is visible, is at least 0.5
+(the benchmark's "found").
+
+It separates two causes of a missed object:
+
+* **no candidate**: the segmenter never gives a track of that object (IoU >= 0.5) - a segmenter
+  failure no decision rule can repair;
+* **rejected**: a candidate exists and the rules drop it - a rule failure (thresholds in
+  ``pipeline/observe.py``).
+
+Usage::
+
+    MUJOCO_GL=egl python benchmarks/observation_candidates.py --splits dev,dev2 --no-generate \\
+        --report reports/observation_candidates
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+ROOT = Path(__file__).resolve().parents[1]
+for p in (ROOT, ROOT / "benchmarks"):
+    if str(p) not in sys.path:
+        sys.path.insert(0, str(p))
+
+from observation_truth import SETS, STILL_M, ensure_set  # noqa: E402
+
+from pipeline.atomic import write_json, write_text  # noqa: E402
+from pipeline.flow import flow_config  # noqa: E402
+from pipeline.observe import observe, truth_in_window  # noqa: E402
+from pipeline.params import load_params  # noqa: E402
+from pipeline.reconstruct import realvideo_config  # noqa: E402
+from pipeline.segmenter import shipped  # noqa: E402
+
+FOUND = 0.5
+"""A candidate is a true object when its mean IoU with it reaches this (the benchmark's "found")."""
+DECISIONS = ("mover", "at_rest", "slow", "rejected")
+
+
+def best_match(mask: np.ndarray, truth: np.ndarray) -> tuple[int, float]:
+    """The true object a candidate matches best.
+
+    Args:
+        mask: ``(T, H, W)`` bool candidate masks; truth: ``(T, H, W)`` int true ids, -1 none.
+    Returns:
+        ``(id, iou)``: the mean per-frame IoU over the frames where either is visible, and the true
+        id that maximises it (``(-1, 0.0)`` when there is no true object).
+    """
+    best, who = 0.0, -1
+    for k in range(int(truth.max()) + 1):
+        t = truth == k
+        union = (mask | t).sum(axis=(1, 2))
+        seen = union > 0
+        if seen.any():
+            iou = float(((mask & t).sum(axis=(1, 2))[seen] / union[seen]).mean())
+            if iou > best:
+                best, who = iou, k
+    return who, best
+
+
+def clip_candidates(folder: Path, params: dict, segmenter) -> tuple[list[dict], list[dict]]:
+    """Candidates of one rendered clip and its true objects.
+
+    Returns:
+        ``(candidates, objects)``: one dict per candidate (features, ``decision``, ``truth``,
+        ``iou``) and one per true object in the window (``still``, ``best``: the best candidate IoU).
+    """
+    rv = realvideo_config(params)
+    truth = np.load(folder / "truth.npz", allow_pickle=False)
+    found: list[dict] = []
+    obs = observe(folder / "video.mp4", float(truth["fps"]), None, rv.fps, rv.duration, flow_config(params),
+                  rv.mask_method, rv.max_objects, segmenter, found)
+    seg, frames = truth_in_window(truth["seg"], obs)
+    pos = truth["pos"][frames]
+    still = np.linalg.norm(pos - pos[:1], axis=-1).max(axis=0) < STILL_M
+    cands = []
+    for c in found:
+        who, iou = best_match(c.pop("mask"), seg)
+        cands.append({**{k: (round(v, 4) if isinstance(v, float) else v) for k, v in c.items()},
+                      "truth": who, "iou": round(iou, 4), "object": iou >= FOUND})
+    objects = [{"id": k, "still": bool(still[k]),
+                "best": max([c["iou"] for c in cands if c["truth"] == k], default=0.0),
+                "kept": any(c["kept"] and c["object"] for c in cands if c["truth"] == k)}
+               for k in range(len(still)) if (seg == k).any()]
+    return cands, objects
+
+
+def summarize(rows: list[dict]) -> dict:
+    """Counts of one set: candidates by decision and truth, true objects by cause of loss."""
+    cands = [c for r in rows for c in r["candidates"]]
+    objs = [o for r in rows for o in r["objects"]]
+    table = Counter((c["decision"], c["object"]) for c in cands)
+    out = {"clips": len(rows), "candidates": len(cands), "objects": len(objs)}
+    for d in DECISIONS:
+        out[f"{d}: object"] = table[(d, True)]
+        out[f"{d}: not"] = table[(d, False)]
+    for kind, sel in (("moving", [o for o in objs if not o["still"]]), ("still", [o for o in objs if o["still"]])):
+        out[f"{kind} objects"] = len(sel)
+        out[f"{kind}: no candidate"] = sum(o["best"] < FOUND for o in sel)
+        out[f"{kind}: lost later"] = sum(o["best"] >= FOUND and not o["kept"] for o in sel)
+    out["accepted, not kept: object"] = sum(c["object"] and c["decision"] != "rejected" and not c["kept"] for c in cands)
+    out["kept: not"] = sum(c["kept"] and not c["object"] for c in cands)
+    return out
+
+
+def markdown(report: dict) -> str:
+    cols = ["clips", "objects", "moving objects", "moving: no candidate", "moving: lost later", "still objects",
+            "still: no candidate", "still: lost later", "candidates"] \
+        + [f"{d}: {w}" for d in DECISIONS for w in ("object", "not")] + ["accepted, not kept: object", "kept: not"]
+    lines = ["# Where the observation loses objects: segmenter candidates (issue 36)", "",
+             f"Command: `{report['command']}` (tree `{report['commit']}`).", "",
+             "A candidate is one segmenter track of `hybrid` (seen in 15 % of the window's frames) before parts, "
+             "rigid size, size class and `max_objects` are applied; it *is* an object when its mean IoU with a true "
+             f"object reaches {FOUND}. *No candidate*: true objects that no candidate matches at {FOUND} (the "
+             "segmenter's loss, no rule can repair it). Decisions (`pipeline.observe.hybrid_objects`): mover, "
+             "at rest, slow object, rejected; *rejected: object* counts the rules' losses. *Lost later*: true objects "
+             "with a matching candidate that is not inside any returned object (rejected, or dropped afterwards as a "
+             "part, for its size or by `max_objects`); *accepted, not kept: object*: matching candidates the rules "
+             "accepted and the later filters dropped; *kept: not*: returned candidates that match no true object. "
+             "True objects outside the working crop are not counted here (`observation_truth` counts them as missed).", "",
+             "| set | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
+    for name, s in report["summary"].items():
+        lines.append(f"| {name} | " + " | ".join(str(s[c]) for c in cols) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--sets", type=Path, default=ROOT / "data/truthsets", help="rendered sets' root")
+    ap.add_argument("--only", default="mujoco,pybullet", help="comma list of mujoco, pybullet")
+    ap.add_argument("--splits", default="dev,dev2", help="comma list of rendered splits (dev, dev2, heldout)")
+    ap.add_argument("--no-generate", action="store_true", help="use the clips that are there")
+    ap.add_argument("--limit", type=int, default=None, help="first N clips per set (quick looks)")
+    ap.add_argument("--params", default=None, help="params.yaml (default ./params.yaml)")
+    ap.add_argument("--report", type=Path, default=ROOT / "reports/observation_candidates", help="report path stem")
+    ap.add_argument("--segmenter-weights", type=Path, default=None,
+                    help="segmenter checkpoint (default: the shipped pipeline/weights/segmenter.pt)")
+    args = ap.parse_args(argv)
+    params = load_params(args.params)
+    params.setdefault("realvideo", {})["mask_method"] = "hybrid"
+    segmenter = shipped(args.segmenter_weights)
+    sets: dict[str, list[dict]] = {}
+    for (engine, split) in SETS:
+        if engine not in args.only.split(",") or split not in args.splits.split(","):
+            continue
+        folder = ensure_set(args.sets, engine, split, not args.no_generate)
+        if not folder.is_dir():
+            continue
+        rows = []
+        for c in tqdm(sorted(p for p in folder.iterdir() if (p / "truth.npz").exists())[: args.limit],
+                      desc=f"{engine}/{split}"):
+            cands, objs = clip_candidates(c, params, segmenter)
+            rows.append({"clip": c.name, "candidates": cands, "objects": objs})
+        sets[f"{engine} {split}"] = rows
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
+    report = {"command": "python benchmarks/observation_candidates.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+              "commit": commit, "summary": {k: summarize(v) for k, v in sets.items()}, "sets": sets}
+    args.report.parent.mkdir(parents=True, exist_ok=True)
+    write_json(args.report.with_suffix(".json"), report, indent=1)
+    write_text(args.report.with_suffix(".md"), markdown(report))
+    print(markdown(report))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
