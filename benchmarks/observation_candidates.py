@@ -49,6 +49,7 @@ from pipeline.segmenter import shipped  # noqa: E402
 FOUND = 0.5
 """A candidate is a true object when its mean IoU with it reaches this (the benchmark's "found")."""
 DECISIONS = ("mover", "at_rest", "slow", "rejected")
+DROPS = ("part", "rigid_size", "size_class", "max_objects")
 
 
 def best_match(mask: np.ndarray, truth: np.ndarray) -> tuple[int, float]:
@@ -112,7 +113,8 @@ def summarize(rows: list[dict]) -> dict:
         out[f"{kind} objects"] = len(sel)
         out[f"{kind}: no candidate"] = sum(o["best"] < FOUND for o in sel)
         out[f"{kind}: lost later"] = sum(o["best"] >= FOUND and not o["kept"] for o in sel)
-    out["accepted, not kept: object"] = sum(c["object"] and c["decision"] != "rejected" and not c["kept"] for c in cands)
+    for reason in DROPS:
+        out[f"dropped ({reason}): object"] = sum(c["object"] and c.get("dropped") == reason for c in cands)
     out["kept: not"] = sum(c["kept"] and not c["object"] for c in cands)
     return out
 
@@ -120,7 +122,7 @@ def summarize(rows: list[dict]) -> dict:
 def markdown(report: dict) -> str:
     cols = ["clips", "objects", "moving objects", "moving: no candidate", "moving: lost later", "still objects",
             "still: no candidate", "still: lost later", "candidates"] \
-        + [f"{d}: {w}" for d in DECISIONS for w in ("object", "not")] + ["accepted, not kept: object", "kept: not"]
+        + [f"{d}: {w}" for d in DECISIONS for w in ("object", "not")] + [f"dropped ({r}): object" for r in DROPS] + ["kept: not"]
     lines = ["# Where the observation loses objects: segmenter candidates (issue 36)", "",
              f"Command: `{report['command']}` (tree `{report['commit']}`).", "",
              "A candidate is one segmenter track of `hybrid` (seen in 15 % of the window's frames) before parts, "
@@ -129,8 +131,9 @@ def markdown(report: dict) -> str:
              "segmenter's loss, no rule can repair it). Decisions (`pipeline.observe.hybrid_objects`): mover, "
              "at rest, slow object, rejected; *rejected: object* counts the rules' losses. *Lost later*: true objects "
              "with a matching candidate that is not inside any returned object (rejected, or dropped afterwards as a "
-             "part, for its size or by `max_objects`); *accepted, not kept: object*: matching candidates the rules "
-             "accepted and the later filters dropped; *kept: not*: returned candidates that match no true object. "
+             "part, for its size or by `max_objects`); *dropped (filter): object*: matching candidates the rules "
+             "accepted and that filter dropped (`attached_parts`, `rigid_size`, the size class of the movers, "
+             "`max_objects`); *kept: not*: returned candidates that match no true object. "
              "True objects outside the working crop are not counted here (`observation_truth` counts them as missed).", "",
              "| set | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
     for name, s in report["summary"].items():

@@ -291,8 +291,9 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
             ``travel`` (centroid travel / diameter), ``flow_moves``, ``confidence`` (mean
             probability), ``stability`` (:func:`mask_stability`), ``fill``, ``aspect`` (rotated
             box long / short side), ``in_view`` (:func:`_in_view`), ``decision`` (``mover``,
-            ``at_rest``, ``slow`` or ``rejected``) and ``kept`` (inside one of the objects
-            returned). ``benchmarks/observation_candidates.py`` scores them against the truth.
+            ``at_rest``, ``slow`` or ``rejected``), ``kept`` (inside one of the objects
+            returned) and, for an accepted one that is not, ``dropped`` (``part``,
+            ``rigid_size``, ``size_class`` or ``max_objects``: the filter that dropped it). ``benchmarks/observation_candidates.py`` scores them against the truth.
     Returns:
         ``(T, H, W)`` int8 object ids, -1 background.
     """
@@ -338,12 +339,16 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
     unseen = [(None, m, []) for k, m in enumerate(bs_masks)   # movers only background subtraction saw
               if k not in linked and m.any() and overlap[k] <= 0.2 * m.sum()]
     parts = attached_parts([m for _, m, _ in movers + unseen], flow)   # shadows, fragments, hands
-    movers, unseen = ([x for i, x in enumerate(movers) if i not in parts and rigid_size(x[1])],
-                      [x for i, x in enumerate(unseen, len(movers)) if i not in parts and rigid_size(x[1])])
+    movers, unseen = ([x for i, x in enumerate(movers) if i not in parts],
+                      [x for i, x in enumerate(unseen, len(movers)) if i not in parts])
+    _dropped(candidates, [x[1] for x in movers + stills], "part")
+    movers, unseen = [x for x in movers if rigid_size(x[1])], [x for x in unseen if rigid_size(x[1])]
     stills = [(tr, m) for tr, m in stills if rigid_size(m)]      # flicker, captions: not one rigid body
+    _dropped(candidates, [x[1] for x in movers + stills], "rigid_size")
     if movers or unseen:
         ref = float(np.median([np.median(m.sum(axis=(1, 2))[m.any(axis=(1, 2))]) for _, m, _ in movers + unseen]))
         stills = [(tr, m) for tr, m in stills if ref / 16 <= float(np.median(tr.area)) <= 16 * ref]
+        _dropped(candidates, [x[1] for x in movers + stills], "size_class")
     if stills and unseen:   # a crescent of a slow whole object is that object, not a mover of its own
         held = np.logical_or.reduce([m for _, m in stills])
         unseen = [(tr, m, f) for tr, m, f in unseen if (m & held).sum() <= 0.5 * m.sum()]
@@ -362,11 +367,18 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
         for k in fill_in:
             mask[missing] |= bs[missing] == k
         out[mask & (out < 0)] = n
-    if candidates is not None:   # kept: inside one returned object (a mover joined from pieces holds them all)
-        kept = [m for _, m, _ in ranked[:max_objects]]
-        for c in candidates:
-            c["kept"] = any(not (c["mask"] & ~k).any() for k in kept)
+    _dropped(candidates, [m for _, m, _ in ranked[:max_objects]], "max_objects")
+    for c in candidates or []:
+        c["kept"] = c["decision"] != "rejected" and "dropped" not in c
     return out
+
+
+def _dropped(candidates: list | None, alive: list, reason: str) -> None:
+    """Mark the accepted :func:`hybrid_objects` candidates that no ``alive`` mask holds any more
+    (``(T, H, W)`` bool each; a mover joined from pieces holds them all) as ``dropped: reason``."""
+    for c in candidates or []:
+        if c["decision"] != "rejected" and "dropped" not in c and not any(not (c["mask"] & ~k).any() for k in alive):
+            c["dropped"] = reason
 
 
 def _in_view(m: np.ndarray) -> bool:
