@@ -33,18 +33,21 @@ import numpy as np
 from tqdm import tqdm
 
 ROOT = Path(__file__).resolve().parents[1]
-for p in (ROOT, ROOT / "benchmarks"):
+for p in (ROOT, ROOT / "benchmarks", ROOT / "scripts"):
     if str(p) not in sys.path:
         sys.path.insert(0, str(p))
 
-from observation_truth import SETS, STILL_M, ensure_set  # noqa: E402
+from observation_truth import SETS, STILL_LABEL, STILL_M, ensure_set  # noqa: E402
+from realvideo_all import CLIPS, LABELS, REAL  # noqa: E402
 
 from pipeline.atomic import write_json, write_text  # noqa: E402
 from pipeline.flow import flow_config  # noqa: E402
-from pipeline.observe import observe, truth_in_window  # noqa: E402
+from pipeline.labels import labels_in_window, load_labels  # noqa: E402
+from pipeline.observe import observe, scene_rate, truth_in_window  # noqa: E402
 from pipeline.params import load_params  # noqa: E402
 from pipeline.reconstruct import realvideo_config  # noqa: E402
 from pipeline.segmenter import shipped  # noqa: E402
+from pipeline.video import read_video  # noqa: E402
 
 FOUND = 0.5
 """A candidate is a true object when its mean IoU with it reaches this (the benchmark's "found")."""
@@ -100,6 +103,38 @@ def clip_candidates(folder: Path, params: dict, segmenter) -> tuple[list[dict], 
     return cands, objects
 
 
+def real_candidates(video: Path, fps: float | None, labels_dir: Path, params: dict, segmenter
+                    ) -> tuple[list[dict], list[dict]]:
+    """Candidates of one real clip in the main job's window (``dynamics infer``'s ``observe``),
+    matched on the hand-labelled frames that fall in it (none: every candidate counts as not an
+    object). Returns: as :func:`clip_candidates`; still: the labelled centroid moves less than
+    ``STILL_LABEL`` of the working frame's diagonal."""
+    rv = realvideo_config(params)
+    found: list[dict] = []
+    obs = observe(video, fps, None, scene_rate(video, fps, rv.fps), rv.duration, flow_config(params),
+                  rv.mask_method, rv.max_objects, segmenter, found)
+    ks, seg = (np.zeros(0, np.int64), None)
+    if labels_dir.is_dir():
+        ks, seg = labels_in_window(load_labels(labels_dir, read_video(video, fps=fps, max_frames=1).original_size), obs)
+    cands = []
+    for c in found:
+        mask = c.pop("mask")
+        who, iou = best_match(mask[ks], seg) if len(ks) else (-1, 0.0)
+        cands.append({**{k: (round(v, 4) if isinstance(v, float) else v) for k, v in c.items()},
+                      "truth": who, "iou": round(iou, 4), "object": iou >= FOUND})
+    objects = []
+    if len(ks):
+        diag = float(np.hypot(*seg.shape[1:]))
+        for k in range(int(seg.max()) + 1):
+            cen = [np.argwhere(t == k).mean(axis=0) for t in seg if (t == k).any()]
+            if cen:
+                moved = float(np.linalg.norm(np.asarray(cen) - cen[0], axis=1).max())
+                objects.append({"id": k, "still": len(cen) >= 2 and moved < STILL_LABEL * diag,
+                                "best": max([c["iou"] for c in cands if c["truth"] == k], default=0.0),
+                                "kept": any(c["kept"] and c["object"] for c in cands if c["truth"] == k)})
+    return cands, objects
+
+
 def summarize(rows: list[dict]) -> dict:
     """Counts of one set: candidates by decision and truth, true objects by cause of loss."""
     cands = [c for r in rows for c in r["candidates"]]
@@ -144,7 +179,8 @@ def markdown(report: dict) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sets", type=Path, default=ROOT / "data/truthsets", help="rendered sets' root")
-    ap.add_argument("--only", default="mujoco,pybullet", help="comma list of mujoco, pybullet")
+    ap.add_argument("--only", default="mujoco,pybullet", help="comma list of mujoco, pybullet, real (the 19 "
+                    "labelled real clips in the main job's window; matched on the labelled frames in it)")
     ap.add_argument("--splits", default="dev,dev2", help="comma list of rendered splits (dev, dev2, heldout)")
     ap.add_argument("--no-generate", action="store_true", help="use the clips that are there")
     ap.add_argument("--limit", type=int, default=None, help="first N clips per set (quick looks)")
@@ -169,6 +205,12 @@ def main(argv: list[str] | None = None) -> int:
             cands, objs = clip_candidates(c, params, segmenter)
             rows.append({"clip": c.name, "candidates": cands, "objects": objs})
         sets[f"{engine} {split}"] = rows
+    if "real" in args.only.split(","):
+        rows = []
+        for name, rel, fps in tqdm(CLIPS, desc="real"):
+            cands, objs = real_candidates(REAL / rel, fps, LABELS / name.split("_")[0], params, segmenter)
+            rows.append({"clip": name, "candidates": cands, "objects": objs})
+        sets["real (19, main job's window)"] = rows
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
     report = {"command": "python benchmarks/observation_candidates.py " + " ".join(argv if argv is not None else sys.argv[1:]),
               "commit": commit, "summary": {k: summarize(v) for k, v in sets.items()}, "sets": sets}
