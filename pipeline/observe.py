@@ -292,8 +292,10 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
             probability), ``stability`` (:func:`mask_stability`), ``fill``, ``aspect`` (rotated
             box long / short side), ``in_view`` (:func:`_in_view`), ``decision`` (``mover``,
             ``at_rest``, ``slow`` or ``rejected``), ``kept`` (inside one of the objects
-            returned) and, for an accepted one that is not, ``dropped`` (``part``,
-            ``rigid_size``, ``size_class`` or ``max_objects``: the filter that dropped it). ``benchmarks/observation_candidates.py`` scores them against the truth.
+            returned), for an accepted one that is not, ``dropped`` (``part``,
+            ``rigid_size``, ``size_class`` or ``max_objects``: the filter that dropped it), and,
+            when there are movers, ``size_ratio`` (its median area over the movers' median, the
+            size class's variable: objects at rest are kept within 1/16..16). ``benchmarks/observation_candidates.py`` scores them against the truth.
     Returns:
         ``(T, H, W)`` int8 object ids, -1 background.
     """
@@ -348,6 +350,8 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
     if movers or unseen:
         ref = float(np.median([np.median(m.sum(axis=(1, 2))[m.any(axis=(1, 2))]) for _, m, _ in movers + unseen]))
         stills = [(tr, m) for tr, m in stills if ref / 16 <= float(np.median(tr.area)) <= 16 * ref]
+        for c in candidates or []:
+            c["size_ratio"] = c["area"] / ref
         _dropped(candidates, [x[1] for x in movers + stills], "size_class")
     if stills and unseen:   # a crescent of a slow whole object is that object, not a mover of its own
         held = np.logical_or.reduce([m for _, m in stills])

@@ -130,6 +130,8 @@ def test_hybrid_candidates_record_each_track_and_its_decision_without_changing_t
     assert by_truth[1]["decision"] == "mover" and by_truth[1]["travel"] >= 1.0, by_truth[1]
     assert by_truth[0]["decision"] == "at_rest" and by_truth[0]["stability"] >= 0.95 and by_truth[0]["seen"] == 1.0
     assert by_truth[0]["kept"] and by_truth[1]["kept"]
+    box, ball = (fr.seg[0] == 0).sum(), (fr.seg[0] == 1).sum()     # the size class compares areas
+    assert by_truth[0]["size_ratio"] == pytest.approx(box / ball, rel=0.3), (by_truth[0], box, ball)
     assert all(not c["kept"] for c in cands if c["decision"] == "rejected")
 
 
