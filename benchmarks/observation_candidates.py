@@ -37,10 +37,9 @@ for p in (ROOT, ROOT / "benchmarks", ROOT / "scripts"):
     if str(p) not in sys.path:
         sys.path.insert(0, str(p))
 
-from observation_truth import SETS, STILL_LABEL, STILL_M, ensure_set  # noqa: E402
+from observation_truth import SETS, STILL_M, ensure_set, labelled_still, write_report  # noqa: E402
 from realvideo_all import CLIPS, LABELS, REAL  # noqa: E402
 
-from pipeline.atomic import write_json, write_text  # noqa: E402
 from pipeline.flow import flow_config  # noqa: E402
 from pipeline.labels import labels_in_window, load_labels  # noqa: E402
 from pipeline.observe import observe, scene_rate, truth_in_window  # noqa: E402
@@ -91,16 +90,29 @@ def clip_candidates(folder: Path, params: dict, segmenter) -> tuple[list[dict], 
     seg, frames = truth_in_window(truth["seg"], obs)
     pos = truth["pos"][frames]
     still = np.linalg.norm(pos - pos[:1], axis=-1).max(axis=0) < STILL_M
-    cands = []
+    cands = matched(found, seg)
+    ids = [k for k in range(len(still)) if (seg == k).any()]
+    return cands, true_objects(cands, ids, [bool(still[k]) for k in ids])
+
+
+def matched(found: list[dict], truth: np.ndarray | None, frames: np.ndarray | None = None) -> list[dict]:
+    """The candidates of ``observe(..., candidates=found)`` without their masks, each with its best
+    true match (:func:`best_match` on ``truth``, ``(F, H, W)`` int, against the masks' ``frames``,
+    all when None; no truth: no match) and ``object`` (IoU >= :data:`FOUND`); floats rounded."""
+    out = []
     for c in found:
-        who, iou = best_match(c.pop("mask"), seg)
-        cands.append({**{k: (round(v, 4) if isinstance(v, float) else v) for k, v in c.items()},
-                      "truth": who, "iou": round(iou, 4), "object": iou >= FOUND})
-    objects = [{"id": k, "still": bool(still[k]),
-                "best": max([c["iou"] for c in cands if c["truth"] == k], default=0.0),
-                "kept": any(c["kept"] and c["object"] for c in cands if c["truth"] == k)}
-               for k in range(len(still)) if (seg == k).any()]
-    return cands, objects
+        mask = c.pop("mask")
+        who, iou = (-1, 0.0) if truth is None else best_match(mask if frames is None else mask[frames], truth)
+        out.append({**{k: (round(v, 4) if isinstance(v, float) else v) for k, v in c.items()},
+                    "truth": who, "iou": round(iou, 4), "object": iou >= FOUND})
+    return out
+
+
+def true_objects(cands: list[dict], ids: list[int], still: list[bool]) -> list[dict]:
+    """One dict per true object ``ids[i]`` (``still[i]``): ``best`` candidate IoU and ``kept``
+    (a kept candidate matches it)."""
+    return [{"id": k, "still": s, "best": max([c["iou"] for c in cands if c["truth"] == k], default=0.0),
+             "kept": any(c["kept"] and c["object"] for c in cands if c["truth"] == k)} for k, s in zip(ids, still)]
 
 
 def real_candidates(video: Path, fps: float | None, labels_dir: Path, params: dict, segmenter
@@ -116,23 +128,11 @@ def real_candidates(video: Path, fps: float | None, labels_dir: Path, params: di
     ks, seg = (np.zeros(0, np.int64), None)
     if labels_dir.is_dir():
         ks, seg = labels_in_window(load_labels(labels_dir, read_video(video, fps=fps, max_frames=1).original_size), obs)
-    cands = []
-    for c in found:
-        mask = c.pop("mask")
-        who, iou = best_match(mask[ks], seg) if len(ks) else (-1, 0.0)
-        cands.append({**{k: (round(v, 4) if isinstance(v, float) else v) for k, v in c.items()},
-                      "truth": who, "iou": round(iou, 4), "object": iou >= FOUND})
-    objects = []
-    if len(ks):
-        diag = float(np.hypot(*seg.shape[1:]))
-        for k in range(int(seg.max()) + 1):
-            cen = [np.argwhere(t == k).mean(axis=0) for t in seg if (t == k).any()]
-            if cen:
-                moved = float(np.linalg.norm(np.asarray(cen) - cen[0], axis=1).max())
-                objects.append({"id": k, "still": len(cen) >= 2 and moved < STILL_LABEL * diag,
-                                "best": max([c["iou"] for c in cands if c["truth"] == k], default=0.0),
-                                "kept": any(c["kept"] and c["object"] for c in cands if c["truth"] == k)})
-    return cands, objects
+    if not len(ks):
+        return matched(found, None), []
+    cands = matched(found, seg, ks)
+    ids = [k for k in range(int(seg.max()) + 1) if (seg == k).any()]
+    return cands, true_objects(cands, ids, [labelled_still(seg, k) for k in ids])
 
 
 def summarize(rows: list[dict]) -> dict:
@@ -214,10 +214,7 @@ def main(argv: list[str] | None = None) -> int:
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
     report = {"command": "python benchmarks/observation_candidates.py " + " ".join(argv if argv is not None else sys.argv[1:]),
               "commit": commit, "summary": {k: summarize(v) for k, v in sets.items()}, "sets": sets}
-    args.report.parent.mkdir(parents=True, exist_ok=True)
-    write_json(args.report.with_suffix(".json"), report, indent=1)
-    write_text(args.report.with_suffix(".md"), markdown(report))
-    print(markdown(report))
+    write_report(args.report, report, markdown(report))
     return 0
 
 

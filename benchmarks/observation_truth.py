@@ -115,6 +115,22 @@ def rendered_clip(folder: Path, params: dict, segmenter=None) -> dict:
             **{k: v for k, v in s.items() if k != "per_object"}, "per_object": s["per_object"]}
 
 
+def labelled_still(true: np.ndarray, k: int) -> bool:
+    """Whether labelled object ``k`` is *still*: seen in at least two of the ``(F, H, W)`` int
+    label frames, its centroid never moves more than :data:`STILL_LABEL` of their diagonal."""
+    c = [np.argwhere(t == k).mean(axis=0) for t in true if (t == k).any()]
+    diag = math.hypot(*true.shape[1:])
+    return len(c) >= 2 and float(np.linalg.norm(np.asarray(c) - c[0], axis=1).max()) < STILL_LABEL * diag
+
+
+def write_report(stem: Path, report: dict, text: str) -> None:
+    """Write ``stem.json`` (the report) and ``stem.md`` (``text``) atomically and print the text."""
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    write_json(stem.with_suffix(".json"), report, indent=1)
+    write_text(stem.with_suffix(".md"), text)
+    print(text)
+
+
 def real_clip(name: str, spec: dict, fixtures: Path, video_dir: Path, params: dict, segmenter=None) -> dict:
     """Score the observation of one real clip on its hand-labelled frames (``segmenter``: as in
     :func:`rendered_clip`)."""
@@ -129,12 +145,7 @@ def real_clip(name: str, spec: dict, fixtures: Path, video_dir: Path, params: di
     pred = observe_frames(video_dir / spec["file"], spec.get("fps"), idx, size,
                           max_objects=rv.max_objects, mask_method=rv.mask_method, segmenter=segmenter)
     seconds = time.perf_counter() - t0
-    n = len(spec["objects"])
-    diag = math.hypot(*size)
-    still = []
-    for k in range(n):
-        c = [np.argwhere(t == k).mean(axis=0) for t in true if (t == k).any()]
-        still.append(len(c) >= 2 and float(np.linalg.norm(np.asarray(c) - c[0], axis=1).max()) < STILL_LABEL * diag)
+    still = [labelled_still(true, k) for k in range(len(spec["objects"]))]
     s = observation_scores(true.astype(np.int8), pred, still)
     return {"clip": name, "seconds": round(seconds, 2), "frames": idx,
             **{k: v for k, v in s.items() if k != "per_object"}, "per_object": s["per_object"]}
@@ -238,10 +249,7 @@ def main(argv: list[str] | None = None) -> int:
     report = {"command": "python benchmarks/observation_truth.py " + " ".join(argv if argv is not None else sys.argv[1:]),
               "commit": commit, "method": f"mask methods {', '.join(methods)}; default realvideo.mask_method={default}",
               "summary": {k: summarize(v) for k, v in sets.items()}, "sets": sets}
-    args.report.parent.mkdir(parents=True, exist_ok=True)
-    write_json(args.report.with_suffix(".json"), report, indent=1)
-    write_text(args.report.with_suffix(".md"), markdown(report))
-    print(markdown(report))
+    write_report(args.report, report, markdown(report))
     return 0
 
 

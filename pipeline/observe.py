@@ -295,7 +295,8 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
             returned), for an accepted one that is not, ``dropped`` (``part``,
             ``rigid_size``, ``size_class`` or ``max_objects``: the filter that dropped it), and,
             when there are movers, ``size_ratio`` (its median area over the movers' median, the
-            size class's variable: objects at rest are kept within 1/16..16). ``benchmarks/observation_candidates.py`` scores them against the truth.
+            size class's variable: objects at rest are kept within 1/16..16).
+            ``benchmarks/observation_candidates.py`` scores them against the truth.
     Returns:
         ``(T, H, W)`` int8 object ids, -1 background.
     """
@@ -319,7 +320,8 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
         fill_in = [k for k in range(n_bs) if inside[k] and inside[k] >= 0.3 * bs_masks[k].sum()]
         shifts = tr.travel >= 0.25 * tr.diameter or fill_in
         moves = bool(shifts) and flow_moves(m, flow, tr.diameter)
-        if moves and float(fg[m].mean()) >= MOVER_CONFIDENT:
+        confidence = float(fg[m].mean())
+        if moves and confidence >= MOVER_CONFIDENT:
             movers.append((tr, m, fill_in))
             linked.update(fill_in)
             decision = "mover"
@@ -334,7 +336,7 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
         if candidates is not None:
             candidates.append({"mask": m, "seen": len(tr.frames) / T, "area": float(np.median(tr.area)),
                                "travel": tr.travel / max(tr.diameter, 1e-6), "flow_moves": moves,
-                               "confidence": float(fg[m].mean()), "stability": mask_stability(m, tr.frames),
+                               "confidence": confidence, "stability": mask_stability(m, tr.frames),
                                "fill": float(tr.fill), "aspect": tr.size[0] / max(tr.size[1], 1e-6),
                                "in_view": _in_view(m), "decision": decision})
     movers = join_movers(movers)
