@@ -290,7 +290,8 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
             (``(T, H, W)`` bool), ``seen`` (fraction of frames), ``area`` (median px),
             ``travel`` (centroid travel / diameter), ``flow_moves``, ``confidence`` (mean
             probability), ``stability`` (:func:`mask_stability`), ``fill``, ``aspect`` (rotated
-            box long / short side), ``in_view`` (:func:`_in_view`), ``decision`` (``mover``,
+            box long / short side), ``in_view`` (:func:`_in_view`), ``border``
+            (:func:`border_fraction`), ``decision`` (``mover``,
             ``at_rest``, ``slow`` or ``rejected``), ``kept`` (inside one of the objects
             returned), for an accepted one that is not, ``dropped`` (``part``,
             ``rigid_size``, ``size_class`` or ``max_objects``: the filter that dropped it), and,
@@ -338,7 +339,7 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
                                "travel": tr.travel / max(tr.diameter, 1e-6), "flow_moves": moves,
                                "confidence": confidence, "stability": mask_stability(m, tr.frames),
                                "fill": float(tr.fill), "aspect": tr.size[0] / max(tr.size[1], 1e-6),
-                               "in_view": _in_view(m), "decision": decision})
+                               "in_view": _in_view(m), "border": border_fraction(m), "decision": decision})
     movers = join_movers(movers)
     unseen = [(None, m, []) for k, m in enumerate(bs_masks)   # movers only background subtraction saw
               if k not in linked and m.any() and overlap[k] <= 0.2 * m.sum()]
@@ -387,12 +388,19 @@ def _dropped(candidates: list | None, alive: list, reason: str) -> None:
             c["dropped"] = reason
 
 
-def _in_view(m: np.ndarray) -> bool:
-    """Whether a ``(T, H, W)`` bool track touches the image border in at most half the frames
-    where it is seen (tables, walls, rulers and shelves run out of the frame)."""
+def border_fraction(m: np.ndarray) -> float:
+    """The fraction of the frames where a ``(T, H, W)`` bool track is seen in which it touches the
+    image border (0 for a track never seen): 1 for a track never wholly in view."""
     seen = m.any(axis=(1, 2))
     border = m[:, 0, :].any(axis=1) | m[:, -1, :].any(axis=1) | m[:, :, 0].any(axis=1) | m[:, :, -1].any(axis=1)
-    return bool(seen.any() and border[seen].mean() <= 0.5)
+    return float(border[seen].mean()) if seen.any() else 0.0
+
+
+def _in_view(m: np.ndarray) -> bool:
+    """Whether a ``(T, H, W)`` bool track is seen and touches the image border in at most half
+    the frames where it is seen (:func:`border_fraction`; tables, walls, rulers and shelves run
+    out of the frame)."""
+    return bool(m.any() and border_fraction(m) <= 0.5)
 
 
 FLOW_PATH, FLOW_SPEED, FLOW_FRAMES = 0.5, 0.5, 0.25

@@ -179,12 +179,16 @@ def model_samples(model_dir: Path, frames: np.ndarray, params: dict, k: int | No
     fcfg = flow_config(params)
     small = np.stack([cv2.resize(f, (W, H), interpolation=cv2.INTER_AREA) for f in frames])
     flow = flow_of(small, fcfg)
+    threads = torch.get_num_threads()
     torch.set_num_threads(1)  # as in stages/predict.py: decoding K samples, 1 thread is as fast
-    net, tok = vlm.load_model(model_dir)
-    codec, _ = vlm.load_codec(model_dir)
-    mcfg = vlm.checkpoint_config(model_dir, vlm.ModelConfig.from_params(params))
-    x = vlm.model_input(small, flow, mcfg, fcfg.max_magnitude)
-    samples = vlm.generate(net, tok, x, mcfg, codec, k=k or mcfg.k, seed=seed)
+    try:   # restored after: the segmenter of a later observation runs on every core
+        net, tok = vlm.load_model(model_dir)
+        codec, _ = vlm.load_codec(model_dir)
+        mcfg = vlm.checkpoint_config(model_dir, vlm.ModelConfig.from_params(params))
+        x = vlm.model_input(small, flow, mcfg, fcfg.max_magnitude)
+        samples = vlm.generate(net, tok, x, mcfg, codec, k=k or mcfg.k, seed=seed)
+    finally:
+        torch.set_num_threads(threads)
     scenes, errors = [], []
     for toks in samples:
         s, err = vlm.to_scene(toks, codec)

@@ -444,3 +444,27 @@ def test_realvideo_model_picks_the_scene_writer(tmp_path, monkeypatch):
     assert default_model_dir({**params, "realvideo": {"model": str(tmp_path / "mine")}}) == tmp_path / "mine"
     monkeypatch.setattr(vlm, "WIDE_CHECKPOINT", tmp_path / "none")
     assert default_model_dir({**params, "realvideo": {"model": "wide"}}) == trained
+
+
+def test_model_samples_restores_the_torch_thread_count():
+    """Decoding the model's samples runs on one torch thread (as fast for K samples), but the
+    process's thread count is restored after it: the segmenter of a later observation in the same
+    process runs on every core again. K samples come back, each a scene or an error."""
+    import torch
+
+    from pipeline.model.config import WIDE_CHECKPOINT
+    from pipeline.params import load_params
+    from pipeline.reconstruct import model_samples
+
+    params = load_params(Path(__file__).resolve().parents[1] / "params.yaml")
+    frames = np.random.default_rng(0).integers(0, 255, (31, 120, 160, 3), dtype=np.uint8)
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        scenes, errors = model_samples(WIDE_CHECKPOINT, frames, params, 2, 0, 30, 1.0)
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
+    assert len(scenes) == len(errors) == 2
+    assert all((s is None) != (e is None) for s, e in zip(scenes, errors))
+    assert all(s.fps == 30 and s.duration == 1.0 for s in scenes if s is not None)
