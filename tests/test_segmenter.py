@@ -135,6 +135,42 @@ def test_hybrid_candidates_record_each_track_and_its_decision_without_changing_t
     assert all(not c["kept"] for c in cands if c["decision"] == "rejected")
 
 
+def _box_beside_small_ball(width: float):
+    """Rendered frames (192 x 144) of a box of side ``width`` m at rest (label 0) and a 4 cm ball
+    rolling past it (label 1)."""
+    from pipeline.render import render_scene
+    from pipeline.scene import Scene
+
+    scene = Scene.from_dict({"duration": 1.0, "fps": 30, "camera": {"height": 1.2, "pitch": 40.0, "fov": 45.0},
+                             "objects": [
+                                 {"shape": "box", "size": {"width": width, "depth": width, "height": width},
+                                  "mass": 2.0, "position": [0.35, -0.5, width / 2]},
+                                 {"shape": "sphere", "size": {"radius": 0.04}, "mass": 0.5,
+                                  "position": [-0.5, -0.8, 0.04], "linear_velocity": [0.8, 0.0, 0.0]}]})
+    return render_scene(scene, 192, 144)[1]
+
+
+@pytest.mark.skipif(not DEFAULT_WEIGHTS.exists(), reason="no shipped segmenter weights")
+def test_hybrid_keeps_an_object_at_rest_of_the_scene_size_class_and_drops_scenery_sized_ones():
+    """The size class of objects at rest (``REST_SIZE_CLASS``): a 30 cm box beside a 4 cm ball
+    (about 24 times its area: objects of one rendered scene reach 30) is kept as an object at rest;
+    a 45 cm one (about 57 times: the size of the scenery at rest beside a tossed ball on real clips)
+    is not; the ball is the mover in both."""
+    from pipeline.observe import REST_SIZE_CLASS, hybrid_objects
+
+    for width, kept in ((0.3, True), (0.45, False)):
+        fr = _box_beside_small_ball(width)
+        ratio = (fr.seg[0] == 0).sum() / (fr.seg[0] == 1).sum()
+        assert (16 < ratio < REST_SIZE_CLASS) if kept else ratio > 1.5 * REST_SIZE_CLASS, ratio
+        cands: list = []
+        seg = hybrid_objects(fr.rgb, fr.rgb, 4, candidates=cands)
+        box = [c for c in cands if c["decision"] == "at_rest"]
+        assert len(box) == 1 and box[0]["kept"] == kept and box[0]["size_ratio"] == pytest.approx(ratio, rel=0.2)
+        assert int(seg.max()) + 1 == (2 if kept else 1)
+        ball = (seg == 0) & (fr.seg == 1)
+        assert ball.sum() >= 0.5 * (fr.seg == 1).sum()               # id 0 is the ball, the mover
+
+
 def test_mask_stability_is_the_median_overlap_of_consecutive_silhouettes():
     """A square of side s shifted by d px per frame overlaps its last silhouette at IoU
     (s - d) / (s + d); one that does not move at 1; one seen once at 0."""
