@@ -279,8 +279,9 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
       looks like a whole object in view (rotated box at most 3:1, at least half full, touching
       the border in at most half its frames: tables, walls, rulers and shelves run out of the
       frame) and, when there are movers, is of their size class (median area
-      1/:data:`REST_SIZE_CLASS`..:data:`REST_SIZE_CLASS` times theirs); so is a track that travels but fails the mover tests when it still looks like a
-      whole object (:func:`_slow_object`: a slow object, one a mover occludes);
+      1/:data:`REST_SIZE_CLASS`..:data:`REST_SIZE_CLASS` times theirs); so is a track that
+      travels but fails the mover tests when it still looks like a whole object
+      (:func:`_slow_object`: a slow object, one a mover occludes);
     * movers first (the segmenter's that background subtraction confirms, the segmenter's
       others, then those of background subtraction alone, each seen longest first), then objects
       at rest (largest first), at most ``max_objects``, numbered 0, 1, ...: motion is the
@@ -651,8 +652,8 @@ def anchored_objects(frames: np.ndarray, context: np.ndarray, movers: np.ndarray
       most), does not travel (less than a quarter of its diameter), is seen as a rigid body at
       rest (:func:`_at_rest`), looks like a whole object in view (rotated box at most 3:1, at
       least half full, :func:`_in_view`) and, when there are movers, is of their size class
-      (median area within :data:`REST_SIZE_CLASS` of theirs), is added after the movers, largest first, up to
-      ``max_objects``.
+      (median area within :data:`REST_SIZE_CLASS` of theirs), is added after the movers,
+      largest first, up to ``max_objects``.
 
     Args:
         frames: ``(T, H, W, 3)`` uint8 RGB; context: ``(N, H, W, 3)`` uint8 frames spread over
