@@ -186,6 +186,12 @@ of the movers' area (MuJoCo dev2, lost at the former 16), the real scenery at re
 ball 53 and 72 (real dev/07), the one rendered non-object in between 39 (PyBullet dev2)."""
 
 
+def rest_size_class(area: float, ref: float) -> bool:
+    """Whether an object at rest of median area ``area`` (px) is of the size class of movers of
+    median area ``ref`` (px): within 1/:data:`REST_SIZE_CLASS`..:data:`REST_SIZE_CLASS` times it."""
+    return ref / REST_SIZE_CLASS <= area <= REST_SIZE_CLASS * ref
+
+
 def segment_objects(frames: np.ndarray, context: np.ndarray, method: str, max_objects: int,
                     explain: list | None = None, segmenter: Segmenter | None = None,
                     candidates: list | None = None) -> np.ndarray:
@@ -362,8 +368,7 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
     _dropped(candidates, [x[1] for x in movers + stills], "rigid_size")
     if movers or unseen:
         ref = float(np.median([np.median(m.sum(axis=(1, 2))[m.any(axis=(1, 2))]) for _, m, _ in movers + unseen]))
-        stills = [(tr, m) for tr, m in stills
-                  if ref / REST_SIZE_CLASS <= float(np.median(tr.area)) <= REST_SIZE_CLASS * ref]
+        stills = [(tr, m) for tr, m in stills if rest_size_class(float(np.median(tr.area)), ref)]
         for c in candidates or []:
             c["size_ratio"] = c["area"] / ref
         _dropped(candidates, [x[1] for x in movers + stills], "size_class")
@@ -709,7 +714,7 @@ def anchored_objects(frames: np.ndarray, context: np.ndarray, movers: np.ndarray
         m = sg == tr.label
         if (m & moving).sum() > 0.1 * m.sum() or tr.travel >= 0.25 * tr.diameter:
             continue
-        if ref is not None and not ref / REST_SIZE_CLASS <= float(np.median(tr.area)) <= REST_SIZE_CLASS * ref:
+        if ref is not None and not rest_size_class(float(np.median(tr.area)), ref):
             continue
         if _whole_object_at_rest(tr, m, fg, T):
             stills.append((tr, m))
