@@ -118,6 +118,12 @@ class DiscrepancyConfig(StrictModel):
             sinks 3 mm. Stiffer still (0.0034 s, twice the 1/600 s step) launches a ball that
             starts sliding by ~1 cm. The base fits of independent data (impulse bounces, no
             effect) reach chi2/n 0.9-4 instead of up to 900 (:func:`fit_options`).
+        timestep: s, upper bound of the fits' physics step (the largest step at most this
+            that divides a clip's sample interval is used, ``pipeline.mjcf.frame_timestep``);
+            None: params ``sim.timestep`` (1/600 s). The rollouts are four fifths of a
+            dataset's time, and their cost is proportional to the number of steps.
+            MuJoCo keeps a contact's time constant at least twice the step (``refsafe``), so
+            a step above ``contact_timeconst / 2`` changes the contact.
         friction_cone: MuJoCo friction cone of the fits: ``elliptic`` (isotropic Coulomb
             friction) or ``pyramidal`` (the scenes' default; 4 edges: a sphere sliding off the
             edges' axes feels a different friction, 10 mm over 0.2 s on independent data).
@@ -180,6 +186,7 @@ class DiscrepancyConfig(StrictModel):
     diff_step: float = Field(1e-2, gt=0)
     ci_level: float = Field(0.95, gt=0, lt=1)
     contact_timeconst: float = Field(0.005, gt=0)
+    timestep: float | None = Field(None, gt=0, le=0.01)
     friction_cone: str = Field("elliptic", pattern="^(pyramidal|elliptic)$")
     ci_model_error: float = Field(0.3, ge=0)
     ci_jackknife: bool = True
@@ -202,8 +209,10 @@ class DiscrepancyConfig(StrictModel):
 def fit_options(options: SimOptions | None, cfg: DiscrepancyConfig) -> SimOptions:
     """The simulation options of the workflow's fits: ``options`` (params ``sim``) untextured,
     with the base contact of ``cfg`` (``contact_timeconst``, critically damped, on objects and
-    floor; ``friction_cone``). Hidden-effect data made for a benchmark of the workflow use the
+    floor; ``friction_cone``; ``timestep`` where set). Hidden-effect data made for a benchmark of the workflow use the
     same options, so that its base model is the generator's."""
     solref = (float(cfg.contact_timeconst), 1.0)
-    return (options or SimOptions()).model_copy(update={"textured": False, "object_solref": solref,
-                                                        "floor_solref": solref, "cone": cfg.friction_cone})
+    update = {"textured": False, "object_solref": solref, "floor_solref": solref, "cone": cfg.friction_cone}
+    if cfg.timestep is not None:
+        update["timestep"] = float(cfg.timestep)
+    return (options or SimOptions()).model_copy(update=update)
