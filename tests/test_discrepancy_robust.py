@@ -382,3 +382,31 @@ def test_excess_and_explains_by_hand():
     assert not _explains(after, before, cfg.model_copy(update={"race_excess": 0.0}))   # 1.8 > 1.3
     assert _explains(fit([120.0, 125.0, 90.0], [100] * 3), before, cfg.model_copy(update={"race_excess": 0.0}))
     assert not _explains(after, fit([300.0, 300.0, 300.0], [100] * 3), cfg)   # 120 > 0.05 * 600
+
+
+def test_fit_timestep_bounds_the_fits_step_and_keeps_samples_on_steps():
+    """``discrepancy.timestep`` is an upper bound of the fits' physics step: a 60 Hz clip is
+    fitted at the largest step <= 0.0025 s that divides 1/60 s (1/420 s, 7 steps a sample), and
+    a free flight sampled there matches the integrator's closed form, every sample on a step."""
+    import mujoco
+
+    from pipeline.discrepancy.config import fit_options
+    from pipeline.mjcf import compile_model
+    from pipeline.scene import Scene
+    from pipeline.simulate import sample_qpos
+
+    assert fit_options(None, D.DiscrepancyConfig()).timestep == pytest.approx(1 / 600)   # null: sim's step
+    opts = fit_options(None, D.DiscrepancyConfig(timestep=0.0025))
+    assert opts.timestep == 0.0025
+    obj = {"shape": "sphere", "size": {"radius": 0.02}, "mass": 0.02, "position": [0.0, 0.0, 2.0],
+           "linear_velocity": [0.5, 0.0, 1.0], "material": {"sliding_friction": 0.5, "damping": 0.0}}
+    scene = Scene.from_dict({"duration": 0.5, "fps": 60, "camera": {"height": 1.2}, "objects": [obj]})
+    model = compile_model(scene, opts)
+    assert model.opt.timestep == pytest.approx(1 / 420)
+    t = np.arange(31) / 60
+    q = sample_qpos(model, mujoco.MjData(model), 1, t)[:, 0]
+    np.testing.assert_allclose(q[:, 0], 0.5 * t, atol=1e-9)
+    dt = model.opt.timestep      # semi-implicit Euler's closed form: z0 + v0 t - g t (t + dt) / 2
+    np.testing.assert_allclose(q[:, 2], 2.0 + t - 0.5 * 9.81 * t * (t + dt), atol=1e-9)
+    with pytest.raises(ValueError, match="timestep"):
+        D.DiscrepancyConfig(timestep=0.0)
