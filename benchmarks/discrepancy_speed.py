@@ -19,12 +19,12 @@ Usage::
 
     MUJOCO_GL=egl .venv/bin/python benchmarks/discrepancy_speed.py               # ~6 min on 2 cores
     MUJOCO_GL=egl .venv/bin/python benchmarks/discrepancy_speed.py --effects none --skip-serial
+    MUJOCO_GL=egl .venv/bin/python benchmarks/discrepancy_speed.py --skip-serial --timestep-ab 0.0025
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
 from pathlib import Path
@@ -34,7 +34,8 @@ from pipeline.shards import write_json
 
 
 def run_once(seed: int, effect: str, cfg: D.DiscrepancyConfig) -> dict:
-    """Generate the dataset of ``seed``/``effect`` and time one workflow run on it."""
+    """Generate the dataset of ``seed``/``effect`` (on the default settings' model, whatever
+    ``cfg`` fits with) and time one workflow run on it."""
     hidden = D.HiddenConfig(n_clips=8, duration=1.5, fps=60)
     cols, truth = D.generate_hidden(seed, hidden, effect=effect)
     clips = D.clips_from_columns(cols, f"<hidden seed {seed}>")
@@ -52,6 +53,9 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=3000, help="seed of the first dataset")
     ap.add_argument("--workers", type=int, default=2, help="processes of the fast path")
     ap.add_argument("--skip-serial", action="store_true", help="time the fast path only")
+    ap.add_argument("--timestep-ab", type=float, default=None, metavar="DT",
+                    help="also time each dataset with the fits' step bounded by DT s (discrepancy.timestep), "
+                         "same data, alternating with the default in one run: the ratio is the A/B")
     ap.add_argument("--out", default="reports/bench_discrepancy_speed.json")
     args = ap.parse_args()
     load0 = os.getloadavg()
@@ -60,6 +64,12 @@ def main() -> None:
         seed = args.seed + i
         row = {"seed": seed, "effect": effect,
                "fast": run_once(seed, effect, D.DiscrepancyConfig(workers=args.workers))}
+        if args.timestep_ab:
+            row["fast_ab"] = run_once(seed, effect, D.DiscrepancyConfig(workers=args.workers, timestep=args.timestep_ab))
+            row["ab_ratio"] = row["fast_ab"]["seconds"] / row["fast"]["seconds"]
+            row["ab_same_named"] = row["fast_ab"]["named"] == row["fast"]["named"]
+            print(f"{effect:16s} timestep <= {args.timestep_ab:g} s: {row['fast_ab']['seconds']:6.1f} s named "
+                  f"{row['fast_ab']['named']} ({row['ab_ratio']:.2f}x the default's time)", flush=True)
         if not args.skip_serial:
             row["serial"] = run_once(seed, effect, D.DiscrepancyConfig(workers=1, screen_gain=0.0))
             row["ratio"] = row["serial"]["seconds"] / row["fast"]["seconds"]
@@ -72,6 +82,10 @@ def main() -> None:
     summary = {"datasets": len(rows), "fast_mean_s": sum(fast) / len(fast), "fast_max_s": max(fast),
                "workers": args.workers, "load_before": load0, "load_after": os.getloadavg(),
                "cpu_count": os.cpu_count()}
+    if args.timestep_ab:
+        ab = [r["fast_ab"]["seconds"] for r in rows]
+        summary.update(ab_timestep=args.timestep_ab, ab_mean_s=sum(ab) / len(ab), ab_ratio=sum(ab) / sum(fast),
+                       ab_same_named=all(r["ab_same_named"] for r in rows))
     if not args.skip_serial:
         serial = [r["serial"]["seconds"] for r in rows]
         summary.update(serial_mean_s=sum(serial) / len(serial), ratio=sum(serial) / sum(fast),
