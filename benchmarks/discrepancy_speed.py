@@ -65,7 +65,8 @@ def main() -> None:
         row = {"seed": seed, "effect": effect,
                "fast": run_once(seed, effect, D.DiscrepancyConfig(workers=args.workers))}
         if args.timestep_ab:
-            row["fast_ab"] = run_once(seed, effect, D.DiscrepancyConfig(workers=args.workers, timestep=args.timestep_ab))
+            ab_cfg = D.DiscrepancyConfig(workers=args.workers, timestep=args.timestep_ab)
+            row["fast_ab"] = run_once(seed, effect, ab_cfg)
             row["ab_ratio"] = row["fast_ab"]["seconds"] / row["fast"]["seconds"]
             row["ab_same_named"] = row["fast_ab"]["named"] == row["fast"]["named"]
             print(f"{effect:16s} timestep <= {args.timestep_ab:g} s: {row['fast_ab']['seconds']:6.1f} s named "

@@ -209,8 +209,8 @@ class DiscrepancyConfig(StrictModel):
 def fit_options(options: SimOptions | None, cfg: DiscrepancyConfig) -> SimOptions:
     """The simulation options of the workflow's fits: ``options`` (params ``sim``) untextured,
     with the base contact of ``cfg`` (``contact_timeconst``, critically damped, on objects and
-    floor; ``friction_cone``; ``timestep`` where set). Hidden-effect data made for a benchmark of the workflow use the
-    same options, so that its base model is the generator's."""
+    floor; ``friction_cone``; ``timestep`` where set). Hidden-effect data made for a benchmark
+    of the workflow use the same options, so that its base model is the generator's."""
     solref = (float(cfg.contact_timeconst), 1.0)
     update = {"textured": False, "object_solref": solref, "floor_solref": solref, "cone": cfg.friction_cone}
     if cfg.timestep is not None:
