@@ -546,3 +546,35 @@ def test_realvideo_segmenter_weights_pick_the_observations_network(tmp_path, mon
             reconstruct(tmp_path / "no_video.mp4", tmp_path / "out", params, start=0.0)
         assert Path(passed[-1].path) == path
     assert Path(S.shipped().path) == DEFAULT_WEIGHTS       # the default of every other caller
+
+
+def test_left_behind_flags_the_place_a_resting_object_left_and_keeps_a_ball_crossing_its_path():
+    """A box rests at A for 12 of 20 frames, then slides to B: the median background holds it at A,
+    so differencing marks A from frame 12 on (a ghost) while the box is elsewhere. That track lies
+    where the kept box was, in every frame it is seen: a ghost. A ball rolling down across the
+    box's path lies there (half its pixels or more) in 5 of its 20 frames: an object of its own.
+    Whatever lies on the box where the box is in that frame (a small ball in front of it) is not
+    its ghost: only the places the box is not at that time count. With no kept objects nothing is
+    a ghost."""
+    from pipeline.observe import left_behind
+
+    T, H, W = 20, 48, 96
+    box = np.zeros((T, H, W), bool)
+    for t in range(T):
+        x = 10 if t < 12 else 10 + 8 * (t - 11)          # at rest, then 8 px / frame to the right
+        box[t, 20:30, x:x + 10] = True
+    ghost = np.zeros((T, H, W), bool)
+    ghost[12:, 20:30, 10:20] = True                      # A, once the box has left it
+    ball = np.zeros((T, H, W), bool)
+    for t in range(T):
+        y = 2 * t                                        # down through the box's row at t = 8..14
+        ball[t, y:y + 6, 50:56] = True
+    assert left_behind(ghost, [box])
+    in_front = np.zeros((T, H, W), bool)
+    for t in range(12, T):
+        x = 10 + 8 * (t - 11)
+        in_front[t, 22:28, x + 3:x + 7] = True            # on the sliding box, moving with it
+    assert not left_behind(in_front, [box])
+    assert not left_behind(ball, [box])
+    assert not left_behind(ghost, [])
+    assert not left_behind(np.zeros_like(ghost), [box])
