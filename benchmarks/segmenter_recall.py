@@ -52,11 +52,14 @@ def clip_recall(folder: Path, segmenter, size: tuple[int, int], n_frames: int) -
     pos = truth["pos"]                                                    # (T, n, 3) m
     still = np.linalg.norm(pos - pos[:1], axis=-1).max(axis=0) < STILL_M
     objects = meta.get("objects", [{}] * pos.shape[1])
+    # labels + 1 (0 background) at ``size``, once per sampled frame; uint8 holds ids up to 254
+    labels = np.stack([cv2.resize((seg[t].astype(np.int16) + 1).astype(np.uint8), size,
+                                  interpolation=cv2.INTER_NEAREST) for t in idx])       # (F, h, w)
     rows = []
     for k in range(pos.shape[1]):
         rec, area = [], []
-        for j, t in enumerate(idx):
-            m = cv2.resize((seg[t] == k).astype(np.uint8), size, interpolation=cv2.INTER_NEAREST).astype(bool)
+        for j in range(len(idx)):
+            m = labels[j] == k + 1
             if m.sum() >= 4:
                 rec.append(float((fg[j][m] > FG_THRESHOLD).mean()))
                 area.append(int(m.sum()))

@@ -429,11 +429,12 @@ def left_behind(mask: np.ndarray, objects: list) -> bool:
     seen = np.flatnonzero(mask.any(axis=(1, 2)))
     if not objects or not len(seen):
         return False
-    area = mask[seen].sum(axis=(1, 2)).astype(np.float64)                       # (N,)
+    m = mask[seen]                                                                # (N, H, W)
+    area = m.sum(axis=(1, 2)).astype(np.float64)                                 # (N,)
     share = np.zeros(len(seen))
     for obj in objects:
         elsewhere = obj.any(axis=0)[None] & ~obj[seen]                            # (N, H, W)
-        share = np.maximum(share, (mask[seen] & elsewhere).sum(axis=(1, 2)) / area)
+        share = np.maximum(share, (m & elsewhere).sum(axis=(1, 2)) / area)
     return bool(np.median(share) >= GHOST_SHARE)
 
 
