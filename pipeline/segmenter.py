@@ -343,10 +343,39 @@ def _augment(x: torch.Tensor, y: torch.Tensor, gen: torch.Generator, out: tuple[
     return torch.cat([rgb + noise, x[:, 3:]], dim=1), y
 
 
-def loss_fn(logits: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+STATIC_DIFF = 0.04
+"""Difference channel (max RGB difference from the median background, 0..1) below which an object
+pixel is *static*: the background holds it, so only its appearance can mark it (:func:`loss_fn`)."""
+
+
+def loss_fn(logits: torch.Tensor, y: torch.Tensor, x: torch.Tensor | None = None,
+            still_weight: float = 1.0) -> torch.Tensor:
     """Binary cross-entropy of both maps (contact weighted x5, it is rare) plus a soft Dice loss of
-    the foreground (Milletari et al. 2016), so small objects weigh as much as large ones."""
-    bce = F.binary_cross_entropy_with_logits(logits[:, 0], y[:, 0]) + \
+    the foreground (Milletari et al. 2016), so small objects weigh as much as large ones.
+
+    Args:
+        logits: ``(B, 2, H, W)`` float network output (foreground, contact).
+        y: ``(B, 2, H, W)`` float targets in {0, 1} (:func:`targets`).
+        x: ``(B, 4, H, W)`` float network input (:func:`network_input`); needed if ``still_weight != 1``.
+        still_weight: weight of the foreground cross-entropy on *static* object pixels (target 1 and
+            difference channel below :data:`STATIC_DIFF`): an object at rest is in the median
+            background, so the difference channel says nothing about it, and with weight 1 the network
+            learns that no difference means background (issue 36: still objects at pitch 53-86 deg were
+            missed whole). Other pixels weigh 1.
+    Returns:
+        scalar float loss.
+    Raises:
+        SegmenterError: ``still_weight != 1`` without ``x``, or ``still_weight < 1``.
+    """
+    if still_weight < 1.0:
+        raise SegmenterError(f"still_weight: must be >= 1, got {still_weight}")
+    weight = None
+    if still_weight != 1.0:
+        if x is None:
+            raise SegmenterError("still_weight: needs the network input x (its difference channel)")
+        static = (y[:, 0] > 0.5) & (x[:, 3] < STATIC_DIFF)
+        weight = 1.0 + (still_weight - 1.0) * static.float()
+    bce = F.binary_cross_entropy_with_logits(logits[:, 0], y[:, 0], weight=weight) + \
         F.binary_cross_entropy_with_logits(logits[:, 1], y[:, 1], pos_weight=torch.tensor(5.0))
     p = torch.sigmoid(logits[:, 0])
     inter = (p * y[:, 0]).sum(dim=(1, 2))
@@ -358,7 +387,8 @@ def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 12, lr: f
           size: tuple[int, int] = (320, 240), per_clip: int = 12, seed: int = 0,
           max_minutes: float | None = None, log_every: int = 50, init: Path | None = None,
           realism: bool = False, realism_fraction: float = 1.0, channels: tuple[int, ...] = CHANNELS,
-          device: str = "cpu", workers: int = 0, time_schedule: bool = False, mp_context: str = "spawn") -> dict:
+          device: str = "cpu", workers: int = 0, time_schedule: bool = False, mp_context: str = "spawn",
+          still_weight: float = 1.0) -> dict:
     """Train the segmenter on rendered clips and save the checkpoint atomically.
 
     Args:
@@ -381,12 +411,15 @@ def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 12, lr: f
         time_schedule: with ``max_minutes``, the cosine decay runs over the wall time instead of the
             steps, so a run on a machine of unknown speed ends its schedule at the deadline
             (``steps`` is then only an upper bound; the card records the steps done).
+        still_weight: weight of static object pixels in the foreground loss (:func:`loss_fn`).
     Returns:
         the card dict (data, steps done, seconds, final losses).
     Raises:
-        SegmenterError: no clip folder in ``data``, a bad ``init`` checkpoint, or ``time_schedule``
-            without ``max_minutes``.
+        SegmenterError: no clip folder in ``data``, a bad ``init`` checkpoint, ``time_schedule``
+            without ``max_minutes``, or ``still_weight < 1``.
     """
+    if still_weight < 1.0:
+        raise SegmenterError(f"still_weight: must be >= 1, got {still_weight}")
     if time_schedule and max_minutes is None:
         raise SegmenterError("time_schedule: needs max_minutes (the deadline the schedule ends at)")
     if not 0.0 <= realism_fraction <= 1.0:
@@ -421,7 +454,7 @@ def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 12, lr: f
         for g in opt.param_groups:
             g["lr"] = lr * 0.5 * (1 + math.cos(math.pi * min(1.0, progress)))
         x, y = x.to(device, non_blocking=True), y.to(device, non_blocking=True)
-        loss = loss_fn(net(x), y)
+        loss = loss_fn(net(x), y, x, still_weight)
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -441,7 +474,8 @@ def train(data: list[Path], out: Path, steps: int = 3000, batch: int = 12, lr: f
             "per_clip": per_clip, "contact_px": CONTACT_PX, "init": str(init) if init is not None else None,
             "realism": realism, "realism_fraction": realism_fraction if realism else 0.0,
             "channels": list(net.channels), "device": str(device), "workers": workers,
-            "schedule": "time" if time_schedule else "steps", "mp_context": mp_context}
+            "schedule": "time" if time_schedule else "steps", "mp_context": mp_context,
+            "still_weight": still_weight}
     write_json(out.with_suffix(".json"), card)
     return card
 
@@ -519,6 +553,9 @@ def main(argv: list[str] | None = None) -> int:
                         "machine with little shared memory; default %(default)s)")
     t.add_argument("--time-schedule", action="store_true",
                    help="with --max-minutes: the cosine decay runs over the wall time (deadline runs)")
+    t.add_argument("--still-weight", type=float, default=1.0,
+                   help="weight of static object pixels (no difference from the median background) in the "
+                        "foreground loss (default %(default)s)")
     e = sub.add_parser("eval", help="foreground IoU on rendered clips")
     e.add_argument("--data", type=Path, nargs="+", required=True)
     e.add_argument("--weights", type=Path, default=None)
@@ -543,7 +580,8 @@ def main(argv: list[str] | None = None) -> int:
                      max_minutes=args.max_minutes, seed=args.seed, per_clip=args.per_clip, init=args.init,
                      realism=args.realism, realism_fraction=args.realism_fraction,
                      channels=tuple(args.channels), device=args.device, workers=args.workers,
-                     time_schedule=args.time_schedule, mp_context=args.mp_context)
+                     time_schedule=args.time_schedule, mp_context=args.mp_context,
+                     still_weight=args.still_weight)
     else:
         card = evaluate(args.data, args.weights)
     print(json.dumps(card, indent=1))

@@ -278,6 +278,38 @@ def test_interpolate_is_the_weighted_mean_of_two_checkpoints(tmp_path):
         interpolate(tmp_path / "a.pt", tmp_path / "small.pt", tmp_path / "x.pt")
 
 
+def test_still_weight_scales_the_cross_entropy_of_static_object_pixels_only():
+    """loss_fn(still_weight=w): a missed object pixel the background holds (difference channel
+    below STATIC_DIFF) pulls w times as hard in the cross-entropy as with w = 1; a missed moving
+    object pixel and a background pixel are unchanged; w < 1 or w without the input is one error."""
+    from pipeline.segmenter import STATIC_DIFF, loss_fn
+    H, W = 4, 4
+    y = torch.zeros(1, 2, H, W)
+    y[0, 0, 0, 0] = 1.0                       # static object pixel
+    y[0, 0, 0, 1] = 1.0                       # moving object pixel
+    x = torch.zeros(1, 4, H, W)
+    x[0, 3, 0, 1] = 0.5                       # it differs from the background
+    x[0, 3, 0, 0] = 0.5 * STATIC_DIFF
+    x[0, 3, 1, 1] = 0.5                       # a background pixel that differs (a shadow)
+
+    def grad(w: float) -> torch.Tensor:
+        logits = torch.full((1, 2, H, W), -2.0, requires_grad=True)   # everything called background
+        loss_fn(logits, y, x, still_weight=w).backward()
+        return logits.grad[0, 0]
+
+    g1, g5 = grad(1.0), grad(5.0)
+    # the BCE term's gradient on a target-1 pixel at logit -2 is (sigmoid(-2) - 1) / (H * W)
+    bce = (torch.sigmoid(torch.tensor(-2.0)) - 1.0) / (H * W)
+    torch.testing.assert_close(g5[0, 0] - g1[0, 0], 4.0 * bce)
+    torch.testing.assert_close(g5[0, 1], g1[0, 1])
+    torch.testing.assert_close(g5[1, 1], g1[1, 1])
+    assert g5[0, 0] < g5[0, 1] < 0           # the static miss now costs most
+    with pytest.raises(SegmenterError, match="still_weight"):
+        loss_fn(torch.zeros(1, 2, H, W), y, still_weight=5.0)
+    with pytest.raises(SegmenterError, match="still_weight"):
+        loss_fn(torch.zeros(1, 2, H, W), y, x, still_weight=0.5)
+
+
 def _square_track(T: int = 10, step: float = 1.0, size: int = 6) -> np.ndarray:
     """``(T, 32, 48)`` bool masks of a square moving ``step`` px right per frame."""
     m = np.zeros((T, 32, 48), bool)
