@@ -367,15 +367,15 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
     movers, unseen = [x for x in movers if rigid_size(x[1])], [x for x in unseen if rigid_size(x[1])]
     stills = [(tr, m) for tr, m in stills if rigid_size(m)]      # flicker, captions: not one rigid body
     _dropped(candidates, [x[1] for x in movers + stills], "rigid_size")
-    if movers or unseen:
-        ref = float(np.median([np.median(m.sum(axis=(1, 2))[m.any(axis=(1, 2))]) for _, m, _ in movers + unseen]))
-        stills = [(tr, m) for tr, m in stills if rest_size_class(float(np.median(tr.area)), ref)]
+    keep_unseen, keep_still, ref = movers_and_stills_of_one_scene(
+        [m for _, m, _ in movers], [m for _, m, _ in unseen], [m for _, m in stills],
+        [float(np.median(tr.area)) for tr, _ in stills])
+    unseen = [x for x, k in zip(unseen, keep_unseen) if k]
+    stills = [x for x, k in zip(stills, keep_still) if k]
+    if ref is not None:
         for c in candidates or []:
             c["size_ratio"] = c["area"] / ref
         _dropped(candidates, [x[1] for x in movers + stills], "size_class")
-    if stills and unseen:   # a crescent of a slow whole object is that object, not a mover of its own
-        held = np.logical_or.reduce([m for _, m in stills])
-        unseen = [(tr, m, f) for tr, m, f in unseen if (m & held).sum() <= 0.5 * m.sum()]
     kept = [m for _, m, _ in movers] + [m for _, m in stills]
     unseen = [x for x in unseen if not left_behind(x[1], kept)]   # where a kept object was: a ghost
     by_frames = lambda x: -int(x[1].any(axis=(1, 2)).sum())  # noqa: E731
@@ -402,6 +402,41 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
 GHOST_SHARE = 0.5
 """A background-subtraction track is a ghost (:func:`left_behind`) when in most of its frames at
 least this share of its pixels lies where a kept object is at another time of the window."""
+
+
+def movers_and_stills_of_one_scene(movers: list, unseen: list, stills: list, still_areas: list
+                                   ) -> tuple[list[bool], list[bool], float | None]:
+    """Which background-subtraction movers and objects at rest of :func:`hybrid_objects` stay,
+    in this order:
+
+    1. a background-subtraction mover (``unseen``) at least half of whose pixels lie on an object
+       at rest is a crescent of that slow whole object, not a mover of its own;
+    2. the movers' reference area ``ref`` is the median, over the segmenter's movers and the
+       background-subtraction movers left, of each one's median area over the frames it is seen in;
+       an object at rest stays when its median area is of that size class (:func:`rest_size_class`).
+
+    The crescents go first: a crescent is a part of an object, and as the reference it made a
+    tall box at rest beside a slow cylinder 35 times "the movers' size" (MuJoCo dev2 clip 9 with
+    a retrained segmenter, ``docs/observation.md``).
+
+    Args:
+        movers: ``(T, H, W)`` bool masks of the segmenter's movers.
+        unseen: ``(T, H, W)`` bool masks of the movers only background subtraction saw.
+        stills: ``(T, H, W)`` bool masks of the objects at rest.
+        still_areas: median area (px) of each object at rest's track, as ``stills``.
+    Returns:
+        ``(keep_unseen, keep_still, ref)``: a bool per ``unseen`` and per ``stills``, and the
+        reference area in px (None when no mover is left: every object at rest then stays).
+    """
+    keep_unseen = [True] * len(unseen)
+    if stills and unseen:
+        held = np.logical_or.reduce(stills)
+        keep_unseen = [bool((m & held).sum() <= 0.5 * m.sum()) for m in unseen]
+    left = list(movers) + [m for m, k in zip(unseen, keep_unseen) if k]
+    if not left:
+        return keep_unseen, [True] * len(stills), None
+    ref = float(np.median([np.median(m.sum(axis=(1, 2))[m.any(axis=(1, 2))]) for m in left]))
+    return keep_unseen, [rest_size_class(a, ref) for a in still_areas], ref
 
 
 def left_behind(mask: np.ndarray, objects: list) -> bool:

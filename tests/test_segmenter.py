@@ -580,6 +580,37 @@ def test_realvideo_segmenter_weights_pick_the_observations_network(tmp_path, mon
     assert Path(S.shipped().path) == DEFAULT_WEIGHTS       # the default of every other caller
 
 
+def test_a_crescent_of_a_slow_object_does_not_set_the_movers_size_class():
+    """movers_and_stills_of_one_scene: a background-subtraction crescent lying on a slow object at
+    rest is dropped before the movers' size is taken, so a tall box at rest 100 times the
+    crescent's area but 4 times the slow object's stays; beside a true small mover of its own
+    (a ball elsewhere) the same box, 64 times the ball, is scenery-sized and goes."""
+    from pipeline.observe import REST_SIZE_CLASS, movers_and_stills_of_one_scene
+
+    T, H, W = 6, 120, 160
+    slow = np.zeros((T, H, W), bool)
+    slow[:, 50:60, 10:30] = True                      # 200 px, at rest or nearly
+    crescent = np.zeros((T, H, W), bool)
+    crescent[:, 50:60, 27:31] = True                  # 40 px, 3/4 of it on the slow object
+    box = np.zeros((T, H, W), bool)
+    box[:, 20:60, 80:100] = True                      # 800 px
+    ball = np.zeros((T, H, W), bool)
+    for t in range(T):
+        ball[t, 100:104, 10 + 10 * t:14 + 10 * t] = True   # 16 px, moving
+    areas = [200.0, 800.0]
+    assert 800 / 40 < REST_SIZE_CLASS < 800 / 16     # only the order decides the crescent case
+
+    keep_unseen, keep_still, ref = movers_and_stills_of_one_scene([], [crescent], [slow, box], areas)
+    assert keep_unseen == [False] and keep_still == [True, True] and ref is None
+    crescent[:] = False
+    crescent[:, 70:80, 27:31] = True                  # the same track elsewhere: a mover of its own
+    keep_unseen, keep_still, ref = movers_and_stills_of_one_scene([], [crescent], [slow, box], areas)
+    assert keep_unseen == [True] and ref == pytest.approx(40.0) and keep_still == [True, True]
+    keep_unseen, keep_still, ref = movers_and_stills_of_one_scene([ball], [], [slow, box], areas)
+    assert ref == pytest.approx(16.0) and keep_still == [True, False]
+    assert movers_and_stills_of_one_scene([], [], [box], [800.0]) == ([], [True], None)
+
+
 def test_left_behind_flags_the_place_a_resting_object_left_and_keeps_a_ball_crossing_its_path():
     """A box rests at A for 12 of 20 frames, then slides to B: the median background holds it at A,
     so differencing marks A from frame 12 on (a ghost) while the box is elsewhere. That track lies
