@@ -19,8 +19,8 @@ from pipeline.params import load_params
 from pipeline.raft.estimator import (DEFAULT_WEIGHTS, RaftFlow, RaftWeightsError, arch_of, load_raft, read_state,
                                      save_raft, working_scale)
 from pipeline.raft.model import RAFT, CorrPyramid, RaftArch, upsample_convex
-from pipeline.raft.pairs import chairs_pair
-from pipeline.raft.train import epe, learning_rate, sequence_loss
+from pipeline.raft.pairs import chairs_pair, still_camera_pair
+from pipeline.raft.train import epe, learning_rate, make_batch, sequence_loss
 
 # (key without "module.", shape) of the released checkpoints; a sample of every kind of layer
 RAFT_SMALL_KEYS = {
@@ -171,6 +171,49 @@ def test_chairs_pairs_have_exact_flow():
         errs_flow.append(np.median(np.abs(back.astype(float) - a)[inner]))
         errs_zero.append(np.median(np.abs(b.astype(float) - a)[inner]))
     assert np.mean(errs_flow) < 0.5 * np.mean(errs_zero)
+
+
+def test_still_camera_pairs_keep_the_background_and_move_small_objects_exactly():
+    """A still-camera pair: where the flow is zero the two images agree (the background does not
+    move), the moving pixels are a small share of the frame with objects of a few px among them,
+    and warping image 2 back with the flow reproduces image 1 on them far better than zero flow."""
+    import cv2
+
+    rng = np.random.default_rng(11)
+    yy, xx = np.mgrid[0:96, 0:128].astype(np.float32)
+    moving_share, bg_changed, errs_flow, errs_zero, smallest = [], [], [], [], []
+    for _ in range(30):
+        a, b, f = still_camera_pair(rng, 96, 128, max_shift=8.0)
+        assert a.shape == b.shape == (96, 128, 3) and a.dtype == np.uint8 and f.shape == (96, 128, 2)
+        moving = np.linalg.norm(f, axis=-1) > 0.05
+        moving_share.append(moving.mean())
+        n, labels = cv2.connectedComponents(moving.astype(np.uint8))
+        if n > 1:
+            smallest.append(min(np.sum(labels == i) for i in range(1, n)))
+        # background far (4 px) from any object in either image is the same image, up to the final blur
+        near = cv2.dilate((moving | (np.abs(a.astype(int) - b).max(-1) > 0)).astype(np.uint8), np.ones((9, 9)))
+        static = ~moving
+        bg_changed.append(np.mean(np.abs(a.astype(int) - b).max(-1)[static & (near == 0)] > 0) if (static & (near == 0)).any() else 0)
+        if moving.sum() > 20:
+            back = cv2.remap(b, xx + f[..., 0], yy + f[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+            errs_flow.append(np.median(np.abs(back.astype(float) - a).max(-1)[moving]))
+            errs_zero.append(np.median(np.abs(b.astype(float) - a).max(-1)[moving]))
+    assert max(bg_changed) == 0
+    assert 0 < np.mean(moving_share) < 0.1
+    assert min(smallest) <= 16                      # objects of a few pixels are drawn
+    assert np.mean(errs_flow) < 0.5 * np.mean(errs_zero)
+
+
+def test_make_batch_mixes_still_camera_pairs_and_refuses_bad_shares():
+    """``still_fraction=1`` gives only still-camera pairs (zero flow on most pixels); shares that
+    do not fit in [0, 1] are refused with a message naming them."""
+    rgb, flow = np.zeros((1, 2, 64, 96, 3), np.uint8), np.zeros((1, 1, 64, 96, 2), np.float16)
+    i1, i2, f = make_batch(np.random.default_rng(0), rgb, flow, 4, 0.0, crop=(64, 96), still_fraction=1.0)
+    assert i1.shape == (4, 3, 64, 96) and f.shape == (4, 2, 64, 96)
+    share = (f.norm(dim=1) > 0.05).float().mean(dim=(1, 2))
+    assert (share < 0.5).all() and (share > 0).any()
+    with pytest.raises(ValueError, match="still_fraction"):
+        make_batch(np.random.default_rng(0), rgb, flow, 2, 0.6, still_fraction=0.6)
 
 
 def test_sequence_loss_by_hand():

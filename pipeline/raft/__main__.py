@@ -26,6 +26,8 @@ def main(argv: list[str] | None = None) -> int:
     t.add_argument("--iters", type=int, default=8, help="GRU updates per pair while training")
     t.add_argument("--lr", type=float, default=4e-4, help="peak learning rate of the one-cycle schedule")
     t.add_argument("--chairs-fraction", type=float, default=0.5, help="share of procedural pairs per batch")
+    t.add_argument("--still-fraction", type=float, default=0.0,
+                   help="share of still-camera pairs (small objects over a still background) per batch")
     t.add_argument("--max-minutes", type=float, default=60.0, help="stop (and save) after this much training time")
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--resume", action="store_true", help="continue from OUT.ckpt")
@@ -64,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
           chairs_fraction=args.chairs_fraction, max_minutes=args.max_minutes, seed=args.seed, resume=args.resume,
           crop=tuple(args.crop) if args.crop else None, init=args.init, data=args.data, textures=args.textures,
           device=args.device, workers=args.workers, eval_every=args.eval_every,
-          checkpoint_every=args.checkpoint_every)
+          checkpoint_every=args.checkpoint_every, still_fraction=args.still_fraction)
     return 0
 
 

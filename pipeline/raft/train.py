@@ -1,11 +1,13 @@
 """Train RAFT here on the CPU: this project's ground-truth flow plus procedural chairs-style pairs.
 
-Data (each batch half and half, ``--chairs-fraction``):
+Data (shares per batch: ``--chairs-fraction``, ``--still-fraction``, the rest rendered):
 
 - the render stage's clips of split ``train`` (``paths.video``: rgb and the simulator's exact
   flow), frames upscaled by :func:`pipeline.raft.estimator.working_scale` exactly as at test time;
 - :func:`pipeline.raft.pairs.chairs_pair` pairs at the same size, so the network sees textures,
-  motions and edges MuJoCo does not render.
+  motions and edges MuJoCo does not render;
+- :func:`pipeline.raft.pairs.still_camera_pair` pairs: a still background and small objects of
+  3 px and up moving over it, some smeared, as a fixed camera films a ball or a puck.
 
 Both get the same photometric augmentation (gain, bias, per-channel colour, noise, blur) and
 horizontal flips. Loss: the release's sequence loss, ``sum_i gamma^(N-i) |f_i - f_gt|_1`` with
@@ -45,7 +47,7 @@ import torch
 from pipeline import shards
 from pipeline.raft.estimator import RaftFlow, save_raft, working_scale
 from pipeline.raft.model import RAFT, RaftArch
-from pipeline.raft.pairs import chairs_pair
+from pipeline.raft.pairs import chairs_pair, still_camera_pair
 
 GAMMA = 0.8
 """Weight decay of earlier iterates in the sequence loss (release value)."""
@@ -163,24 +165,39 @@ SHIFTS = (4.0, 10.0, 20.0, 32.0)
 
 def make_batch(rng: np.random.Generator, rgb: np.ndarray, flow: np.ndarray, batch: int,
                chairs_fraction: float, crop: tuple[int, int] | None = None,
-               textures: np.ndarray | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+               textures: np.ndarray | None = None, still_fraction: float = 0.0
+               ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``img1, img2 (B, 3, h, w)`` float [0, 255] and ``flow (B, 2, h, w)`` px at the working size,
-    or ``crop = (h, w)`` windows of it (multiples of 8); ``textures``: see
-    :func:`pipeline.raft.pairs.chairs_pair`."""
-    return _to_tensors(_batch_arrays(rng, rgb, flow, batch, chairs_fraction, crop, textures))
+    or ``crop = (h, w)`` windows of it (multiples of 8). Each pair is a chairs pair with probability
+    ``chairs_fraction``, a still-camera pair (:func:`pipeline.raft.pairs.still_camera_pair`) with
+    probability ``still_fraction``, else a rendered pair; ``textures``: see
+    :func:`pipeline.raft.pairs.chairs_pair`.
+
+    Raises:
+        ValueError: fractions outside [0, 1] or summing to more than 1.
+    """
+    return _to_tensors(_batch_arrays(rng, rgb, flow, batch, chairs_fraction, crop, textures, still_fraction))
 
 
 def _batch_arrays(rng: np.random.Generator, rgb: np.ndarray, flow: np.ndarray, batch: int,
                   chairs_fraction: float, crop: tuple[int, int] | None = None,
-                  textures: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  textures: np.ndarray | None = None, still_fraction: float = 0.0
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`make_batch` as ``(B, h, w, C)`` float32 numpy arrays (what DataLoader workers send)."""
+    if not (0 <= chairs_fraction <= 1 and 0 <= still_fraction <= 1 and chairs_fraction + still_fraction <= 1):
+        raise ValueError(f"chairs_fraction {chairs_fraction} + still_fraction {still_fraction}: "
+                         "each must be in [0, 1] and their sum at most 1")
     H, W = rgb.shape[2:4]
     s = working_scale(H, W)
     h, w = round(H * s), round(W * s)
     i1, i2, fl = [], [], []
     for _ in range(batch):
-        if rng.random() < chairs_fraction:
+        r = rng.random()
+        if r < chairs_fraction:
             a, b, f = chairs_pair(rng, *(crop or (h, w)), max_shift=float(rng.choice(SHIFTS)), textures=textures)
+        elif r < chairs_fraction + still_fraction:
+            a, b, f = still_camera_pair(rng, *(crop or (h, w)), max_shift=float(rng.choice(SHIFTS[:3])),
+                                        textures=textures)
         else:
             n, t = int(rng.integers(len(rgb))), int(rng.integers(flow.shape[1]))
             a, b, f = _upscale(rgb[n, t], rgb[n, t + 1], flow[n, t], s)
@@ -261,13 +278,14 @@ def train(video: Path, configs: Path, out: Path, steps: int = 4000, batch: int =
           resume: bool = False, checkpoint_every: int = 100, eval_every: int = 500,
           arch: RaftArch = RaftArch(small=True, convex=True), crop: tuple[int, int] | None = None,
           init: Path | None = None, data: Path | None = None, textures: Path | None = None,
-          device: str = "cpu", workers: int = 0) -> dict:
+          device: str = "cpu", workers: int = 0, still_fraction: float = 0.0) -> dict:
     """Train and write ``out`` (weights) and ``out.json`` (summary, returned). See module doc.
 
     ``data``: an :func:`export_data` file used instead of the shards ``video``/``configs``;
     ``textures``: a ``.npz`` with a ``bank`` array (:func:`pipeline.raft.pairs.texture_bank`);
     ``device``: torch device of the network; ``workers``: DataLoader processes making batches
-    (0: in this process, the random state checkpointed with the network)."""
+    (0: in this process, the random state checkpointed with the network); ``still_fraction``:
+    share of :func:`pipeline.raft.pairs.still_camera_pair` pairs per batch."""
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
     if data is not None:
@@ -304,7 +322,7 @@ def train(video: Path, configs: Path, out: Path, steps: int = 4000, batch: int =
     batches = None
     if workers > 0:
         batches = iter(torch.utils.data.DataLoader(
-            _Batches(seed, step, rgb, flow, batch, chairs_fraction, crop, bank), batch_size=None,
+            _Batches(seed, step, rgb, flow, batch, chairs_fraction, crop, bank, still_fraction), batch_size=None,
             num_workers=workers, pin_memory=dev.type == "cuda", prefetch_factor=4,
             multiprocessing_context="spawn"))   # a fork can hang on thread pools (OpenMP, EGL) the parent started
     start, losses = time.time(), []
@@ -322,7 +340,8 @@ def train(video: Path, configs: Path, out: Path, steps: int = 4000, batch: int =
         for group in opt.param_groups:
             group["lr"] = rate
         i1, i2, gt = _to_tensors(next(batches)) if batches is not None else make_batch(rng, rgb, flow, batch,
-                                                                                       chairs_fraction, crop, bank)
+                                                                                       chairs_fraction, crop, bank,
+                                                                                       still_fraction)
         i1, i2, gt = (x.to(dev, non_blocking=True) for x in (i1, i2, gt))
         loss = sequence_loss(net(i1, i2, iters=iters), gt)
         opt.zero_grad(set_to_none=True)
@@ -349,7 +368,7 @@ def train(video: Path, configs: Path, out: Path, steps: int = 4000, batch: int =
     minutes = spent + (time.time() - start) / 60
     v = validate(net, vrgb, vflow, vseg)
     summary = {"steps": step, "minutes": round(minutes, 1), "batch": batch, "train_iters": iters, "lr": lr,
-               "chairs_fraction": chairs_fraction, "crop": list(crop) if crop else None,
+               "chairs_fraction": chairs_fraction, "still_fraction": still_fraction, "crop": list(crop) if crop else None,
                "init": str(init) if init else None, "seed": seed, "device": str(dev), "workers": workers,
                "textures": {"file": str(textures), "frames": int(len(bank))} if bank is not None else None, "arch": {"small": arch.small, "convex": arch.convex},
                "parameters": sum(p.numel() for p in net.parameters()),
