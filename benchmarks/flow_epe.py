@@ -9,8 +9,10 @@ photometric error on real clips, and time per frame pair on 2 cores.
 3. **Real clips** (the 19 of ``../shared/data/real``; no true flow): the photometric warping error
    ``|I_t(x) - I_{t+1}(x + f(x))|`` (grey levels, 0-255) over the pixels where the frames differ
    by more than 10 grey levels (where zero flow is wrong), at 30 frames per true second in the
-   main job's window (:func:`pipeline.observe.choose_window`), 160 px wide. Zero flow is listed
-   as the floor to beat.
+   main job's window (:func:`pipeline.observe.choose_window`), 160 px wide; and the per-pixel
+   minimum of it and the backward error (:func:`min_reprojection_error`), which does not punish
+   the true flow where an object moves onto the background. Both are checked against the true
+   flow on the PyBullet clips. Zero flow is listed as the floor to beat.
 4. **Time** per pair on a 16-frame clip at 96x64 and 160x120 (wall clock, this machine, best of
    3 runs; RAFT encodes each frame once and refines 8 pairs per batch).
 
@@ -72,24 +74,44 @@ def synthetic(methods: dict, test: tuple[np.ndarray, np.ndarray, np.ndarray]) ->
 
 
 def pybullet(methods: dict, root: Path, stride: int) -> dict:
-    """EPE (px) on the PyBullet truth-set clips (every ``stride``-th pair)."""
+    """EPE (px) on the PyBullet truth-set clips (every ``stride``-th pair), and the photometric
+    errors of the real-clip section on the same frames, for each method and for the true flow:
+    a warping error that scores the truth worse than a method does not measure flow."""
     from pipeline.truthsets.flow import truth_flow
     folders = sorted(p for s in ("dev", "heldout") for p in (root / s).glob("clip-*") if (p / "truth.npz").is_file())
     if not folders:
         return {"clips": 0, "note": f"no clips under {root} (python -m pipeline.truthsets generate --engine pybullet)"}
     errs = {name: {"all": [], "fg": []} for name in [*methods, "zero flow"]}
+    photo = {name: np.zeros(4) for name in ["true flow", *methods, "zero flow"]}   # sum fwd, n fwd, sum min, n min
     for folder in tqdm(folders, desc="pybullet clips", leave=False):
         frames = read_video(folder / "video.mp4").frames
         gt, valid = truth_flow(folder)
+        gt_back, _ = truth_flow(folder, backward=True)
         seg = np.load(folder / "truth.npz")["seg"]
         idx = np.arange(0, len(gt), stride)
-        for name, fn in methods.items():
-            pred = np.concatenate([fn(frames[t:t + 2]) for t in idx])
-            _accumulate(errs[name], pred, gt[idx], valid[idx], seg[idx] >= 0)
+        zero = np.zeros_like(gt[0])
+        for name, fn in [*methods.items(), ("true flow", None), ("zero flow", None)]:
+            if fn is not None:
+                pred = np.concatenate([fn(frames[t:t + 2]) for t in idx])
+                _accumulate(errs[name], pred, gt[idx], valid[idx], seg[idx] >= 0)
+            for i, t in enumerate(idx):
+                if t < 1:
+                    continue
+                if name == "true flow":
+                    fwd, bwd = gt[t], gt_back[t - 1]
+                elif name == "zero flow":
+                    fwd, bwd = zero, zero
+                else:
+                    fwd, bwd = pred[i], fn(frames[[t, t - 1]])[0]
+                e, n = photometric_error(frames[t:t + 2], fwd[None])
+                em, nm = min_reprojection_error(frames[t - 1:t + 2], np.stack([zero, fwd]), np.stack([bwd, zero]))
+                photo[name] += [e * n if n else 0.0, n, em * nm if nm else 0.0, nm]
         _accumulate(errs["zero flow"], np.zeros_like(gt[idx]), gt[idx], valid[idx], seg[idx] >= 0)
     return {"clips": len(folders), "pair_stride": stride, "size": [int(frames.shape[2]), int(frames.shape[1])],
             "rows": {n: {"epe_all": float(np.mean(e["all"])), "epe_fg": float(np.nanmean(e["fg"]))}
-                     for n, e in errs.items()}}
+                     for n, e in errs.items()},
+            "photometric": {n: {"forward": float(p[0] / max(p[1], 1)), "min_reprojection": float(p[2] / max(p[3], 1))}
+                            for n, p in photo.items()}}
 
 
 def _accumulate(acc: dict, pred: np.ndarray, gt: np.ndarray, valid: np.ndarray, fg: np.ndarray) -> None:
@@ -100,24 +122,76 @@ def _accumulate(acc: dict, pred: np.ndarray, gt: np.ndarray, valid: np.ndarray, 
 def photometric_error(frames: np.ndarray, flow: np.ndarray) -> tuple[float, int]:
     """Mean ``|I_t(x) - I_{t+1}(x + f(x))|`` (grey, 0-255) over pixels that differ by more than
     :data:`PHOTO_THRESHOLD` between t and t+1 and whose target lies in the frame; and their count."""
-    grey = frames.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)
-    H, W = grey.shape[1:]
-    yy, xx = np.mgrid[0:H, 0:W].astype(np.float32)
+    grey = _grey(frames)
     total, count = 0.0, 0
     for t in range(len(flow)):
-        mx, my = xx + flow[t, ..., 0], yy + flow[t, ..., 1]
-        warped = cv2.remap(grey[t + 1], mx, my, cv2.INTER_LINEAR)
-        m = (np.abs(grey[t] - grey[t + 1]) > PHOTO_THRESHOLD) & (mx >= 0) & (mx <= W - 1) & (my >= 0) & (my <= H - 1)
-        total += float(np.abs(grey[t] - warped)[m].sum())
+        err, inside = _warp_error(grey[t], grey[t + 1], flow[t])
+        m = (np.abs(grey[t] - grey[t + 1]) > PHOTO_THRESHOLD) & inside
+        total += float(err[m].sum())
         count += int(m.sum())
     return (total / count if count else float("nan")), count
 
 
+def min_reprojection_error(frames: np.ndarray, flow: np.ndarray, back: np.ndarray) -> tuple[float, int]:
+    """The per-pixel minimum of the forward and the backward warping error (grey, 0-255), for the
+    frames t = 1..T-2 that have both neighbours: ``min(|I_t(x) - I_{t+1}(x + f(x))|,
+    |I_t(x) - I_{t-1}(x + b(x))|)`` over the pixels that differ by more than
+    :data:`PHOTO_THRESHOLD` from *both* neighbours, and their count.
+
+    The forward error alone punishes a *correct* flow where an object moves onto the background:
+    there the background's true flow is 0, but frame t+1 shows the object, so the error is large,
+    and a flow smeared over the object's surroundings scores better than the truth. Such a pixel
+    is usually visible in frame t-1, so the minimum over both directions removes that penalty
+    (the per-pixel minimum reprojection loss of Godard et al., "Digging Into Self-Supervised
+    Monocular Depth Estimation", ICCV 2019, sec. 3.3). Counting only pixels that change both ways
+    keeps zero flow from scoring there by that same minimum (a pixel one neighbour explains
+    unwarped), as Godard et al.'s auto-masking of pixels the identity explains. The PyBullet
+    section of the report checks it against the true flow.
+
+    Args:
+        frames: ``(T, H, W, 3)`` uint8.
+        flow: ``(T-1, H, W, 2)`` px, pair t forward from frame t to t+1.
+        back: ``(T-1, H, W, 2)`` px, pair t backward from frame t+1 to t (a method's flow of the
+            clip played backwards, reversed: :func:`backward_flow`).
+    """
+    grey = _grey(frames)
+    total, count = 0.0, 0
+    for t in range(1, len(flow)):
+        fwd, inside = _warp_error(grey[t], grey[t + 1], flow[t])
+        bwd, inside_back = _warp_error(grey[t], grey[t - 1], back[t - 1])
+        err = np.minimum(np.where(inside, fwd, np.inf), np.where(inside_back, bwd, np.inf))
+        m = ((np.abs(grey[t] - grey[t + 1]) > PHOTO_THRESHOLD) & (np.abs(grey[t] - grey[t - 1]) > PHOTO_THRESHOLD)
+             & (inside | inside_back))
+        total += float(err[m].sum())
+        count += int(m.sum())
+    return (total / count if count else float("nan")), count
+
+
+def backward_flow(fn, frames: np.ndarray) -> np.ndarray:
+    """``(T-1, H, W, 2)``: pair t's flow from frame t+1 back to frame t, by ``fn`` on the clip
+    played backwards."""
+    return np.ascontiguousarray(fn(np.ascontiguousarray(frames[::-1]))[::-1])
+
+
+def _grey(frames: np.ndarray) -> np.ndarray:
+    return frames.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)
+
+
+def _warp_error(grey_t: np.ndarray, grey_other: np.ndarray, flow: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``|I_t(x) - I_other(x + f(x))|`` (bilinear) and where ``x + f(x)`` lies in the frame."""
+    H, W = grey_t.shape
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float32)
+    mx, my = xx + flow[..., 0], yy + flow[..., 1]
+    warped = cv2.remap(grey_other, mx.astype(np.float32), my.astype(np.float32), cv2.INTER_LINEAR)
+    return np.abs(grey_t - warped), (mx >= 0) & (mx <= W - 1) & (my >= 0) & (my <= H - 1)
+
+
 def real(methods: dict) -> dict:
-    """Photometric error per real clip and the mean over clips."""
+    """Photometric errors per real clip (forward warping, :func:`photometric_error`, and the
+    per-pixel minimum over both directions, :func:`min_reprojection_error`) and their means."""
     sys.path.insert(0, str(ROOT / "scripts"))
     from realvideo_all import CLIPS
-    per_clip, skipped, names = {}, {}, [*methods, "zero flow"]
+    per_clip, per_clip_min, skipped, names = {}, {}, {}, [*methods, "zero flow"]
     for clip, rel, fps in tqdm(CLIPS, desc="real clips", leave=False):
         path = REAL / rel
         if not path.is_file():
@@ -131,14 +205,20 @@ def real(methods: dict) -> dict:
         W0, H0 = probe.original_size
         c = read_video(path, fps=fps, start=start, duration=length + 1 / 30, size=(160, max(2, round(160 * H0 / W0 / 2) * 2)))
         frames = resample(c.frames, c.fps, 30, length)
-        per_clip[clip] = {}
+        per_clip[clip], per_clip_min[clip] = {}, {}
+        zero = np.zeros((len(frames) - 1, *frames.shape[1:3], 2), np.float32)
         for name in names:
-            flow = np.zeros((len(frames) - 1, *frames.shape[1:3], 2), np.float32) if name == "zero flow" else methods[name](frames)
+            flow = zero if name == "zero flow" else methods[name](frames)
+            back = zero if name == "zero flow" else backward_flow(methods[name], frames)
             per_clip[clip][name] = photometric_error(frames, flow)[0]
-    mean = {n: float(np.nanmean([per_clip[c][n] for c in per_clip])) for n in names}
-    wins = {n: int(sum(per_clip[c][n] <= min(per_clip[c][m] for m in names if m != "zero flow") + 1e-9
-                       for c in per_clip)) for n in names if n != "zero flow"}
-    return {"clips": len(per_clip), "mean": mean, "best_on": wins, "per_clip": per_clip, "skipped": skipped}
+            per_clip_min[clip][name] = min_reprojection_error(frames, flow, back)[0]
+    out = {"clips": len(per_clip), "skipped": skipped}
+    for key, table in (("", per_clip), ("_min", per_clip_min)):
+        out["mean" + key] = {n: float(np.nanmean([table[c][n] for c in table])) for n in names}
+        out["best_on" + key] = {n: int(sum(table[c][n] <= min(table[c][m] for m in names if m != "zero flow") + 1e-9
+                                           for c in table)) for n in names if n != "zero flow"}
+        out["per_clip" + key] = table
+    return out
 
 
 def timing(methods: dict, rgb: np.ndarray) -> dict:
@@ -198,46 +278,54 @@ def figure(methods: dict, test: tuple[np.ndarray, np.ndarray, np.ndarray], pybul
 def markdown(res: dict) -> str:
     s, p, r, t = res["synthetic"], res["pybullet"], res["real"], res["timing"]
     names = list(t["ms_per_pair"])
+    fmt = lambda d, k: f"{d[k]:.3f}" if k in d else "-"  # noqa: E731
     lines = ["# Optical flow: DIS, Farneback and RAFT", "",
              f"`{res['command']}` on tree `{res['tree']}` ({res['date']}, {t['threads']} torch threads).", "",
              f"RAFT weights: {', '.join(f'{k} = `{v}`' for k, v in res['raft_weights'].items())}.", "",
              "![flow of two test pairs](flow_epe.png)", "",
-             "| method | synthetic EPE fg / all (px) | PyBullet EPE fg / all (px) | real photometric error (grey) | "
-             "real clips best on | ms/pair 96x64 | ms/pair 160x120 |", "|---|---|---|---|---|---|---|"]
+             "| method | synthetic EPE fg / all (px) | PyBullet EPE fg / all (px) | real min-reprojection error (grey) | "
+             "real clips best on | real forward warping error | ms/pair 96x64 | ms/pair 160x120 |",
+             "|---|---|---|---|---|---|---|---|"]
     for n in [*names, "zero flow"]:
-        sy = s["rows"].get(n, {})
-        pb = p.get("rows", {}).get(n, {})
-        tm = t["ms_per_pair"].get(n, {})
-        fmt = lambda d, k: f"{d[k]:.3f}" if k in d else "-"  # noqa: E731
+        sy, pb, tm = s["rows"].get(n, {}), p.get("rows", {}).get(n, {}), t["ms_per_pair"].get(n, {})
+        best = f"{r['best_on_min'][n]} of {r['clips']}" if n in r["best_on_min"] else "-"
+        ms = [f"{tm[k]:.1f}" if k in tm else "-" for k in ("96x64", "160x120")]
         lines.append(f"| {n} | {fmt(sy, 'epe_fg')} / {fmt(sy, 'epe_all')} | {fmt(pb, 'epe_fg')} / {fmt(pb, 'epe_all')} | "
-                     f"{r['mean'][n]:.2f} | {r['best_on'].get(n, '-')} of {r['clips']} | "
-                     f"{tm.get('96x64', float('nan')):.1f} | {tm.get('160x120', float('nan')):.1f} |"
-                     if n != "zero flow" else
-                     f"| zero flow | {fmt(sy, 'epe_fg')} / {fmt(sy, 'epe_all')} | {fmt(pb, 'epe_fg')} / "
-                     f"{fmt(pb, 'epe_all')} | {r['mean'][n]:.2f} | - | - | - |")
+                     f"{r['mean_min'][n]:.2f} | {best} | {r['mean'][n]:.2f} | {ms[0]} | {ms[1]} |")
     lines += ["", f"- Synthetic: the render stage's `test` split, {s['clips']} clips, {s['pairs']} pairs at "
               f"{s['size'][0]}x{s['size'][1]}, simulator flow; foreground = object pixels of frame t.",
               f"- PyBullet: {p.get('clips', 0)} clips (dev + held-out) at {p.get('size', ['?', '?'])[0]}x"
               f"{p.get('size', ['?', '?'])[1]}, one pair in {p.get('pair_stride', '?')}, flow of the true poses "
               "(`pipeline/truthsets/flow.py`), valid pixels only. Never used for training.",
-              f"- Real: {r['clips']} clips, 30 frames per true second in the main job's window, 160 px wide; mean over "
-              f"clips of the warping error over pixels that change by more than {PHOTO_THRESHOLD} grey levels. "
-              "'best on' counts the clips where a method has the lowest error."
-              + "".join(f" Skipped {c}: {why}." for c, why in r.get("skipped", {}).items()), "",
-              "## Real clips: the six shared clips apart from the dev clips", "",
+              f"- Real: {r['clips']} clips, 30 frames per true second in the main job's window, 160 px wide, over the "
+              f"pixels that change by more than {PHOTO_THRESHOLD} grey levels from frame t to t+1. *Forward warping "
+              "error*: `|I_t(x) - I_t+1(x + f(x))|`. *Min-reprojection error*: the per-pixel minimum of that and "
+              "`|I_t(x) - I_t-1(x + b(x))|`, b the method's flow of the clip played backwards (Godard et al., ICCV "
+              "2019): the forward error alone punishes the true flow wherever an object moves onto the background "
+              "(next section). 'best on' counts the clips where a method has the lowest min-reprojection error."
+              + "".join(f" Skipped {c}: {why}." for c, why in r.get("skipped", {}).items())]
+    if "photometric" in p:
+        lines += ["", "## Do the warping errors measure flow? The true flow on the PyBullet clips", "",
+                  "The same two errors on the PyBullet frames (those with a frame before and after), for each method "
+                  "and for the flow of the true poses. A fair error ranks the truth first.", "",
+                  "| flow | forward warping error | min-reprojection error |", "|---|---|---|"]
+        for n, row in p["photometric"].items():
+            lines.append(f"| {n} | {row['forward']:.2f} | {row['min_reprojection']:.2f} |")
+    lines += ["", "## Real clips: the six shared clips apart from the dev clips", "",
               "The shipped RAFT weights saw frames of the 13 dev clips as chairs-pair textures (their appearance "
               "under synthetic motion, not their own motion; card `pipeline/weights/raft-small-dynamics.md`); the "
-              "six shared clips never entered training.", "",
+              "six shared clips never entered training. Min-reprojection error (forward warping error).", "",
               "| method | shared clips | dev clips |", "|---|---|---|"]
     groups = {g: [c for c in r["per_clip"] if c.startswith("dev") == (g == "dev")] for g in ("shared", "dev")}
     for n in [*names, "zero flow"]:
-        cells = [f"{np.nanmean([r['per_clip'][c][n] for c in cs]):.2f} ({len(cs)})" if cs else "-"
-                 for cs in groups.values()]
+        cells = [f"{np.nanmean([r['per_clip_min'][c][n] for c in cs]):.2f} ({np.nanmean([r['per_clip'][c][n] for c in cs]):.2f}), "
+                 f"{len(cs)} clips" if cs else "-" for cs in groups.values()]
         lines.append(f"| {n} | " + " | ".join(cells) + " |")
-    lines += ["", "## Real clips, photometric error per clip", "",
+    lines += ["", "## Real clips per clip: min-reprojection error (forward warping error)", "",
               "| clip | " + " | ".join([*names, "zero flow"]) + " |", "|---" * (len(names) + 2) + "|"]
     for clip, row in r["per_clip"].items():
-        lines.append(f"| {clip} | " + " | ".join(f"{row[n]:.2f}" for n in [*names, "zero flow"]) + " |")
+        lines.append(f"| {clip} | " + " | ".join(f"{r['per_clip_min'][clip][n]:.2f} ({row[n]:.2f})"
+                                                for n in [*names, "zero flow"]) + " |")
     return "\n".join(lines) + "\n"
 
 

@@ -204,3 +204,22 @@ def test_errors_name_the_file(clip, tmp_path):
         truth_flow(folder)
     with pytest.raises(FileNotFoundError, match=r"nowhere: must be a clip folder"):
         truth_flow(tmp_path / "nowhere")
+
+
+def test_backward_flow_of_the_translating_sphere_points_back_to_frame_t(clip):
+    # Backward flow of pair t runs from frame t+1 to frame t: the sliding sphere's pixels in frame
+    # t+1 move by minus the centre's projected displacement, and the static floor by exactly 0.
+    folder, truth, _, _, _ = clip
+    back, valid = truth_flow(folder, backward=True)
+    T = truth.n_frames
+    assert back.shape == (T - 1, H, W, 2) and valid.shape == (T - 1, H, W)
+    assert not back[truth.seg[1:] < 0].any()
+    uv, _ = project(truth.pos[:, 0], truth.intrinsics, truth.extrinsics)
+    checked = 0
+    for t in range(T - 1):
+        m = (truth.seg[t + 1] == 0) & valid[t]
+        if m.sum() < 100:
+            continue
+        np.testing.assert_allclose(back[t][m].mean(axis=0), uv[t] - uv[t + 1], atol=0.3, err_msg=f"pair {t}")
+        checked += 1
+    assert checked >= 15

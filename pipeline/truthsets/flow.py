@@ -78,15 +78,17 @@ _MIN_DEPTH = 1e-9
 """m: a point this close to the camera plane (or behind it) cannot be projected."""
 
 
-def truth_flow(folder: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """Ground-truth forward optical flow of a truth clip (module docstring for the method).
+def truth_flow(folder: str | Path, backward: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """Ground-truth forward (or backward) optical flow of a truth clip (module docstring for the method).
 
     Args:
         folder: a clip folder holding ``meta.json`` and ``truth.npz``
             (``data/truthsets/<engine>/<split>/clip-00000``).
+        backward: give the flow of pair t from frame t+1 back to frame t instead (the same
+            construction on the clip played backwards: rays through frame t+1, poses of frame t).
     Returns:
-        ``flow (T-1, H, W, 2) float32``: px, forward from frame t to t+1, ``[..., 0]`` = u
-        (x, right), ``[..., 1]`` = v (y, down); 0 where not valid.
+        ``flow (T-1, H, W, 2) float32``: px, forward from frame t to t+1 (backward: from t+1
+        to t), ``[..., 0]`` = u (x, right), ``[..., 1]`` = v (y, down); 0 where not valid.
         ``valid (T-1, H, W) bool``: True on floor/background pixels (``seg == -1``, flow 0:
         static camera and floor) and on object pixels whose ray through the pixel centre hits
         the object's primitive (and whose point stays in front of the camera at t+1); False
@@ -104,6 +106,15 @@ def truth_flow(folder: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """
     folder = Path(folder)
     objects, seg, pos, quat, K, E = _read(folder)
+    if backward:
+        flow, valid = _flow(objects, seg[::-1], pos[::-1], quat[::-1], K, E)
+        return np.ascontiguousarray(flow[::-1]), np.ascontiguousarray(valid[::-1])
+    return _flow(objects, seg, pos, quat, K, E)
+
+
+def _flow(objects: list[dict], seg: np.ndarray, pos: np.ndarray, quat: np.ndarray, K: np.ndarray,
+          E: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`truth_flow` of arrays read by :func:`_read`: from each frame to the next one."""
     T, H, W = seg.shape
     flow = np.zeros((max(T - 1, 0), H, W, 2), dtype=np.float32)
     valid = np.ones((max(T - 1, 0), H, W), dtype=bool)
