@@ -33,6 +33,20 @@ BACKGROUND = -1
 """Label of background pixels in segmentation arrays (same as the renderer's floor)."""
 
 
+def median_area(masks: np.ndarray) -> float:
+    """An object's size over a clip: the median, over the frames where it is seen, of its pixel count.
+
+    Args:
+        masks: ``(T, H, W)`` bool, one object's mask per frame.
+
+    Returns:
+        px (float); 0.0 when the object is seen in no frame.
+    """
+    areas = np.asarray(masks).sum(axis=(1, 2))
+    seen = areas > 0
+    return float(np.median(areas[seen])) if seen.any() else 0.0
+
+
 def _odd(n: float) -> int:
     n = max(1, int(round(n)))
     return n if n % 2 else n + 1

@@ -33,8 +33,8 @@ from scipy import ndimage
 
 from pipeline.flow import FlowConfig, estimate_flow, flow_of
 from pipeline.image_tracks import find_tracks, object_tracks, still_tracks
-from pipeline.masks import (cut_by_colour, drop_ghosts, hold_resting, label_objects, merge_touching, pseudo_ground_truth,
-                            pseudo_masks)
+from pipeline.masks import (cut_by_colour, drop_ghosts, hold_resting, label_objects, median_area, merge_touching,
+                            pseudo_ground_truth, pseudo_masks)
 from pipeline.segmenter import Segmenter, median_background, shipped
 from pipeline.video import Clip, VideoError, declared_length, read_video, resample
 
@@ -326,7 +326,7 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
     bs, _ = keep_objects(bs, None, max(max_objects, 8))
     n_bs = int(bs.max()) + 1
     bs_masks = [bs == k for k in range(n_bs)]
-    bs_area = [float(np.median(m.sum(axis=(1, 2))[m.any(axis=(1, 2))])) if m.any() else 0.0 for m in bs_masks]
+    bs_area = [median_area(m) for m in bs_masks]
     movers, stills, linked = [], [], set()
     overlap = np.zeros(n_bs)                      # bs px inside segmenter tracks of its size class
 
@@ -385,9 +385,7 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
     kinds = ["mover"] * len(movers) + ["mover_bs_only"] * len(unseen) + ["at_rest"] * len(stills)
     for n, (_, m, fill_in) in enumerate(ranked[:max_objects]):
         if explain is not None:
-            seen = m.any(axis=(1, 2))
-            explain.append({"kind": kinds[n], "area": float(np.median(m.sum(axis=(1, 2))[seen])) if seen.any() else 0.0,
-                            "frames": int(seen.sum())})
+            explain.append({"kind": kinds[n], "area": median_area(m), "frames": int(m.any(axis=(1, 2)).sum())})
         mask = m.copy()
         missing = ~m.any(axis=(1, 2))
         for k in fill_in:
@@ -435,7 +433,7 @@ def movers_and_stills_of_one_scene(movers: list, unseen: list, stills: list, sti
     left = list(movers) + [m for m, k in zip(unseen, keep_unseen) if k]
     if not left:
         return keep_unseen, [True] * len(stills), None
-    ref = float(np.median([np.median(m.sum(axis=(1, 2))[m.any(axis=(1, 2))]) for m in left]))
+    ref = float(np.median([median_area(m) for m in left]))
     return keep_unseen, [rest_size_class(a, ref) for a in still_areas], ref
 
 
@@ -782,8 +780,7 @@ def anchored_objects(frames: np.ndarray, context: np.ndarray, movers: np.ndarray
             completed[k] += int(add.any())
             out[t][add] = k
     moving = out >= 0
-    areas = [np.median((out == k).sum(axis=(1, 2))[(out == k).any(axis=(1, 2))]) for k in range(n_mov)
-             if (out == k).any()]
+    areas = [median_area(out == k) for k in range(n_mov) if (out == k).any()]
     ref = float(np.median(areas)) if areas else None
     sg = _segmenter_tracks(fgb, cb, 16)
     stills = []

@@ -11,7 +11,7 @@ import pytest
 import cv2
 
 from conftest import moving_disc_avi
-from pipeline.masks import BACKGROUND, label_objects, pseudo_ground_truth, pseudo_masks
+from pipeline.masks import BACKGROUND, label_objects, median_area, pseudo_ground_truth, pseudo_masks
 from pipeline.video import VideoError, VideoWarning, read_video, resample
 
 _ROOT = Path(__file__).resolve().parents[1]
@@ -468,3 +468,14 @@ def test_model_samples_restores_the_torch_thread_count():
     assert len(scenes) == len(errors) == 2
     assert all((s is None) != (e is None) for s, e in zip(scenes, errors))
     assert all(s.fps == 30 and s.duration == 1.0 for s in scenes if s is not None)
+
+
+def test_median_area_is_taken_over_the_frames_where_the_object_is_seen():
+    """Areas 10, 20 and 40 px in three frames and absent in two: 20 px, not the 10 px a median
+    over all five frames would give; an object never seen has area 0."""
+    masks = np.zeros((5, 8, 8), bool)
+    masks[0].flat[:10] = True
+    masks[2].flat[:20] = True
+    masks[4].flat[:40] = True
+    assert median_area(masks) == 20.0
+    assert median_area(np.zeros((3, 4, 4), bool)) == 0.0
