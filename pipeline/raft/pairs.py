@@ -134,6 +134,13 @@ def _affine(rng: np.random.Generator, h: int, w: int, max_shift: float, max_rot:
     return np.hstack([R, (centre - R @ centre + shift)[:, None]])
 
 
+def _affine_flow(M: np.ndarray, xx: np.ndarray, yy: np.ndarray) -> np.ndarray:
+    """``(H, W, 2)`` flow ``(A - I) x + b`` of the ``(2, 3)`` affine map ``M = [A | b]`` at pixel
+    coordinates ``xx, yy`` (``(H, W)``, px)."""
+    return np.stack([(M[0, 0] - 1) * xx + M[0, 1] * yy + M[0, 2],
+                     M[1, 0] * xx + (M[1, 1] - 1) * yy + M[1, 2]], axis=-1)
+
+
 def chairs_pair(rng: np.random.Generator, height: int = 128, width: int = 192, max_shift: float = 10.0,
                 n_objects: tuple[int, int] = (1, 6), textures: np.ndarray | None = None
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -155,16 +162,14 @@ def chairs_pair(rng: np.random.Generator, height: int = 128, width: int = 192, m
     img1, img2 = _texture(rng, h, w, textures), np.empty((h, w, 3), np.float32)
     M = _affine(rng, h, w, max_shift / 3, 0.05, 0.05)
     img2[:] = cv2.warpAffine(img1, M, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
-    flow = np.stack([(M[0, 0] - 1) * xx + M[0, 1] * yy + M[0, 2],
-                     M[1, 0] * xx + (M[1, 1] - 1) * yy + M[1, 2]], axis=-1)
+    flow = _affine_flow(M, xx, yy)
     for _ in range(int(rng.integers(n_objects[0], n_objects[1] + 1))):
         size = rng.uniform(0.08, 0.6) * min(h, w)
         mask, tex = _shape_mask(rng, h, w, size), _texture(rng, h, w, textures)
         M = _affine(rng, h, w, max_shift, 0.2, 0.15)
         inside = mask > 0.5
         img1[inside] = tex[inside]
-        flow[inside] = np.stack([(M[0, 0] - 1) * xx + M[0, 1] * yy + M[0, 2],
-                                 M[1, 0] * xx + (M[1, 1] - 1) * yy + M[1, 2]], axis=-1)[inside]
+        flow[inside] = _affine_flow(M, xx, yy)[inside]
         warped_mask = cv2.warpAffine(mask, M, (w, h), flags=cv2.INTER_LINEAR)[..., None]
         warped_tex = cv2.warpAffine(tex, M, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
         img2 = img2 * (1 - warped_mask) + warped_tex * warped_mask
@@ -243,15 +248,14 @@ def still_camera_pair(rng: np.random.Generator, height: int = 128, width: int = 
         M = np.hstack([R, (centre - R @ centre + shift)[:, None]])
         tex = _object_texture(rng, h, w, textures)
         inside = mask > 0.5
-        flow[inside] = np.stack([(M[0, 0] - 1) * xx + M[0, 1] * yy + M[0, 2],
-                                 M[1, 0] * xx + (M[1, 1] - 1) * yy + M[1, 2]], axis=-1)[inside]
+        flow[inside] = _affine_flow(M, xx, yy)[inside]
         m1, t1 = mask[..., None], tex * mask[..., None]
         m2 = cv2.warpAffine(mask, M, (w, h), flags=cv2.INTER_LINEAR)[..., None]
         t2 = cv2.warpAffine(tex, M, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT) * m2
         if rng.random() < 1 / 3:
             smear = shift * rng.uniform(0.3, 1.0)
-            m1, t1, m2, t2 = (_motion_blur(a[..., 0], smear)[..., None] if a.shape[-1] == 1 else _motion_blur(a, smear)
-                              for a in (m1, t1, m2, t2))
+            m1, m2 = (_motion_blur(m[..., 0], smear)[..., None] for m in (m1, m2))
+            t1, t2 = (_motion_blur(t, smear) for t in (t1, t2))
         img1 = img1 * (1 - m1) + t1
         img2 = img2 * (1 - m2) + t2
     img1 = cv2.GaussianBlur(img1.astype(np.float32), (0, 0), 0.5)
