@@ -86,7 +86,7 @@ def clip_candidates(folder: Path, params: dict, segmenter) -> tuple[list[dict], 
     truth = np.load(folder / "truth.npz", allow_pickle=False)
     found: list[dict] = []
     obs = observe(folder / "video.mp4", float(truth["fps"]), None, rv.fps, rv.duration, flow_config(params),
-                  rv.mask_method, rv.max_objects, segmenter, found)
+                  rv.mask_method, rv.max_objects, segmenter, found, fine_scale=rv.fine_scale)
     seg, frames = truth_in_window(truth["seg"], obs)
     pos = truth["pos"][frames]
     still = np.linalg.norm(pos - pos[:1], axis=-1).max(axis=0) < STILL_M
@@ -124,7 +124,7 @@ def real_candidates(video: Path, fps: float | None, labels_dir: Path, params: di
     rv = realvideo_config(params)
     found: list[dict] = []
     obs = observe(video, fps, None, scene_rate(video, fps, rv.fps), rv.duration, flow_config(params),
-                  rv.mask_method, rv.max_objects, segmenter, found)
+                  rv.mask_method, rv.max_objects, segmenter, found, fine_scale=rv.fine_scale)
     ks, seg = (np.zeros(0, np.int64), None)
     if labels_dir.is_dir():
         ks, seg = labels_in_window(load_labels(labels_dir, read_video(video, fps=fps, max_frames=1).original_size), obs)
@@ -186,10 +186,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--limit", type=int, default=None, help="first N clips per set (quick looks)")
     ap.add_argument("--params", default=None, help="params.yaml (default ./params.yaml)")
     ap.add_argument("--report", type=Path, default=ROOT / "reports/observation_candidates", help="report path stem")
+    ap.add_argument("--no-fine-scale", action="store_true",
+                    help="realvideo.fine_scale false: the working pass's segmenter probabilities alone")
     ap.add_argument("--segmenter-weights", type=Path, default=None,
                     help="segmenter checkpoint (default: the shipped pipeline/weights/segmenter.pt)")
     args = ap.parse_args(argv)
     params = load_params(args.params)
+    if args.no_fine_scale:
+        params.setdefault("realvideo", {})["fine_scale"] = False
     params.setdefault("realvideo", {})["mask_method"] = "hybrid"
     segmenter = shipped(args.segmenter_weights)
     sets: dict[str, list[dict]] = {}

@@ -90,7 +90,7 @@ def rendered_clip(folder: Path, params: dict, segmenter=None) -> dict:
     truth = np.load(folder / "truth.npz", allow_pickle=False)
     t0 = time.perf_counter()
     obs = observe(folder / "video.mp4", float(truth["fps"]), None, rv.fps, rv.duration, fcfg,
-                  rv.mask_method, rv.max_objects, segmenter)
+                  rv.mask_method, rv.max_objects, segmenter, fine_scale=rv.fine_scale)
     seconds = time.perf_counter() - t0
     seg, frames = truth_in_window(truth["seg"], obs)
     pos = truth["pos"][frames]                                              # (T, n, 3) m
@@ -209,11 +209,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--limit", type=int, default=None, help="first N clips per rendered set (quick looks)")
     ap.add_argument("--params", default=None, help="params.yaml (default ./params.yaml)")
     ap.add_argument("--report", type=Path, default=ROOT / "reports/observation_truth", help="report path stem")
+    ap.add_argument("--no-fine-scale", action="store_true",
+                    help="realvideo.fine_scale false: the working pass's segmenter probabilities alone")
     ap.add_argument("--segmenter-weights", type=Path, default=None,
                     help="segmenter checkpoint to score (default: the shipped pipeline/weights/segmenter.pt)")
     args = ap.parse_args(argv)
     segmenter = shipped(args.segmenter_weights)
     params = load_params(args.params)
+    if args.no_fine_scale:
+        params.setdefault("realvideo", {})["fine_scale"] = False
     default = realvideo_config(params).mask_method
     methods = args.mask_method.split(",") if args.mask_method else [default]
     only = set(args.only.split(","))
@@ -247,7 +251,8 @@ def main(argv: list[str] | None = None) -> int:
                 sets[f"{tag}{name}"] = rows
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
     report = {"command": "python benchmarks/observation_truth.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-              "commit": commit, "method": f"mask methods {', '.join(methods)}; default realvideo.mask_method={default}",
+              "commit": commit, "method": f"mask methods {', '.join(methods)}; default realvideo.mask_method={default}; "
+                        f"realvideo.fine_scale={realvideo_config(params).fine_scale}",
               "summary": {k: summarize(v) for k, v in sets.items()}, "sets": sets}
     write_report(args.report, report, markdown(report))
     return 0

@@ -39,16 +39,24 @@ from pipeline.segmenter import median_background, shipped  # noqa: E402
 from pipeline.video import read_video  # noqa: E402
 
 
-def clip_recall(folder: Path, segmenter, size: tuple[int, int], n_frames: int) -> list[dict]:
+def clip_recall(folder: Path, segmenter, size: tuple[int, int], n_frames: int,
+                fine_size: tuple[int, int] | None = None) -> list[dict]:
     """One row per true object of a rendered clip: ``recall`` (mean fraction of its true pixels
     the segmenter marks, over the sampled frames where it covers >= 4 px at ``size``), ``area``
-    (median px at ``size``), ``still``, ``shape``, ``pitch_deg``, ``low_contrast``."""
+    (median px at ``size``), ``still``, ``shape``, ``pitch_deg``, ``low_contrast``. With
+    ``fine_size``, the segmenter also runs on the clip read at that size and its probabilities,
+    area-averaged to ``size``, are fused by the per-pixel maximum (what the observation does with
+    the detection pass: :func:`pipeline.observe.fine_probabilities`)."""
     truth = np.load(folder / "truth.npz", allow_pickle=False)
     meta = json.loads((folder / "meta.json").read_text()) if (folder / "meta.json").exists() else {}
     seg = truth["seg"]                                                   # (T, H, W) int8
     frames = read_video(folder / "video.mp4", size=size).frames[: len(seg)]
     idx = np.unique(np.linspace(0, len(frames) - 1, n_frames).round().astype(int))
     fg, _ = segmenter(frames[idx], median_background(frames))
+    if fine_size is not None:
+        fine = read_video(folder / "video.mp4", size=fine_size).frames[: len(seg)]
+        p, _ = segmenter(fine[idx], median_background(fine))
+        fg = np.maximum(fg, np.stack([cv2.resize(q, size, interpolation=cv2.INTER_AREA) for q in p]))
     pos = truth["pos"]                                                    # (T, n, 3) m
     still = np.linalg.norm(pos - pos[:1], axis=-1).max(axis=0) < STILL_M
     objects = meta.get("objects", [{}] * pos.shape[1])
@@ -74,7 +82,9 @@ def clip_recall(folder: Path, segmenter, size: tuple[int, int], n_frames: int) -
 def markdown(report: dict) -> str:
     """The report as a markdown table per set, then the still objects the segmenter misses."""
     lines = ["# Segmenter recall of true objects (issue 36)", "",
-             f"Command: `{report['command']}` (tree `{report['commit']}`).", "",
+             f"Command: `{report['command']}` (tree `{report['commit']}`). Size {report['size'][0]}x{report['size'][1]}"
+             + (f", fused with the clip segmented at {report['fine_size'][0]}x{report['fine_size'][1]} (per-pixel maximum)"
+                if report.get("fine_size") else "") + ".", "",
              "Recall: per true object, the mean fraction of its true pixels the segmenter marks, over the sampled "
              "frames where it covers at least 4 px. Missed: recall below 0.5.", "",
              "| set | objects moving / still | recall moving | recall still | missed moving | missed still |",
@@ -103,10 +113,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--splits", default="dev,dev2", help="comma list of rendered splits (dev, dev2, heldout)")
     ap.add_argument("--size", default="160x120", help="WxH px the clips are read at")
     ap.add_argument("--frames", type=int, default=12, help="frames sampled per clip")
+    ap.add_argument("--fine-size", default=None,
+                    help="WxH px: also segment the clip read at this size and fuse by the maximum "
+                         "(as realvideo.fine_scale fuses the detection pass, e.g. 320x240)")
     ap.add_argument("--segmenter-weights", type=Path, default=None, help="checkpoint (default: the shipped weights)")
     ap.add_argument("--report", type=Path, default=ROOT / "reports/segmenter_recall", help="report path stem")
     args = ap.parse_args(argv)
     size = tuple(int(v) for v in args.size.lower().split("x"))
+    fine_size = tuple(int(v) for v in args.fine_size.lower().split("x")) if args.fine_size else None
     segmenter = shipped(args.segmenter_weights)
     sets: dict[str, list[dict]] = {}
     for (engine, split) in SETS:
@@ -118,10 +132,11 @@ def main(argv: list[str] | None = None) -> int:
             continue
         clips = sorted(p for p in folder.iterdir() if (p / "truth.npz").exists())
         sets[f"{engine} {split}"] = [r for c in tqdm(clips, desc=f"{engine}/{split}")
-                                     for r in clip_recall(c, segmenter, size, args.frames)]
+                                     for r in clip_recall(c, segmenter, size, args.frames, fine_size)]
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
     report = {"command": "python benchmarks/segmenter_recall.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-              "commit": commit, "size": list(size), "frames": args.frames, "sets": sets}
+              "commit": commit, "size": list(size),
+              "fine_size": list(fine_size) if fine_size else None, "frames": args.frames, "sets": sets}
     write_report(args.report, report, markdown(report))
     return 0
 

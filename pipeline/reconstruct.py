@@ -79,7 +79,8 @@ class RealVideoConfig(BaseModel):
     The window (``fps`` frames per s of scene time, ``duration`` s), the observation
     (``mask_method``, one of :data:`pipeline.observe.MASK_METHODS`; ``max_objects`` tracks;
     ``segmenter_weights``: the object segmenter's checkpoint, None = the shipped one, ``wide`` = the
-    GPU-trained wider one, or a path, :func:`pipeline.segmenter.resolve_weights`), the
+    GPU-trained wider one, or a path, :func:`pipeline.segmenter.resolve_weights`; ``fine_scale``: its
+    probabilities fused with the detection pass's where those are finer, :data:`pipeline.observe.FINE_SCALE`), the
     scene writer without ``--model`` (``model``: ``wide``, ``trained`` or a folder,
     :func:`default_model_dir`), the
     staged CMA-ES (``popsize`` and ``iterations`` per stage, ``restarts`` of the first stage,
@@ -97,6 +98,7 @@ class RealVideoConfig(BaseModel):
     duration: float = Field(1.0, gt=0)
     mask_method: str = "hybrid"
     segmenter_weights: str | None = None
+    fine_scale: bool = True
     model: str = "trained"
     max_objects: int = Field(4, ge=1)
     popsize: int = Field(10, ge=2)
@@ -471,7 +473,8 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
             why = (f"recorded at a lower rate than {rv.fps} fps" if scene_fps < rv.fps else
                    f"too short for {MIN_WINDOW_FRAMES} frames at {rv.fps} fps")
             print(f"[infer] {video}: {why}: the scene runs at {scene_fps} fps")
-    obs = observe(video, fps, start, scene_fps, rv.duration, fcfg, rv.mask_method, rv.max_objects, segmenter)
+    obs = observe(video, fps, start, scene_fps, rv.duration, fcfg, rv.mask_method, rv.max_objects, segmenter,
+                  fine_scale=rv.fine_scale)
     W, H = obs.size
     print(f"[infer] {video}: window {obs.start:.3f}-{obs.start + obs.duration:.3f} s"
           f"{' (chosen automatically)' if obs.auto else ''}, {len(obs.frames)} frames at {scene_fps} fps, "

@@ -641,3 +641,59 @@ def test_left_behind_flags_the_place_a_resting_object_left_and_keeps_a_ball_cros
     assert not left_behind(ball, [box])
     assert not left_behind(ghost, [])
     assert not left_behind(np.zeros_like(ghost), [box])
+
+
+def test_fine_probabilities_cut_the_working_crop_out_of_the_detection_pass():
+    """The detection pass's probabilities (whole frame at 320 x 240 of a 640 x 480 video) over a
+    working crop (x 160, y 120, 320 x 240 px original) at 80 x 60 px: the blob lands where the crop
+    puts it; a detection pass that is not 1.5x finer than the working size gives None."""
+    from pipeline.observe import FINE_SCALE, fine_probabilities
+    p = np.zeros((2, 240, 320), np.float32)
+    p[:, 100:120, 120:140] = 1.0                 # original px x 240..280, y 200..240
+    out = fine_probabilities(p, (320, 240), (640, 480), (160, 120, 320, 240), (80, 60))
+    assert out.shape == (2, 60, 80) and out.dtype == np.float32
+    ys, xs = np.nonzero(out[0] > 0.5)           # 40..60 of the 160 x 120 det px of the crop, halved
+    assert (ys.min(), ys.max(), xs.min(), xs.max()) == (20, 29, 20, 29)
+    assert abs(out.sum() / 2 - 100.0) < 1e-3    # area averaging keeps the mass (400 px / 4)
+    coarse = (round(160 / FINE_SCALE) + 2, round(120 / FINE_SCALE) + 2)   # finer, but not 1.5x
+    assert fine_probabilities(p, (320, 240), (640, 480), (160, 120, 320, 240), coarse) is None
+
+
+def test_fused_segmenter_keeps_the_larger_probability_of_either_scale():
+    from pipeline.observe import _Fused, _Recorded
+    rng = np.random.default_rng(0)
+    own = (rng.random((3, 6, 8), dtype=np.float32), rng.random((3, 6, 8), dtype=np.float32))
+    fine = (rng.random((3, 6, 8), dtype=np.float32), rng.random((3, 6, 8), dtype=np.float32))
+    rec = _Recorded(lambda frames, bg: own)
+    fused = _Fused(rec, fine)
+    fg, contact = fused(np.zeros((3, 6, 8, 3), np.uint8), np.zeros((6, 8, 3), np.uint8))
+    np.testing.assert_array_equal(fg, np.maximum(own[0], fine[0]))
+    np.testing.assert_array_equal(contact, np.maximum(own[1], fine[1]))
+    assert rec.probabilities is own
+    other = _Fused(lambda frames, bg: (np.zeros((2, 6, 8), np.float32),) * 2, fine)   # another shape: alone
+    assert other(np.zeros((2, 6, 8, 3), np.uint8), np.zeros((6, 8, 3), np.uint8))[0].max() == 0.0
+
+
+@pytest.mark.skipif(not DEFAULT_WEIGHTS.exists(), reason="no shipped segmenter weights")
+def test_observe_finds_a_small_ball_with_the_detection_pass_as_the_finer_scale(tmp_path):
+    """A rendered clip with true masks (truth set MuJoCo seed 2, clip 22): a box slides and a 5 cm
+    ball some 30 px in area at the 160 x 120 working size rolls far behind it. With the working
+    pass's probabilities alone the ball is not an object; fused with the detection pass's
+    (320 x 240, ``fine_scale``) it is found, and the box stays as it was."""
+    from pipeline.metrics import observation_scores
+    from pipeline.observe import observe, truth_in_window
+    from pipeline.truthsets import mujoco_scenes
+    from pipeline.truthsets.common import generate_clip, write_clip
+    clip = generate_clip(mujoco_scenes, seed=2, index=22)
+    folder = write_clip(tmp_path / "clip", clip)
+    scores = {}
+    for fine in (False, True):
+        obs = observe(folder / "video.mp4", clip.fps, None, 30, 1.0, mask_method="hybrid", fine_scale=fine)
+        truth, _ = truth_in_window(clip.seg, obs)
+        areas = [(truth == k).sum() for k in range(2)]
+        s = observation_scores(truth, obs.seg, [False, False])
+        scores[fine] = {o["true"]: o["iou"] for o in s["per_object"]}
+        ball, box = int(np.argmin(areas)), int(np.argmax(areas))
+        assert areas[ball] < 60 * len(truth) < areas[box]
+    assert scores[False].get(ball, 0.0) < 0.3 and scores[True][ball] >= 0.6, scores
+    assert scores[True][box] >= scores[False][box] - 0.02 and scores[True][box] >= 0.8, scores
