@@ -973,10 +973,11 @@ when the detection frames show the working crop at least this many times finer (
 ``realvideo.fine_scale``). Multi-scale testing (Chen et al., "DeepLab", TPAMI 2018; Zhao et al.,
 "PSPNet", CVPR 2017) with max rather than mean fusion, so what either scale marks is kept: at the
 finer scale a small or thin object spans more of the network's receptive field, at the working
-scale a large flat one still fits in it. The finer pass is the detection pass, already computed.
-Measured by ``benchmarks/segmenter_recall.py`` at 1x (160x120), 2x (320x240) and both max-fused on
-the rendered dev and dev2 sets (210 objects): objects with recall < 0.5, moving 8 / 4 / 2, still
-11 / 11 / 6; background marked 0.29 / 0.16 / 0.36 %."""
+scale a large flat one still fits in it. The finer pass is the detection pass, already computed, so
+it costs no network pass. ``benchmarks/segmenter_recall.py`` on the rendered dev and dev2 sets (210
+objects) at 160x120, alone (``reports/segmenter_recall.md``) and fused with 320x240
+(``--fine-size 320x240``, ``reports/segmenter_recall_fine.md``): true objects the segmenter marks
+less than half of, moving 8 -> 2, still 11 -> 6."""
 
 
 class _Recorded:
