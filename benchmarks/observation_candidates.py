@@ -186,14 +186,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--limit", type=int, default=None, help="first N clips per set (quick looks)")
     ap.add_argument("--params", default=None, help="params.yaml (default ./params.yaml)")
     ap.add_argument("--report", type=Path, default=ROOT / "reports/observation_candidates", help="report path stem")
-    ap.add_argument("--no-fine-scale", action="store_true",
-                    help="realvideo.fine_scale false: the working pass's segmenter probabilities alone")
+    ap.add_argument("--fine-scale", action=argparse.BooleanOptionalAction, default=None,
+                    help="realvideo.fine_scale: fuse the detection pass's segmenter probabilities into the working "
+                         "pass's where finer (default: the params' value)")
     ap.add_argument("--segmenter-weights", type=Path, default=None,
                     help="segmenter checkpoint (default: the shipped pipeline/weights/segmenter.pt)")
     args = ap.parse_args(argv)
     params = load_params(args.params)
-    if args.no_fine_scale:
-        params.setdefault("realvideo", {})["fine_scale"] = False
+    if args.fine_scale is not None:
+        params.setdefault("realvideo", {})["fine_scale"] = args.fine_scale
     params.setdefault("realvideo", {})["mask_method"] = "hybrid"
     segmenter = shipped(args.segmenter_weights)
     sets: dict[str, list[dict]] = {}

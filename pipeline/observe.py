@@ -1034,7 +1034,7 @@ def fine_probabilities(p: np.ndarray, det_size: tuple[int, int], orig_size: tupl
 def observe(video, fps: float | None, start: float | None, scene_fps: int, duration: float,
             flow: FlowConfig | None = None, mask_method: str = "median",
             max_objects: int = 4, segmenter: Segmenter | None = None,
-            candidates: list | None = None, fine_scale: bool = True) -> Observation:
+            candidates: list | None = None, fine_scale: bool = False) -> Observation:
     """Read a window of a real video at its working crop and size; pseudo masks and flow.
 
     Args:

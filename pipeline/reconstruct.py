@@ -98,7 +98,7 @@ class RealVideoConfig(BaseModel):
     duration: float = Field(1.0, gt=0)
     mask_method: str = "hybrid"
     segmenter_weights: str | None = None
-    fine_scale: bool = True
+    fine_scale: bool = False
     model: str = "trained"
     max_objects: int = Field(4, ge=1)
     popsize: int = Field(10, ge=2)
