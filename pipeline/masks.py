@@ -461,6 +461,25 @@ def _differs(frame: np.ndarray, bg: np.ndarray, threshold: float, gain: bool) ->
     return _difference(frame, bg, gain, False, threshold) > threshold
 
 
+def shadow_like(frame: np.ndarray, bg: np.ndarray) -> np.ndarray:
+    """Pixels that look like a cast shadow on the background: darker (0.45-0.97 times its RGB
+    sum) with the same chromaticity (largest difference of ``(r, g, b) / (r + g + b)`` below 0.06),
+    the photometric shadow model of Cucchiara et al., "Detecting moving objects, ghosts, and
+    shadows in video streams", TPAMI 2003, in RGB.
+
+    Args:
+        frame: ``(..., H, W, 3)`` RGB, any real dtype (0-255); bg: ``(H, W, 3)`` the background.
+    Returns:
+        ``(..., H, W)`` bool.
+    """
+    frame, bg = (x if np.issubdtype(np.asarray(x).dtype, np.floating) else np.asarray(x, np.float32)
+                 for x in (frame, bg))
+    sf, sb = frame.sum(-1) + 1e-3, bg.sum(-1) + 1e-3
+    ratio = sf / sb
+    chroma = np.abs(frame / sf[..., None] - bg / sb[..., None]).max(-1)
+    return (ratio > 0.45) & (ratio < 0.97) & (chroma < 0.06)
+
+
 def _difference(frame: np.ndarray, bg: np.ndarray, gain: bool, shadows: bool,
                 threshold: float) -> np.ndarray:
     """``(H, W)`` float32 largest RGB difference of a smoothed frame from the background.
@@ -477,10 +496,7 @@ def _difference(frame: np.ndarray, bg: np.ndarray, gain: bool, shadows: bool,
             frame = frame / g
     d = np.abs(frame - bg).max(axis=-1)
     if shadows:
-        sf, sb = frame.sum(-1) + 1e-3, bg.sum(-1) + 1e-3
-        ratio = sf / sb
-        chroma = np.abs(frame / sf[..., None] - bg / sb[..., None]).max(-1)
-        shadow = (ratio > 0.45) & (ratio < 0.97) & (chroma < 0.06)
+        shadow = shadow_like(frame, bg)
         solid = ((d > threshold) & ~shadow).astype(np.uint8)
         shadow &= ~(cv2.dilate(solid, np.ones((3, 3), np.uint8)) > 0)
         d = np.where(shadow, 0, d)

@@ -34,7 +34,7 @@ from scipy import ndimage
 from pipeline.flow import FlowConfig, estimate_flow, flow_of
 from pipeline.image_tracks import find_tracks, object_tracks, still_tracks
 from pipeline.masks import (cut_by_colour, drop_ghosts, hold_resting, label_objects, median_area, merge_touching,
-                            pseudo_ground_truth, pseudo_masks)
+                            pseudo_ground_truth, pseudo_masks, shadow_like)
 from pipeline.segmenter import Segmenter, median_background, shipped
 from pipeline.video import Clip, VideoError, declared_length, read_video, resample
 
@@ -996,8 +996,10 @@ class _Recorded:
 
 class _Fused:
     """A segmenter whose probabilities on frames of the shape of ``fine`` are fused with ``fine``
-    (``(fg, contact)``, each ``(T, H, W)`` float32 in [0, 1]) by the per-pixel maximum; on frames of
-    any other shape it is ``segmenter`` alone."""
+    (``(fg, contact)``, each ``(T, H, W)`` float32 in [0, 1]) by the per-pixel maximum, except that
+    the finer foreground is not taken on pixels that look like a cast shadow on the background
+    (:func:`pipeline.masks.shadow_like`: at the finer scale the segmenter marks a ball's shadow,
+    which then tracks as a second mover); on frames of any other shape it is ``segmenter`` alone."""
 
     def __init__(self, segmenter, fine: tuple[np.ndarray, np.ndarray]) -> None:
         self.segmenter, self.fine = segmenter, fine
@@ -1006,7 +1008,8 @@ class _Fused:
         fg, contact = self.segmenter(frames, background)
         if fg.shape != self.fine[0].shape:
             return fg, contact
-        return np.maximum(fg, self.fine[0]), np.maximum(contact, self.fine[1])
+        fine_fg = np.where(shadow_like(frames, background), 0.0, self.fine[0])
+        return np.maximum(fg, fine_fg), np.maximum(contact, self.fine[1])
 
 
 def fine_probabilities(p: np.ndarray, det_size: tuple[int, int], orig_size: tuple[int, int],

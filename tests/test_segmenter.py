@@ -697,3 +697,21 @@ def test_observe_finds_a_small_ball_with_the_detection_pass_as_the_finer_scale(t
         assert areas[ball] < 60 * len(truth) < areas[box]
     assert scores[False].get(ball, 0.0) < 0.3 and scores[True][ball] >= 0.6, scores
     assert scores[True][box] >= scores[False][box] - 0.02 and scores[True][box] >= 0.8, scores
+
+
+def test_fused_segmenter_does_not_take_a_cast_shadow_from_the_finer_scale():
+    """Where the finer scale marks a pixel that is the background darkened with its colour kept (a
+    cast shadow, :func:`pipeline.masks.shadow_like`), the working pass's probability stays; where
+    it marks a pixel of another colour (an object), the maximum is taken."""
+    from pipeline.masks import shadow_like
+    from pipeline.observe import _Fused
+    bg = np.full((6, 8, 3), (200, 150, 100), np.uint8)
+    frames = np.repeat(bg[None], 2, axis=0).copy()
+    frames[:, 1:3, 1:3] = (120, 90, 60)          # the background at 0.6 of its brightness: a shadow
+    frames[:, 3:5, 5:7] = (40, 160, 40)          # green: an object
+    assert shadow_like(frames, bg)[0, 1:3, 1:3].all() and not shadow_like(frames, bg)[0, 3:5, 5:7].any()
+    own = np.full((2, 6, 8), 0.1, np.float32)
+    fine = np.full((2, 6, 8), 0.9, np.float32)
+    fg, _ = _Fused(lambda f, b: (own, own), (fine, fine))(frames, bg)
+    assert np.allclose(fg[:, 1:3, 1:3], 0.1) and np.allclose(fg[:, 3:5, 5:7], 0.9)
+    assert np.allclose(fg[:, 0, :], 0.9)          # the unchanged background is not a shadow either
