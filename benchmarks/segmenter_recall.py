@@ -35,6 +35,7 @@ for p in (ROOT, ROOT / "benchmarks"):
 from observation_truth import SETS, STILL_M, write_report  # noqa: E402
 
 from pipeline.observe import FG_THRESHOLD  # noqa: E402
+from pipeline.observe import fused_foreground  # noqa: E402
 from pipeline.segmenter import median_background, shipped  # noqa: E402
 from pipeline.video import read_video  # noqa: E402
 
@@ -45,8 +46,8 @@ def clip_recall(folder: Path, segmenter, size: tuple[int, int], n_frames: int,
     the segmenter marks, over the sampled frames where it covers >= 4 px at ``size``), ``area``
     (median px at ``size``), ``still``, ``shape``, ``pitch_deg``, ``low_contrast``. With
     ``fine_size``, the segmenter also runs on the clip read at that size and its probabilities,
-    area-averaged to ``size``, are fused by the per-pixel maximum (what the observation does with
-    the detection pass: :func:`pipeline.observe.fine_probabilities`)."""
+    area-averaged to ``size``, are fused as the observation fuses the detection pass's
+    (:func:`pipeline.observe.fused_foreground`: the maximum, except on cast-shadow pixels)."""
     truth = np.load(folder / "truth.npz", allow_pickle=False)
     meta = json.loads((folder / "meta.json").read_text()) if (folder / "meta.json").exists() else {}
     seg = truth["seg"]                                                   # (T, H, W) int8
@@ -56,7 +57,8 @@ def clip_recall(folder: Path, segmenter, size: tuple[int, int], n_frames: int,
     if fine_size is not None:
         fine = read_video(folder / "video.mp4", size=fine_size).frames[: len(seg)]
         p, _ = segmenter(fine[idx], median_background(fine))
-        fg = np.maximum(fg, np.stack([cv2.resize(q, size, interpolation=cv2.INTER_AREA) for q in p]))
+        fg = fused_foreground(fg, np.stack([cv2.resize(q, size, interpolation=cv2.INTER_AREA) for q in p]),
+                              frames[idx], median_background(frames))
     pos = truth["pos"]                                                    # (T, n, 3) m
     still = np.linalg.norm(pos - pos[:1], axis=-1).max(axis=0) < STILL_M
     objects = meta.get("objects", [{}] * pos.shape[1])
@@ -83,7 +85,7 @@ def markdown(report: dict) -> str:
     """The report as a markdown table per set, then the still objects the segmenter misses."""
     lines = ["# Segmenter recall of true objects (issue 36)", "",
              f"Command: `{report['command']}` (tree `{report['commit']}`). Size {report['size'][0]}x{report['size'][1]}"
-             + (f", fused with the clip segmented at {report['fine_size'][0]}x{report['fine_size'][1]} (per-pixel maximum)"
+             + (f", fused with the clip segmented at {report['fine_size'][0]}x{report['fine_size'][1]} (per-pixel maximum, not on cast shadows)"
                 if report.get("fine_size") else "") + ".", "",
              "Recall: per true object, the mean fraction of its true pixels the segmenter marks, over the sampled "
              "frames where it covers at least 4 px. Missed: recall below 0.5.", "",

@@ -472,8 +472,8 @@ def shadow_like(frame: np.ndarray, bg: np.ndarray) -> np.ndarray:
     Returns:
         ``(..., H, W)`` bool.
     """
-    frame, bg = (x if np.issubdtype(np.asarray(x).dtype, np.floating) else np.asarray(x, np.float32)
-                 for x in (frame, bg))
+    frame, bg = np.asarray(frame), np.asarray(bg)
+    frame, bg = (x if np.issubdtype(x.dtype, np.floating) else x.astype(np.float32) for x in (frame, bg))
     sf, sb = frame.sum(-1) + 1e-3, bg.sum(-1) + 1e-3
     ratio = sf / sb
     chroma = np.abs(frame / sf[..., None] - bg / sb[..., None]).max(-1)

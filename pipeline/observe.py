@@ -1008,8 +1008,15 @@ class _Fused:
         fg, contact = self.segmenter(frames, background)
         if fg.shape != self.fine[0].shape:
             return fg, contact
-        fine_fg = np.where(shadow_like(frames, background), 0.0, self.fine[0])
-        return np.maximum(fg, fine_fg), np.maximum(contact, self.fine[1])
+        return fused_foreground(fg, self.fine[0], frames, background), np.maximum(contact, self.fine[1])
+
+
+def fused_foreground(fg: np.ndarray, fine: np.ndarray, frames: np.ndarray, background: np.ndarray) -> np.ndarray:
+    """The per-pixel maximum of the working scale's foreground probabilities ``fg`` and the finer
+    scale's ``fine`` (both ``(T, H, W)`` float32 in [0, 1]), except on pixels of ``frames``
+    (``(T, H, W, 3)`` uint8 RGB) that look like a cast shadow on ``background`` (``(H, W, 3)``,
+    :func:`pipeline.masks.shadow_like`), where ``fg`` alone counts (:data:`FINE_SCALE`)."""
+    return np.maximum(fg, np.where(shadow_like(frames, background), 0.0, fine))
 
 
 def fine_probabilities(p: np.ndarray, det_size: tuple[int, int], orig_size: tuple[int, int],
@@ -1082,9 +1089,9 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     _, det_frames, det_ctx = window(dsize, full)
     anchored = mask_method == "anchored"      # movers as median decides them, then the segmenter
     bs_method = "median" if anchored else mask_method
-    net = segmenter or shipped()
-    det_net = _Recorded(net)                  # its probabilities are the working pass's finer scale
-    det_seg = segment_objects(det_frames, det_ctx, bs_method, max_objects, segmenter=det_net)
+    net = segmenter
+    recorded = _Recorded(segmenter or shipped()) if fine_scale and bs_method in LEARNED else None
+    det_seg = segment_objects(det_frames, det_ctx, bs_method, max_objects, segmenter=recorded or segmenter)
     det_flow = estimate_flow(det_frames, method="dis", preset="fast")
     learned = bs_method in LEARNED
     det_seg, tracks = keep_objects(det_seg if learned else hold_resting(det_seg, min_frames=HELD_MIN_FRAMES),
@@ -1094,10 +1101,10 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     crop = motion_crop(det_seg, diameter, scale, (W0, H0))
     size = working_size(crop, diameter * scale)
     clip, frames, ctx = window(size, crop)
-    if fine_scale and det_net.probabilities is not None:
-        fine = [fine_probabilities(p, dsize, (W0, H0), clip.crop, size) for p in det_net.probabilities]
-        if fine[0] is not None and fine[0].shape[0] == len(frames):
-            net = _Fused(net, (fine[0], fine[1]))
+    if recorded is not None and recorded.probabilities is not None:   # the detection pass as the finer scale
+        fine = [fine_probabilities(p, dsize, (W0, H0), clip.crop, size) for p in recorded.probabilities]
+        if fine[0] is not None:
+            net = _Fused(recorded.segmenter, (fine[0], fine[1]))
     kinds: list = []
     seg = segment_objects(frames, ctx, bs_method, max_objects, kinds, net, candidates)
     flow = flow or FlowConfig()
