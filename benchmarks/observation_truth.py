@@ -172,8 +172,10 @@ def summarize(rows: list[dict]) -> dict:
 
 def markdown(report: dict) -> str:
     """The committed report's text."""
-    lines = ["# Observation against the truth (issue 36)", "",
-             f"Command: `{report['command']}` (tree `{report['commit']}`, {report['method']}).", "",
+    runs = report.get("runs") or [{"command": report["command"], "commit": report["commit"], "sets": list(report["sets"])}]
+    made = ["Command: " + "; ".join(f"`{r['command']}` (tree `{r['commit']}`)" + (f" for {', '.join(r['sets'])}" if len(runs) > 1 else "")
+                                    for r in runs) + f" ({report['method']}).", ""]
+    lines = ["# Observation against the truth (issue 36)", "", *made,
              "Matched IoU: per true object, the mean per-frame IoU with its Hungarian match over the frames where "
              "either is visible (unmatched: 0), averaged over objects. Still: moves < 5 mm in the window (rendered) or "
              "< 2 % of the diagonal over the labelled frames (real). Found: IoU >= 0.5. Count right: as many tracks "
@@ -214,6 +216,9 @@ def main(argv: list[str] | None = None) -> int:
                          "pass's where finer (default: the params' value)")
     ap.add_argument("--segmenter-weights", type=Path, default=None,
                     help="segmenter checkpoint to score (default: the shipped pipeline/weights/segmenter.pt)")
+    ap.add_argument("--update", action="store_true",
+                    help="replace only this run's rows in the existing report (REPORT.json), keep the others with "
+                         "the command and tree that made them")
     args = ap.parse_args(argv)
     segmenter = shipped(args.segmenter_weights)
     params = load_params(args.params)
@@ -255,8 +260,35 @@ def main(argv: list[str] | None = None) -> int:
               "commit": commit, "method": f"mask methods {', '.join(methods)}; default realvideo.mask_method={default}; "
                         f"realvideo.fine_scale={realvideo_config(params).fine_scale}",
               "summary": {k: summarize(v) for k, v in sets.items()}, "sets": sets}
+    report["runs"] = [{"command": report["command"], "commit": commit, "sets": list(sets)}]
+    if args.update:
+        report = updated(load_report(args.report.with_suffix(".json")), report)
     write_report(args.report, report, markdown(report))
     return 0
+
+
+def load_report(path: Path) -> dict:
+    """A report written by this command; ``runs`` (which command and tree made which rows) is
+    filled in for reports written before it existed. Raises ``SystemExit`` naming the file when
+    it is missing or not such a report."""
+    try:
+        old = json.loads(path.read_text())
+        old["sets"], old["summary"]
+    except (OSError, ValueError, KeyError) as e:
+        raise SystemExit(f"{path}: not a report of benchmarks/observation_truth.py to update ({e})")
+    old.setdefault("runs", [{"command": old.get("command", "?"), "commit": old.get("commit", "?"), "sets": list(old["sets"])}])
+    return old
+
+
+def updated(old: dict, new: dict) -> dict:
+    """``old`` with ``new``'s rows put in their place (rows of ``old`` that ``new`` also has are
+    replaced, in place; new rows are appended) and ``new``'s run added to ``runs``; a run left with
+    no row is dropped. ``command``/``commit``/``method`` become the latest run's."""
+    sets = {k: new["sets"].get(k, v) for k, v in old["sets"].items()}
+    sets.update({k: v for k, v in new["sets"].items() if k not in sets})
+    runs = [{**r, "sets": [k for k in r["sets"] if k not in new["sets"]]} for r in old["runs"]]
+    runs = [r for r in runs if r["sets"]] + new["runs"]
+    return {**new, "sets": sets, "summary": {k: summarize(v) for k, v in sets.items()}, "runs": runs}
 
 
 if __name__ == "__main__":

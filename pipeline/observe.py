@@ -291,8 +291,9 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
       (:func:`_slow_object`: a slow object, one a mover occludes);
     * movers first (the segmenter's that background subtraction confirms, the segmenter's
       others, then those of background subtraction alone, each seen longest first), then objects
-      at rest (largest first), at most ``max_objects``, numbered 0, 1, ...: motion is the
-      stronger evidence.
+      at rest (largest first); tracks that are pieces of one object (touching, one colour:
+      :func:`merge_fragments`) are joined in the place of the first; at most ``max_objects``,
+      numbered 0, 1, ...: motion is the stronger evidence.
 
     Args:
         frames: ``(T, H, W, 3)`` uint8 RGB; context: ``(N, H, W, 3)`` uint8 frames spread over
@@ -381,8 +382,9 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
     by_frames = lambda x: -int(x[1].any(axis=(1, 2)).sum())  # noqa: E731
     ranked = sorted(movers, key=lambda x: (not x[2], by_frames(x))) + sorted(unseen, key=by_frames) \
         + [(tr, m, []) for tr, m in sorted(stills, key=lambda x: -float(np.median(x[0].area)))]
-    out = np.full((T, H, W), -1, np.int8)
     kinds = ["mover"] * len(movers) + ["mover_bs_only"] * len(unseen) + ["at_rest"] * len(stills)
+    ranked, kinds = merge_fragments(ranked, kinds, frames)   # pieces of one object, before max_objects
+    out = np.full((T, H, W), -1, np.int8)
     for n, (_, m, fill_in) in enumerate(ranked[:max_objects]):
         if explain is not None:
             explain.append({"kind": kinds[n], "area": median_area(m), "frames": int(m.any(axis=(1, 2)).sum())})
@@ -395,6 +397,76 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
     for c in candidates or []:
         c["kept"] = c["decision"] != "rejected" and "dropped" not in c
     return out
+
+
+FRAGMENT_TOUCH, FRAGMENT_CHROMA = 0.8, 0.03
+""":func:`merge_fragments`: two kept tracks are one object when they touch (within 2 px) in at least
+``FRAGMENT_TOUCH`` of the frames where both are seen and their median chromaticities
+(:func:`chromaticity`) differ by at most ``FRAGMENT_CHROMA`` in every channel."""
+
+
+def chromaticity(frames: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``(3,)`` float64 median chromaticity ``(r, g, b) / (r + g + b)`` of the pixels of a
+    ``(T, H, W)`` bool track in ``(T, H, W, 3)`` uint8 RGB frames: the colour without its
+    brightness, so that the lit and the shaded side of one object agree (Lambertian shading scales
+    all three channels alike)."""
+    px = frames[mask].astype(np.float64)                                           # (N, 3)
+    return np.median(px / (px.sum(axis=1, keepdims=True) + 1e-6), axis=0)
+
+
+def merge_fragments(ranked: list, kinds: list, frames: np.ndarray, debug: bool = False) -> tuple[list, list]:
+    """Join the kept tracks of :func:`hybrid_objects` that are pieces of one object.
+
+    The segmenter and the tracker cut one object into several tracks: a large ball entering at
+    the edge, a box beside a ball, a textured ball (the finer scale, :data:`FINE_SCALE`, does it more
+    often: PyBullet dev clip 6's entering ball came back as three movers). The pieces touch in
+    nearly every frame and have one colour. Two objects that touch have, on the renders and on the
+    real clips, two colours; a cast shadow has the floor's chromaticity, not the object's. So two
+    tracks are joined when they touch in :data:`FRAGMENT_TOUCH` of the frames where both are seen
+    (at least 2) and their chromaticities differ by at most :data:`FRAGMENT_CHROMA`.
+
+    Args:
+        ranked: ``(track, mask, fill_in)`` triples, best evidence first (:func:`hybrid_objects`'s
+            order); kinds: their kinds (``mover``, ``mover_bs_only``, ``at_rest``);
+        frames: ``(T, H, W, 3)`` uint8 RGB.
+    Returns:
+        ``(ranked, kinds)`` joined: each group in the place of its first member, with that member's
+        track, kind and the union of the group's masks and ``fill_in``.
+    """
+    masks = [x[1] for x in ranked]
+    n = len(masks)
+    seen = [m.any(axis=(1, 2)) for m in masks]
+    kernel = np.ones((5, 5), np.uint8)
+    grown = [np.stack([cv2.dilate(f.astype(np.uint8), kernel) > 0 for f in m]) for m in masks]
+    chroma = [chromaticity(frames, m) if m.any() else None for m in masks]
+    parent = list(range(n))
+
+    def root(i):
+        while parent[i] != i:
+            i = parent[i]
+        return i
+
+    for i in range(n):
+        for j in range(i + 1, n):
+            both = seen[i] & seen[j]
+            if both.sum() < 2 or chroma[i] is None or chroma[j] is None:
+                continue
+            touch = float((grown[i] & masks[j]).any(axis=(1, 2))[both].mean())
+            dc = float(np.abs(chroma[i] - chroma[j]).max())
+            if debug:
+                print("fragment?", i, j, kinds[i], kinds[j], "touch", round(touch, 2), "chroma", round(dc, 3))
+            if touch >= FRAGMENT_TOUCH and dc <= FRAGMENT_CHROMA:
+                parent[max(root(i), root(j))] = min(root(i), root(j))
+    groups: dict[int, list[int]] = {}
+    for i in range(n):
+        groups.setdefault(root(i), []).append(i)
+    out, out_kinds = [], []
+    for members in sorted(groups.values(), key=min):
+        lead = members[0]
+        out.append((ranked[lead][0], np.logical_or.reduce([ranked[k][1] for k in members]),
+                    sorted({f for k in members for f in ranked[k][2]})))
+        out_kinds.append(kinds[lead])
+    return out, out_kinds
 
 
 GHOST_SHARE = 0.5

@@ -4,6 +4,7 @@ identity switches as CLEAR MOT does, and labels map onto the observation's windo
 from __future__ import annotations
 
 import math
+from pathlib import Path
 from types import SimpleNamespace
 
 import cv2
@@ -124,3 +125,35 @@ def test_bad_labels_name_the_file(tmp_path):
 def test_no_true_object_gives_nan_not_a_score():
     empty = np.full((3, 5, 5), -1, np.int8)
     assert math.isnan(observation_scores(empty, empty)["matched_iou"])
+
+
+def test_update_replaces_only_the_rerun_rows_and_keeps_their_provenance(tmp_path):
+    """``observation_truth.py --update``: rows a run recomputes replace the old ones in place, the
+    others keep the command and tree that made them, and the report names both runs."""
+    import json
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from observation_truth import load_report, markdown, updated
+
+    def row(clip, iou):
+        return {"clip": clip, "seconds": 1.0, "matched_iou": iou, "count_right": True, "id_switches": 0,
+                "per_object": [{"iou": iou, "still": False}]}
+
+    old = {"command": "old cmd", "commit": "aaa", "method": "m", "summary": {},
+           "sets": {"hybrid: a": [row("c0", 0.5)], "segmenter: a": [row("c0", 0.7)]}}
+    path = tmp_path / "r.json"
+    path.write_text(json.dumps(old))
+    new = {"command": "new cmd", "commit": "bbb", "method": "m", "summary": {},
+           "sets": {"hybrid: a": [row("c0", 0.9)], "hybrid: b": [row("c1", 0.2)]},
+           "runs": [{"command": "new cmd", "commit": "bbb", "sets": ["hybrid: a", "hybrid: b"]}]}
+    rep = updated(load_report(path), new)
+    assert list(rep["sets"]) == ["hybrid: a", "segmenter: a", "hybrid: b"]
+    assert rep["summary"]["hybrid: a"]["matched_iou"] == 0.9
+    assert rep["summary"]["segmenter: a"]["matched_iou"] == 0.7
+    assert rep["runs"] == [{"command": "old cmd", "commit": "aaa", "sets": ["segmenter: a"]}, new["runs"][0]]
+    text = markdown(rep)
+    assert "`old cmd` (tree `aaa`) for segmenter: a" in text and "`new cmd` (tree `bbb`) for hybrid: a, hybrid: b" in text
+    path.write_text("{not json")
+    with pytest.raises(SystemExit, match="r.json"):
+        load_report(path)

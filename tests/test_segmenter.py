@@ -335,6 +335,35 @@ def test_flow_moves_needs_the_pixels_to_flow_not_only_the_outline():
 
 
 
+def test_merge_fragments_joins_pieces_of_one_colour_only():
+    """Two tracks that touch in every frame are one object when they have one colour (the lit and
+    the shaded half of a red ball: same chromaticity, half the brightness); a red ball touching a
+    blue box and a red ball touching its grey cast shadow stay apart."""
+    from pipeline.observe import merge_fragments
+
+    T, H, W = 6, 32, 64
+    yy, xx = np.mgrid[:H, :W]
+    frames = np.full((T, H, W, 3), 128, np.uint8)                       # grey floor
+    left, right, box, shadow = (np.zeros((T, H, W), bool) for _ in range(4))
+    for t in range(T):
+        disc = (xx - (16 + t)) ** 2 + (yy - 12) ** 2 <= 36
+        left[t], right[t] = disc & (xx < 16 + t), disc & (xx >= 16 + t)
+        box[t, 6:18, 23 + t:33 + t] = True
+        shadow[t] = ((xx - (16 + t)) ** 2 + (yy - 19) ** 2 <= 16) & ~disc
+    frames[left] = (200, 40, 40)
+    frames[right] = (100, 20, 20)                                         # the same red in shade
+    frames[box] = (40, 40, 200)
+    frames[shadow] = (70, 70, 70)                                         # the floor, darker
+    ranked = [(None, left, []), (None, right, [1]), (None, box, []), (None, shadow, [])]
+    kinds = ["mover", "mover", "mover", "mover_bs_only"]
+    out, out_kinds = merge_fragments(ranked, kinds, frames)
+    assert len(out) == 3 and out_kinds == ["mover", "mover", "mover_bs_only"]
+    np.testing.assert_array_equal(out[0][1], left | right)               # the ball, whole
+    assert out[0][2] == [1]
+    np.testing.assert_array_equal(out[1][1], box)
+    np.testing.assert_array_equal(out[2][1], shadow)
+
+
 def test_join_movers_joins_a_mover_lost_and_found_again_only():
     """A fast square the tracker loses half way comes back as a second track further along its
     path: one mover. Two halves of a square seen together (two objects that touch and move alike)
