@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 from scipy import ndimage
+from scipy.sparse.csgraph import connected_components
 
 from pipeline.flow import FlowConfig, estimate_flow, flow_of
 from pipeline.image_tracks import find_tracks, object_tracks, still_tracks
@@ -414,7 +415,14 @@ def chromaticity(frames: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return np.median(px / (px.sum(axis=1, keepdims=True) + 1e-6), axis=0)
 
 
-def merge_fragments(ranked: list, kinds: list, frames: np.ndarray, debug: bool = False) -> tuple[list, list]:
+def grown_by_2px(mask: np.ndarray) -> np.ndarray:
+    """``(T, H, W)`` bool track grown by 2 px in every frame (5x5 dilation): what "touching" means
+    in :func:`attached_parts` and :func:`merge_fragments`."""
+    kernel = np.ones((5, 5), np.uint8)
+    return np.stack([cv2.dilate(f.astype(np.uint8), kernel) > 0 for f in mask])
+
+
+def merge_fragments(ranked: list, kinds: list, frames: np.ndarray) -> tuple[list, list]:
     """Join the kept tracks of :func:`hybrid_objects` that are pieces of one object.
 
     The segmenter and the tracker cut one object into several tracks: a large ball entering at
@@ -436,30 +444,20 @@ def merge_fragments(ranked: list, kinds: list, frames: np.ndarray, debug: bool =
     masks = [x[1] for x in ranked]
     n = len(masks)
     seen = [m.any(axis=(1, 2)) for m in masks]
-    kernel = np.ones((5, 5), np.uint8)
-    grown = [np.stack([cv2.dilate(f.astype(np.uint8), kernel) > 0 for f in m]) for m in masks]
+    grown = [grown_by_2px(m) for m in masks]
     chroma = [chromaticity(frames, m) if m.any() else None for m in masks]
-    parent = list(range(n))
-
-    def root(i):
-        while parent[i] != i:
-            i = parent[i]
-        return i
-
+    joined = np.zeros((n, n), bool)
     for i in range(n):
         for j in range(i + 1, n):
             both = seen[i] & seen[j]
             if both.sum() < 2 or chroma[i] is None or chroma[j] is None:
                 continue
             touch = float((grown[i] & masks[j]).any(axis=(1, 2))[both].mean())
-            dc = float(np.abs(chroma[i] - chroma[j]).max())
-            if debug:
-                print("fragment?", i, j, kinds[i], kinds[j], "touch", round(touch, 2), "chroma", round(dc, 3))
-            if touch >= FRAGMENT_TOUCH and dc <= FRAGMENT_CHROMA:
-                parent[max(root(i), root(j))] = min(root(i), root(j))
+            joined[i, j] = touch >= FRAGMENT_TOUCH and float(np.abs(chroma[i] - chroma[j]).max()) <= FRAGMENT_CHROMA
+    _, label = connected_components(joined, directed=False)
     groups: dict[int, list[int]] = {}
     for i in range(n):
-        groups.setdefault(root(i), []).append(i)
+        groups.setdefault(int(label[i]), []).append(i)
     out, out_kinds = [], []
     for members in sorted(groups.values(), key=min):
         lead = members[0]
@@ -640,8 +638,7 @@ def attached_parts(masks: list, flow: np.ndarray) -> set[int]:
     seen = [m.any(axis=(1, 2)) for m in masks]
     area = [float(np.median(m.sum(axis=(1, 2))[s])) if s.any() else 0.0 for m, s in zip(masks, seen)]
     path = [float(_flow_speeds(m, flow).sum()) for m in masks]
-    kernel = np.ones((5, 5), np.uint8)
-    grown = [np.stack([cv2.dilate(f.astype(np.uint8), kernel) > 0 for f in m]) for m in masks]
+    grown = [grown_by_2px(m) for m in masks]
     parts = set()
     for i in range(n):
         if not seen[i].any():
