@@ -335,6 +335,37 @@ def test_flow_moves_needs_the_pixels_to_flow_not_only_the_outline():
 
 
 
+@pytest.mark.skipif(not DEFAULT_WEIGHTS.exists(), reason="no shipped segmenter weights")
+def test_observe_keeps_a_uniform_box_that_leaves_the_view(tmp_path):
+    """A PyBullet clip with true masks (truth set seed 0, clip 3): a green box of one colour slides
+    out of the view in the first third of the window (a sliver stays at the border) while a capsule
+    lies at rest. The motion test's
+    flow (DIS at MOTION_FLOW_PRESET) carries the box's motion although its interior has no texture,
+    so it is an object until it leaves; the capsule stays an object at rest."""
+    from pipeline.metrics import observation_scores
+    from pipeline.observe import observe, truth_in_window
+    from pipeline.truthsets import pybullet_scenes
+    from pipeline.truthsets.common import generate_clip, write_clip
+    clip = generate_clip(pybullet_scenes, seed=0, index=3)
+    folder = write_clip(tmp_path / "clip", clip)
+    obs = observe(folder / "video.mp4", clip.fps, None, 30, 1.0, mask_method="hybrid")
+    truth, frames = truth_in_window(clip.seg, obs)
+    area = np.stack([(truth == k).sum(axis=(1, 2)) for k in range(2)])      # (2, T) px
+    leaving = int(np.argmin(area[:, -1] / area[:, 0]))
+    assert area[leaving, -1] < 0.1 * area[leaving, 0]                        # a sliver at the border
+    assert area[1 - leaving].min() > 0.9 * area[1 - leaving].max()           # the other stays whole
+    still = np.linalg.norm(clip.pos[frames] - clip.pos[frames][:1], axis=-1).max(axis=0) < 0.005
+    assert not still[leaving] and still[1 - leaving]
+    s = observation_scores(truth, obs.seg, list(still))
+    match = {o["true"]: o for o in s["per_object"]}
+    assert s["n_pred"] == 2 and match[1 - leaving]["iou"] >= 0.8, match
+    pred = obs.seg == match[leaving]["pred"]
+    whole = np.nonzero(area[leaving] >= 0.25 * area[leaving, 0])[0]          # before it is a sliver
+    box = truth == leaving
+    iou = [(pred[t] & box[t]).sum() / (pred[t] | box[t]).sum() for t in whole]
+    assert len(whole) >= 5 and np.mean(iou) >= 0.7, iou
+
+
 def test_merge_fragments_joins_pieces_of_one_colour_only():
     """Two tracks that touch in every frame are one object when they have one colour (the lit and
     the shaded half of a red ball: same chromaticity, half the brightness); a red ball touching a
