@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline.flow import FlowConfig, estimate_flow, flow_config
+from pipeline.flow import RAFT_ITERS, FlowConfig, estimate_flow, flow_config
 from pipeline.params import load_params
 from pipeline.raft.estimator import (DEFAULT_WEIGHTS, RaftFlow, RaftWeightsError, arch_of, load_raft, read_state,
                                      save_raft, working_scale)
@@ -240,7 +240,7 @@ def test_flow_config_resolves_raft_weights_relative_to_the_params_file(tmp_path)
     (tmp_path / "params.yaml").write_text("flow:\n  method: raft\n  raft_weights: w/raft-things.pth\n")
     cfg = flow_config(load_params(str(tmp_path / "params.yaml")))
     assert cfg.method == "raft" and Path(cfg.raft_weights) == tmp_path / "w" / "raft-things.pth"
-    assert FlowConfig().raft_weights is None and FlowConfig().raft_iters == 12
+    assert FlowConfig().raft_weights is None and FlowConfig().raft_iters == RAFT_ITERS == 6
 
 
 def _sliding_box_clip():

@@ -27,6 +27,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from pipeline.flow import RAFT_ITERS
 from pipeline.raft.model import RAFT, RaftArch
 
 WEIGHTS_DIR = Path(__file__).resolve().parent.parent / "weights"
@@ -114,12 +115,12 @@ class RaftFlow:
 
     Args:
         net: the network (see :func:`load_raft`).
-        iters: GRU updates per pair (release: 12 at test time).
+        iters: GRU updates per pair (:data:`pipeline.flow.RAFT_ITERS`; the release: 12 at test time).
         batch: pairs per forward pass.
         min_grid: see :func:`working_scale`.
     """
 
-    def __init__(self, net: RAFT, iters: int = 12, batch: int = 8, min_grid: int = MIN_GRID) -> None:
+    def __init__(self, net: RAFT, iters: int = RAFT_ITERS, batch: int = 8, min_grid: int = MIN_GRID) -> None:
         self.net, self.iters, self.batch, self.min_grid = net.eval(), iters, batch, min_grid
 
     @classmethod
