@@ -339,9 +339,9 @@ def test_flow_moves_needs_the_pixels_to_flow_not_only_the_outline():
 def test_observe_keeps_a_uniform_box_that_leaves_the_view(tmp_path):
     """A PyBullet clip with true masks (truth set seed 0, clip 3): a green box of one colour slides
     out of the view in the first third of the window (a sliver stays at the border) while a capsule
-    lies at rest. The motion test's
-    flow (DIS at MOTION_FLOW_PRESET) carries the box's motion although its interior has no texture,
-    so it is an object until it leaves; the capsule stays an object at rest."""
+    lies at rest. The motion test's flow (DIS at MOTION_FLOW_PRESET) carries the box's motion
+    although its interior has no texture, so it is an object until it leaves; the capsule stays an
+    object at rest."""
     from pipeline.metrics import observation_scores
     from pipeline.observe import observe, truth_in_window
     from pipeline.truthsets import pybullet_scenes
