@@ -23,7 +23,7 @@ import mujoco
 
 from absl import logging as absl_logging
 
-from pipeline import discrepancy, reconstruct, shard_viewer
+from pipeline import adapt, discrepancy, reconstruct, shard_viewer
 from pipeline.atomic import write_text
 from pipeline.entry import USER_ERROR_STATUS, configure_logging, user_error_line
 from pipeline.errors import UserError
@@ -52,6 +52,11 @@ def build_parser() -> argparse.ArgumentParser:
                        description=reconstruct.__doc__.split("\n\n")[0])
     reconstruct.add_arguments(p)
     p.set_defaults(func=reconstruct.main_cli)
+
+    p = sub.add_parser("adapt", help="label-free preference optimisation (DPO) of the scene writer on videos",
+                       description=adapt.__doc__.split("\n\n")[0])
+    adapt.add_arguments(p)
+    p.set_defaults(func=adapt.main_cli)
 
     p = sub.add_parser("discrepancy", help="find, name and add missing physical effects (docs/design.md §8)",
                        description="Discrepancy workflow on measured trajectories (CSV/Parquet/Tracker txt).")
@@ -190,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _input_of(args: argparse.Namespace) -> str:
     """The input file a subcommand was given (for a one-line error), else the subcommand."""
-    for key in ("scene", "video", "trajectories", "shard", "path"):
+    for key in ("scene", "video", "videos", "trajectories", "shard", "path"):
         value = getattr(args, key, None)
         if value:
             return str(value[0] if isinstance(value, (list, tuple)) else value)

@@ -36,6 +36,7 @@ from typing import Any, Sequence
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+from scipy.stats import bootstrap
 
 BACKGROUND = -1
 """Label of the floor/background in segmentations (same as ``pipeline.render.BACKGROUND``)."""
@@ -458,3 +459,27 @@ def observation_scores(true_seg: np.ndarray, pred_seg: np.ndarray,
         "still_iou": mean([r["iou"] for r in still_rows]),
         "still_found": mean([r["iou"] >= found_iou for r in still_rows]),
     }
+
+
+# --------------------------------------------------------------------------- intervals
+
+def mean_ci95(values: Sequence[float], n_resamples: int = 2000, seed: int = 0) -> dict[str, Any]:
+    """Mean of per-scene values with a percentile bootstrap 95 % interval
+    (``scipy.stats.bootstrap``, ``method="percentile"``; Efron & Tibshirani 1993, ch. 13).
+
+    Args:
+        values: ``(N,)`` per-scene numbers (e.g. 0/1 hits or IoUs).
+        n_resamples, seed: bootstrap resamples and their seed (deterministic).
+    Returns:
+        ``{"mean": float, "ci95": [lo, hi], "n": N}``, rounded to 3 decimals; with fewer than
+        two values (or all equal) the interval is the mean itself; ``mean`` is NaN for no values.
+    """
+    x = np.asarray(values, dtype=np.float64)
+    if x.size == 0:
+        return {"mean": float("nan"), "ci95": [float("nan"), float("nan")], "n": 0}
+    m = float(x.mean())
+    if x.size < 2 or np.all(x == x[0]):
+        return {"mean": round(m, 3), "ci95": [round(m, 3), round(m, 3)], "n": int(x.size)}
+    res = bootstrap((x,), np.mean, n_resamples=n_resamples, method="percentile", random_state=seed)
+    lo, hi = res.confidence_interval
+    return {"mean": round(m, 3), "ci95": [round(float(lo), 3), round(float(hi), 3)], "n": int(x.size)}

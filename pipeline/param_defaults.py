@@ -40,6 +40,7 @@ SECTIONS: dict[str, str] = {
     "sim": "pipeline.mjcf:SimOptions",
     "tokens": "pipeline.codec:TokenConfig",
     "model": "pipeline.model.config:ModelConfig",
+    "preference": "pipeline.adapt:PreferenceConfig",
 }
 """params section (dots for a nested one) -> ``module:Class`` of the config that reads it."""
 UNTYPED = ("seed", "paths", "scene", "render")

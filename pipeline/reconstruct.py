@@ -53,7 +53,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from pipeline import infer_report, perception
-from pipeline.flow import flow_config, flow_of
+from pipeline.flow import FlowConfig, flow_config, flow_of
 from pipeline.labels import load_labels
 from pipeline.mjcf import SimOptions
 from pipeline.observe import LEARNED, MASK_METHODS, MIN_WINDOW_FRAMES, Observation, observe, scene_rate
@@ -124,6 +124,81 @@ def realvideo_config(params: dict) -> RealVideoConfig:
     return typed_section(params, "realvideo", RealVideoConfig)
 
 
+@dataclass(frozen=True)
+class JobSettings:
+    """The main job's settings, read and checked from params before any video is decoded.
+
+    Attributes:
+        rv: section ``realvideo``; fcfg: the flow estimator (section ``flow``);
+        scfg: the search (section ``search`` with ``realvideo``'s popsize, iterations, lambda_epe
+            and epe_pixels); sim, sanity: sections ``sim`` and ``sanity``;
+        segmenter: the object segmenter the observation uses (:func:`pipeline.segmenter.shipped`).
+    """
+
+    rv: RealVideoConfig
+    fcfg: FlowConfig
+    scfg: SearchConfig
+    sim: SimOptions
+    sanity: SanityConfig
+    segmenter: object
+
+
+def job_settings(params: dict) -> JobSettings:
+    """:class:`JobSettings` of ``params`` (``dynamics infer``, ``dynamics adapt`` and the benchmarks
+    that must observe a video exactly as the main job does share them).
+
+    Raises:
+        ParamsError: a section is invalid, the segmenter's weights cannot be loaded, or the window
+            (``realvideo.duration * realvideo.fps``) is out of 2..:data:`MAX_WINDOW_FRAMES` frames.
+    """
+    rv = realvideo_config(params)
+    fcfg = flow_config(params)
+    scfg = typed_section(params, "search", SearchConfig, required=True)
+    scfg = scfg.model_copy(update={"popsize": rv.popsize, "iterations": rv.iterations, "lambda_epe": rv.lambda_epe,
+                                   "epe_pixels": rv.epe_pixels})
+    sim = typed_section(params, "sim", SimOptions, required=True)
+    sanity = typed_section(params, "sanity", SanityConfig)
+    try:                                       # the segmenter the observation uses, checked before any decoding
+        segmenter = shipped(resolve_weights(rv.segmenter_weights, getattr(params, "root", None)))
+    except SegmenterError as exc:
+        raise ParamsError(f"{getattr(params, 'source', 'params.yaml')}: realvideo.segmenter_weights: {exc}") from None
+    frames = int(round(rv.fps * rv.duration))
+    if not 2 <= frames <= MAX_WINDOW_FRAMES:   # before any video is decoded
+        raise ParamsError(f"{getattr(params, 'source', 'params.yaml')}: realvideo.duration * realvideo.fps: must give "
+                          f"2..{MAX_WINDOW_FRAMES} frames (the main job holds the window's frames, flow and masks "
+                          f"in memory, ~2.5 MB per frame), got {frames}")
+    return JobSettings(rv, fcfg, scfg, sim, sanity, segmenter)
+
+
+def observe_window(video: str | Path, job: JobSettings, fps: float | None = None, start: float | None = None
+                   ) -> Observation:
+    """Step 1 of the main job: the scene rate (a clip too short for the window at
+    ``realvideo.fps`` gets a higher one, :func:`pipeline.observe.scene_rate`), then
+    :func:`pipeline.observe.observe` of the window with the main job's settings.
+
+    Args:
+        video: video file; fps: its true frame rate (None: the container's); start: window start, s
+            (None: chosen, :func:`pipeline.observe.choose_start`).
+    Raises:
+        VideoError: unreadable video or window past its end.
+    """
+    rv = job.rv
+    scene_fps = rv.fps
+    if start is None:   # a clip too short for the window at realvideo.fps gets a higher scene rate
+        scene_fps = scene_rate(video, fps, rv.fps)
+        if scene_fps != rv.fps:
+            why = (f"recorded at a lower rate than {rv.fps} fps" if scene_fps < rv.fps else
+                   f"too short for {MIN_WINDOW_FRAMES} frames at {rv.fps} fps")
+            print(f"[infer] {video}: {why}: the scene runs at {scene_fps} fps")
+    obs = observe(video, fps, start, scene_fps, rv.duration, job.fcfg, rv.mask_method, rv.max_objects, job.segmenter,
+                  fine_scale=rv.fine_scale)
+    W, H = obs.size
+    print(f"[infer] {video}: window {obs.start:.3f}-{obs.start + obs.duration:.3f} s"
+          f"{' (chosen automatically)' if obs.auto else ''}, {len(obs.frames)} frames at {scene_fps} fps, "
+          f"crop {obs.crop} -> {W}x{H} px")
+    return obs
+
+
 def default_model_dir(params: dict) -> Path | None:
     """The model ``dynamics infer`` uses without ``--model``, by ``realvideo.model``:
 
@@ -166,28 +241,42 @@ def resolve_model_dir(model_dir: str | Path | None, params: dict) -> Path | None
     return mdir
 
 
-def model_samples(model_dir: Path, frames: np.ndarray, params: dict, k: int | None, seed: int,
-                  scene_fps: int, duration: float) -> tuple[list[Scene | None], list[str | None]]:
-    """K scenes sampled from a model for a clip (None where a sample is not a valid scene).
+def model_view(frames: np.ndarray, params: dict, mcfg) -> np.ndarray:
+    """What the model sees of a window, as it was trained: the frames resized to
+    ``render.width x render.height`` (area), the flow estimated at that size (params ``flow``),
+    and :func:`pipeline.model.vision.model_input` of the two.
 
-    The clip is shown to the model as it was trained: resized to ``render.width x
-    render.height`` with the flow estimated at that size.
+    Args:
+        frames: ``(T, H, W, 3) uint8`` window at the working size (:class:`pipeline.observe.Observation`).
+        mcfg: the model's :class:`pipeline.model.ModelConfig` (:func:`pipeline.model.checkpoint_config`).
+    Returns:
+        ``(mcfg.n_input_frames, H', W', 3) uint8``.
     """
-    import torch
-
     from pipeline import model as vlm
 
     W, H = int(section(params, "render")["width"]), int(section(params, "render")["height"])
     fcfg = flow_config(params)
     small = np.stack([cv2.resize(f, (W, H), interpolation=cv2.INTER_AREA) for f in frames])
-    flow = flow_of(small, fcfg)
+    return vlm.model_input(small, flow_of(small, fcfg), mcfg, fcfg.max_magnitude)
+
+
+def model_samples(model_dir: Path, frames: np.ndarray, params: dict, k: int | None, seed: int,
+                  scene_fps: int, duration: float) -> tuple[list[Scene | None], list[str | None]]:
+    """K scenes sampled from a model for a clip (None where a sample is not a valid scene).
+
+    The clip is shown to the model as it was trained (:func:`model_view`).
+    """
+    import torch
+
+    from pipeline import model as vlm
+
+    mcfg = vlm.checkpoint_config(model_dir, vlm.ModelConfig.from_params(params))
+    x = model_view(frames, params, mcfg)
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # as in stages/predict.py: decoding K samples, 1 thread is as fast
     try:   # restored after: the segmenter of a later observation runs on every core
         net, tok = vlm.load_model(model_dir)
         codec, _ = vlm.load_codec(model_dir)
-        mcfg = vlm.checkpoint_config(model_dir, vlm.ModelConfig.from_params(params))
-        x = vlm.model_input(small, flow, mcfg, fcfg.max_magnitude)
         samples = vlm.generate(net, tok, x, mcfg, codec, k=k or mcfg.k, seed=seed)
     finally:
         torch.set_num_threads(threads)
@@ -434,22 +523,8 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     # (benchmarks/search_eval.py --compare-lp); pixels do not depend on it
     os.environ.setdefault("LP_NUM_THREADS", "0")
     t0 = time.time()
-    rv = realvideo_config(params)
-    fcfg = flow_config(params)
-    scfg = typed_section(params, "search", SearchConfig, required=True)
-    scfg = scfg.model_copy(update={"popsize": rv.popsize, "iterations": rv.iterations, "lambda_epe": rv.lambda_epe,
-                                   "epe_pixels": rv.epe_pixels})
-    sim = typed_section(params, "sim", SimOptions, required=True)
-    sanity = typed_section(params, "sanity", SanityConfig)
-    try:                                       # the segmenter the observation uses, checked before any decoding
-        segmenter = shipped(resolve_weights(rv.segmenter_weights, getattr(params, "root", None)))
-    except SegmenterError as exc:
-        raise ParamsError(f"{getattr(params, 'source', 'params.yaml')}: realvideo.segmenter_weights: {exc}") from None
-    frames = int(round(rv.fps * rv.duration))
-    if not 2 <= frames <= MAX_WINDOW_FRAMES:   # before any video is decoded
-        raise ParamsError(f"{getattr(params, 'source', 'params.yaml')}: realvideo.duration * realvideo.fps: must give "
-                          f"2..{MAX_WINDOW_FRAMES} frames (the main job holds the window's frames, flow and masks "
-                          f"in memory, ~2.5 MB per frame), got {frames}")
+    job = job_settings(params)
+    rv, scfg, sim, sanity = job.rv, job.scfg, job.sim, job.sanity
 
     # the model folder is checked first (milliseconds), before decoding the video (seconds)
     model_note, mdir = None, None
@@ -466,19 +541,7 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
         truth = load_labels(labels, read_video(video, fps=fps, max_frames=1).original_size)
 
     # 1. observe
-    scene_fps = rv.fps
-    if start is None:   # a clip too short for the window at realvideo.fps gets a higher scene rate
-        scene_fps = scene_rate(video, fps, rv.fps)
-        if scene_fps != rv.fps:
-            why = (f"recorded at a lower rate than {rv.fps} fps" if scene_fps < rv.fps else
-                   f"too short for {MIN_WINDOW_FRAMES} frames at {rv.fps} fps")
-            print(f"[infer] {video}: {why}: the scene runs at {scene_fps} fps")
-    obs = observe(video, fps, start, scene_fps, rv.duration, fcfg, rv.mask_method, rv.max_objects, segmenter,
-                  fine_scale=rv.fine_scale)
-    W, H = obs.size
-    print(f"[infer] {video}: window {obs.start:.3f}-{obs.start + obs.duration:.3f} s"
-          f"{' (chosen automatically)' if obs.auto else ''}, {len(obs.frames)} frames at {scene_fps} fps, "
-          f"crop {obs.crop} -> {W}x{H} px")
+    obs = observe_window(video, job, fps, start)
     # 2. propose
     candidates, proposals, notes = propose_candidates(obs, mdir, params, rv, k, seed)
     # 3. search
