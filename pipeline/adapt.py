@@ -9,7 +9,8 @@ second test-time refinement, beside Best-of-K and CMA-ES).
 2. Per round: **sample** K completions per video from the current model (params
    ``preference.temperature`` / ``top_p``, under the scene grammar), **re-simulate** each and
    score it with the search's fitness against the observation (strict IoU - lambda * EPE,
-   :func:`pipeline.search.best_of_k`, as Best@K scores), **pair** the better against the worse
+   :func:`pipeline.search.best_of_k`, as Best@K scores; against every observed object, moving or
+   at rest, by default: ``preference.target``), **pair** the better against the worse
    (:func:`pipeline.model.preference.make_pairs`) and **optimise** the DPO loss against the
    frozen starting model (:func:`pipeline.model.preference.dpo_epochs`; Rafailov et al. 2023).
 3. After every round the **guard** (item 4): greedy first samples on ``preference.guard_scenes``
@@ -80,7 +81,9 @@ class PreferenceConfig(BaseModel):
     ``temperature`` / ``top_p`` (more varied than Best@K's 0.1 / 0.9, so that samples differ),
     pairs of samples whose fitness differs by ``margin`` (``pairs``: ``best_worst`` or ``all``),
     DPO with ``beta`` at learning rate ``lr`` for ``epochs`` passes of ``batch_pairs`` pairs per
-    step. ``guard_scenes`` synthetic scenes check composition and full IoU after each round;
+    step. ``target``: the observed objects a sample is scored against, ``all`` (moving and at
+    rest, ``Observation.seg``: the model writes whole scenes) or ``moving`` (``Observation.fit_seg``,
+    what the main job's Best@K fits before perception adds the objects at rest). ``guard_scenes`` synthetic scenes check composition and full IoU after each round;
     a drop above ``guard_drop`` stops (0 scenes: no guard).
     """
 
@@ -99,6 +102,7 @@ class PreferenceConfig(BaseModel):
     batch_pairs: int = Field(4, ge=1)
     margin: float = Field(0.02, ge=0)
     pairs: Literal["best_worst", "all"] = "all"
+    target: Literal["all", "moving"] = "all"
     guard_scenes: int = Field(100, ge=0)
     guard_drop: float = Field(0.02, ge=0)
     seed: int = 0
@@ -108,6 +112,12 @@ def preference_config(params: dict, **overrides) -> PreferenceConfig:
     """:class:`PreferenceConfig` of params (section optional), with ``overrides`` (None ignored)."""
     return typed_section(params, "preference", PreferenceConfig,
                          overrides={k: v for k, v in overrides.items() if v is not None})
+
+
+def reward_target(obs, target: str) -> np.ndarray:
+    """``(T, H, W)`` int8 observed labels a sample is scored against: all observed objects
+    (``target == "all"``) or the moving ones (``"moving"``, :attr:`pipeline.observe.Observation.fit_seg`)."""
+    return obs.seg if target == "all" else obs.fit_seg
 
 
 def collect_videos(paths: list[str | Path]) -> list[Path]:
@@ -323,8 +333,9 @@ def adapt(videos: list[str | Path], out: str | Path, params: dict, base: str | P
         except VideoError as exc:
             print(f"[adapt] {f}: skipped: {exc}")
             continue
-        if not any(obs.moving_flags):
-            print(f"[adapt] {f}: skipped: no moving object observed (nothing to reward against)")
+        if not (reward_target(obs, pc.target) >= 0).any():
+            print(f"[adapt] {f}: skipped: no {'moving ' if pc.target == 'moving' else ''}object observed "
+                  "(nothing to reward against)")
             continue
         observed.append((f, obs, model_view(obs.frames, params, mcfg)))
     if not observed:
@@ -358,7 +369,7 @@ def adapt(videos: list[str | Path], out: str | Path, params: dict, base: str | P
                 s, _ = vlm.to_scene(t, codec)
                 scenes.append(None if s is None else s.replace(fps=obs.scene_fps, duration=obs.duration))
             with EvaluatorPool(*obs.size, job.sim) as pool:
-                scores, _ = best_of_k(scenes, obs.fit_seg, obs.flow, at_width(job.scfg, obs.size[0]), job.sim,
+                scores, _ = best_of_k(scenes, reward_target(obs, pc.target), obs.flow, at_width(job.scfg, obs.size[0]), job.sim,
                                       pool=pool)
             fitness = [float(s["fitness"]) if s.get("valid") else None for s in scores]
             n_valid += sum(v is not None for v in fitness)
