@@ -64,6 +64,7 @@ VIDEO_SUFFIXES = (".mp4", ".avi", ".mov", ".mkv", ".webm", ".m4v", ".mpg", ".mpe
 STATE_FILE = "adapt_state.json"
 LOG_FILE = "adapt_log.csv"
 CURVE_PNG = "adapt_curve.png"
+CARD_FILE = "ADAPTED.md"
 LOG_COLUMNS = ("round", "videos", "samples", "valid", "pairs", "mean_fitness", "best_fitness", "beta", "lr", "loss",
                "reward_margin", "reward_accuracy", "kl", "guard_composition", "guard_full_iou", "accepted", "seconds")
 
@@ -217,7 +218,7 @@ def save_adapted(out: Path, base: Path, model, state: dict, log: list[dict]) -> 
     try:
         shutil.copytree(base, tmp, dirs_exist_ok=True,
                         ignore=shutil.ignore_patterns("trainer_state.pt", "*.safetensors", STATE_FILE, LOG_FILE,
-                                                      CURVE_PNG))
+                                                      CURVE_PNG, CARD_FILE))
         model.save_pretrained(str(tmp))
         (tmp / STATE_FILE).write_text(json.dumps(state, indent=1) + "\n")
         buf = io.StringIO(newline="")
@@ -226,6 +227,14 @@ def save_adapted(out: Path, base: Path, model, state: dict, log: list[dict]) -> 
         w.writerows(log)
         (tmp / LOG_FILE).write_text(buf.getvalue())
         plot_log(log, tmp / CURVE_PNG)
+        last = log[-1] if log else {}
+        (tmp / CARD_FILE).write_text(
+            f"# Adapted checkpoint (dynamics adapt, issue 37)\n\nThe weights here are `{base}` after "
+            f"{state['rounds_done']} round(s) of label-free DPO on {len(state['videos'])} videos "
+            f"(`{STATE_FILE}` lists them; `{LOG_FILE}` and `{CURVE_PNG}` give beta, the reward margin, the KL to "
+            f"the reference and the guard per round). The other files (tokenizer, codec, any model card) are the "
+            f"base model's.\n\nLast round: {json.dumps(last)}\n"
+            + (f"\nStopped: {state['stopped']}\n" if state.get("stopped") else ""))
         replace_path(tmp, out)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -260,7 +269,8 @@ def plot_log(log: list[dict], png: Path) -> None:
 
 # ----------------------------------------------------------------------------- the loop
 def adapt(videos: list[str | Path], out: str | Path, params: dict, base: str | Path | None = None,
-          rounds: int | None = None, k: int | None = None, fps: float | None = None, progress: bool = True,
+          rounds: int | None = None, k: int | None = None, fps: float | dict[str, float] | None = None,
+          progress: bool = True,
           **overrides) -> dict:
     """Adapt a scene writer to videos without labels (module docstring).
 
@@ -271,8 +281,11 @@ def adapt(videos: list[str | Path], out: str | Path, params: dict, base: str | P
         params: parsed params.yaml (sections ``realvideo``, ``flow``, ``search``, ``sim``,
             ``model``, ``render``, ``sample``, ``preference``).
         base: the starting model folder (default: the one ``dynamics infer`` uses).
-        rounds, k, fps: override ``preference.rounds`` / ``k`` / ``fps``; ``overrides``: any other
-            field of :class:`PreferenceConfig`.
+        rounds, k: override ``preference.rounds`` / ``k``; ``overrides``: any other field of
+            :class:`PreferenceConfig`.
+        fps: the videos' true frame rate (overrides ``preference.fps``), or a mapping from a
+            video's path, file name or stem to its rate (others: ``preference.fps``, else the
+            container's), for sets shot at different rates.
         progress: tqdm bars.
     Returns:
         the final state: ``{base, videos, rounds_done, stopped, log}`` (``log`` one row per round,
@@ -287,7 +300,8 @@ def adapt(videos: list[str | Path], out: str | Path, params: dict, base: str | P
     from pipeline.model.preference import dpo_epochs, kl_to_reference, make_pairs
 
     t_start = time.time()
-    pc = preference_config(params, rounds=rounds, k=k, fps=fps, **overrides)
+    pc = preference_config(params, rounds=rounds, k=k, fps=None if isinstance(fps, dict) else fps, **overrides)
+    rates = fps if isinstance(fps, dict) else {}
     files = collect_videos(videos)
     job = job_settings(params)
     base_dir = resolve_model_dir(base, params)
@@ -329,7 +343,8 @@ def adapt(videos: list[str | Path], out: str | Path, params: dict, base: str | P
     observed = []
     for f in tqdm(files, desc="adapt: observe", unit="video", disable=not progress):
         try:
-            obs = observe_window(f, job, fps=pc.fps)
+            rate = rates.get(str(f), rates.get(f.name, rates.get(f.stem, pc.fps)))
+            obs = observe_window(f, job, fps=rate)
         except VideoError as exc:
             print(f"[adapt] {f}: skipped: {exc}")
             continue

@@ -41,7 +41,7 @@ def workspace(tmp_path_factory) -> tuple[Path, dict]:
 def test_repro_builds_every_stage_and_reports(workspace):
     ws, _ = workspace
     for stage_dir in ("configs", "mjcf", "video", "traces", "flow", "events", "tokenizer", "examples", "model",
-                      "predictions", "best_of_k", "cmaes", "hidden", "hidden_truth", "discrepancy"):
+                      "model_adapted", "predictions", "best_of_k", "cmaes", "hidden", "hidden_truth", "discrepancy"):
         assert (ws / "data" / stage_dir).is_dir(), stage_dir
     metrics = json.loads((ws / "reports" / "metrics.json").read_text())
     assert metrics, "empty metrics"
@@ -70,14 +70,16 @@ def test_second_repro_is_a_noop_and_params_invalidate_downstream_only(workspace)
     params["search"]["popsize"] = 5
     (ws / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     status = json.loads(_run([sys.executable, "-m", "dvc", "status", "--json"], ws, env).stdout)
-    assert set(status) == {"cmaes", "score"}, status
+    # preference reads the search's fitness when enabled (issue 37); disabled, it reruns as a copy of the
+    # same model, so predict and best_of_k stay cached
+    assert set(status) == {"preference", "cmaes", "score"}, status
     params["search"]["popsize"] = 4
     (ws / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     params["model"]["reasoning"] = False
     (ws / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
     status = json.loads(_run([sys.executable, "-m", "dvc", "status", "--json"], ws, env).stdout)
     # stages that read model.reasoning directly (best_of_k/cmaes rerun later only if predictions change)
-    assert set(status) == {"tokenize", "finetune", "predict", "score"}, status
+    assert set(status) == {"tokenize", "finetune", "preference", "predict", "score"}, status
     params["model"]["reasoning"] = True
     (ws / "params.yaml").write_text(yaml.safe_dump(params, sort_keys=False))
 
