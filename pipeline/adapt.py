@@ -25,7 +25,8 @@ checkpoint folder that ``dynamics infer --model MODEL_DIR`` loads like the shipp
 ``adapt_state.json`` (rounds done, the log, the base model) and ``adapt_log.csv`` /
 ``adapt_curve.png`` (beta, reward margin, KL to the reference, guard, per round), and is
 written whole after every round (a temporary folder renamed in), so a killed run resumes at the
-last finished round.
+last finished round (with a fresh AdamW: its moments are not kept between runs, and every round
+draws new pairs anyway).
 """
 
 from __future__ import annotations
@@ -391,8 +392,7 @@ def adapt(videos: list[str | Path], out: str | Path, params: dict, base: str | P
             fits += [v for v in fitness if v is not None]
             strs = [" ".join(t) for t in toks]
             texts += [(i, s) for s in strs]
-            pairs += make_pairs(i, [s if sc is not None else None for s, sc in zip(strs, scenes)], fitness,
-                                pc.margin, pc.pairs)
+            pairs += make_pairs(i, strs, fitness, pc.margin, pc.pairs)   # unparsable / unsimulatable: rejected
         saved = {k_: v.detach().clone() for k_, v in policy.state_dict().items()}
         n_steps = pc.epochs * -(-len(pairs) // pc.batch_pairs)
         with tqdm(total=n_steps, desc=f"adapt round {r}: DPO", unit="step", disable=not progress) as bar:
