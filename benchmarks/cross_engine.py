@@ -156,6 +156,21 @@ def markdown(report: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def save_report(stem: Path, script: str, argv: list[str] | None, body: dict, to_markdown) -> dict:
+    """Write ``stem.json`` (``command``, ``commit`` and ``body``) and ``stem.md``
+    (``to_markdown(report)``), print the Markdown; returns the report. Shared by the benchmarks of
+    the scene writer (this one, ``preference_eval.py``, ``preference_real.py``)."""
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
+    report = {"command": f"python benchmarks/{script} " + " ".join(argv if argv is not None else sys.argv[1:]),
+              "commit": commit, **body}
+    stem.parent.mkdir(parents=True, exist_ok=True)
+    write_json(stem.with_suffix(".json"), report, indent=1)
+    text = to_markdown(report)
+    write_text(stem.with_suffix(".md"), text)
+    print(text)
+    return report
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sets", type=Path, default=ROOT / "data/truthsets",
@@ -184,13 +199,8 @@ def main(argv: list[str] | None = None) -> int:
             label = f"{Path(mdir).name} (K={k}) | {name}"
             sets[label] = [run_clip(c, params, Path(mdir), k, args.seed, not args.no_cmaes)
                            for c in tqdm(clips, desc=label)]
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
-    report = {"command": "python benchmarks/cross_engine.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-              "commit": commit, "summary": {k_: summarize(v) for k_, v in sets.items()}, "sets": sets}
-    args.report.parent.mkdir(parents=True, exist_ok=True)
-    write_json(args.report.with_suffix(".json"), report, indent=1)
-    write_text(args.report.with_suffix(".md"), markdown(report))
-    print(markdown(report))
+    save_report(args.report, "cross_engine.py", argv, {"summary": {k_: summarize(v) for k_, v in sets.items()},
+                                                        "sets": sets}, markdown)
     return 0
 
 

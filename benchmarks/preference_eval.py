@@ -22,7 +22,6 @@ import argparse
 import json
 import os
 import shutil
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -33,9 +32,8 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from benchmarks.cross_engine import ROWS, run_clip, summarize  # noqa: E402
-from pipeline.adapt import adapt  # noqa: E402
-from pipeline.atomic import write_json, write_text  # noqa: E402
+from benchmarks.cross_engine import ROWS, run_clip, save_report, summarize  # noqa: E402
+from pipeline.adapt import adapt, log_markdown  # noqa: E402
 from pipeline.params import load_params  # noqa: E402
 from pipeline.reconstruct import resolve_model_dir  # noqa: E402
 
@@ -79,21 +77,8 @@ def markdown(report: dict) -> str:
             lines.append(f"| {name} | {row.replace('_', ' ')} | {cell(r['composition'])} | {cell(r['count'])} | "
                          f"{cell(r['strict'])} | {cell(r['all_frames'])} |")
     lines += ["", "Per round (the adapt log: beta, DPO loss, implicit reward margin and accuracy, KL to the reference "
-              "in nats per completion, the guard on synthetic scenes, seconds):", "",
-              "| run | round | videos | pairs | mean fitness of the samples | beta | loss | reward margin | accuracy | KL "
-              "| guard composition | guard full IoU | kept | s |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for run, log in report["adapt_logs"].items():
-        for r in log:
-            def f(key, fmt="{:.4f}"):
-                v = r.get(key)
-                return "" if v is None else (fmt.format(v) if isinstance(v, float) else str(v))
-            lines.append(f"| {run} | {r['round']} | {f('videos')} | {f('pairs')} | {f('mean_fitness')} | {f('beta')} | "
-                         f"{f('loss')} | {f('reward_margin')} | {f('reward_accuracy', '{:.2f}')} | {f('kl')} | "
-                         f"{f('guard_composition', '{:.3f}')} | {f('guard_full_iou', '{:.3f}')} | {f('accepted')} | "
-                         f"{f('seconds', '{:.0f}')} |")
-    for run, st in report["adapt_stopped"].items():
-        if st:
-            lines.append(f"\n{run}: {st}")
+              "in nats per completion, the guard on synthetic scenes, seconds):", ""]
+    lines += log_markdown(report["adapt_logs"], report["adapt_stopped"])
     return "\n".join(lines) + "\n"
 
 
@@ -133,16 +118,10 @@ def main(argv: list[str] | None = None) -> int:
     rows = {}
     for name, mdir in models.items():
         rows[name] = [run_clip(c, params, Path(mdir), eval_k, 0, True) for c in tqdm(half_b, desc=name)]
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
-    report = {"command": "python benchmarks/preference_eval.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-              "commit": commit, "set": args.set,
-              "halves": {"adapt": [c.name for c in half_a], "judged": [c.name for c in half_b]},
-              "summary": {k: summarize(v) for k, v in rows.items()}, "rows": rows, "adapt_logs": logs,
-              "adapt_stopped": stopped}
-    args.report.parent.mkdir(parents=True, exist_ok=True)
-    write_json(args.report.with_suffix(".json"), report, indent=1)
-    write_text(args.report.with_suffix(".md"), markdown(report))
-    print(markdown(report))
+    save_report(args.report, "preference_eval.py", argv,
+                {"set": args.set, "halves": {"adapt": [c.name for c in half_a], "judged": [c.name for c in half_b]},
+                 "summary": {k: summarize(v) for k, v in rows.items()}, "rows": rows, "adapt_logs": logs,
+                 "adapt_stopped": stopped}, markdown)
     return 0
 
 

@@ -29,8 +29,8 @@ for p in (ROOT, ROOT / "scripts"):
     if str(p) not in sys.path:
         sys.path.insert(0, str(p))
 
-from pipeline.adapt import adapt  # noqa: E402
-from pipeline.atomic import write_json, write_text  # noqa: E402
+from benchmarks.cross_engine import save_report  # noqa: E402
+from pipeline.adapt import adapt, log_markdown  # noqa: E402
 from pipeline.metrics import mean_ci95  # noqa: E402
 from pipeline.params import load_params  # noqa: E402
 from pipeline.reconstruct import resolve_model_dir  # noqa: E402
@@ -87,21 +87,8 @@ def markdown(report: dict) -> str:
         v = s["model_best_strict"]
         lines.append(f"| {name} | {v['mean']:.3f} [{v['ci95'][0]:.3f}, {v['ci95'][1]:.3f}] | {s['picked_model']} | "
                      f"{s['written_vs_labels']} |")
-    lines += ["", "Per round (adapt logs):", "", "| run | round | videos | pairs | mean fitness | loss | reward margin | "
-              "accuracy | KL | guard composition | guard full IoU | kept | s |",
-              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    for run, log in report["adapt_logs"].items():
-        for r in log:
-            def f(key, fmt="{:.4f}"):
-                v = r.get(key)
-                return "" if v is None else (fmt.format(v) if isinstance(v, float) else str(v))
-            lines.append(f"| {run} | {r['round']} | {f('videos')} | {f('pairs')} | {f('mean_fitness')} | {f('loss')} | "
-                         f"{f('reward_margin')} | {f('reward_accuracy', '{:.2f}')} | {f('kl')} | "
-                         f"{f('guard_composition', '{:.3f}')} | {f('guard_full_iou', '{:.3f}')} | {f('accepted')} | "
-                         f"{f('seconds', '{:.0f}')} |")
-    for run, st in report["adapt_stopped"].items():
-        if st:
-            lines.append(f"\n{run}: {st}")
+    lines += ["", "Per round (adapt logs):", ""]
+    lines += log_markdown(report["adapt_logs"], report["adapt_stopped"])
     return "\n".join(lines) + "\n"
 
 
@@ -144,14 +131,9 @@ def main(argv: list[str] | None = None) -> int:
         summary[name] = {"model_best_strict": mean_ci95([r["model_best_strict"] for r in ok]),
                          "picked_model": f"{sum(r['picked_model'] for r in ok)}/{len(ok)}",
                          "written_vs_labels": round(sum(labels) / len(labels), 3) if labels else None}
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
-    report = {"command": "python benchmarks/preference_real.py " + " ".join(argv if argv is not None else sys.argv[1:]),
-              "commit": commit, "adapt_clips": adapt_clips, "judged_clips": judged, "rows": rows, "summary": summary,
-              "adapt_logs": logs, "adapt_stopped": stopped}
-    args.report.parent.mkdir(parents=True, exist_ok=True)
-    write_json(args.report.with_suffix(".json"), report, indent=1)
-    write_text(args.report.with_suffix(".md"), markdown(report))
-    print(markdown(report))
+    save_report(args.report, "preference_real.py", argv,
+                {"adapt_clips": adapt_clips, "judged_clips": judged, "rows": rows, "summary": summary,
+                 "adapt_logs": logs, "adapt_stopped": stopped}, markdown)
     return 0
 
 

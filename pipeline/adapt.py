@@ -268,6 +268,27 @@ def plot_log(log: list[dict], png: Path) -> None:
     plt.close(fig)
 
 
+def log_markdown(logs: dict[str, list[dict]], stopped: dict[str, str | None]) -> list[str]:
+    """Markdown lines of adapt logs (one table, a row per run and round, :data:`LOG_COLUMNS`), then
+    each run's stop message."""
+    lines = ["| run | round | videos | pairs | mean fitness of the samples | beta | loss | reward margin | accuracy | KL "
+             "| guard composition | guard full IoU | kept | s |", "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+
+    def cell(r: dict, key: str, fmt: str = "{:.4f}") -> str:
+        v = r.get(key)
+        return "" if v is None else (fmt.format(v) if isinstance(v, float) else str(v))
+
+    for run, log in logs.items():
+        for r in log:
+            lines.append(f"| {run} | {r['round']} | {cell(r, 'videos')} | {cell(r, 'pairs')} | {cell(r, 'mean_fitness')} | "
+                         f"{cell(r, 'beta')} | {cell(r, 'loss')} | {cell(r, 'reward_margin')} | "
+                         f"{cell(r, 'reward_accuracy', '{:.2f}')} | {cell(r, 'kl')} | "
+                         f"{cell(r, 'guard_composition', '{:.3f}')} | {cell(r, 'guard_full_iou', '{:.3f}')} | "
+                         f"{cell(r, 'accepted')} | {cell(r, 'seconds', '{:.0f}')} |")
+    lines += [f"\n{run}: {st}" for run, st in stopped.items() if st]
+    return lines
+
+
 # ----------------------------------------------------------------------------- the loop
 def adapt(videos: list[str | Path], out: str | Path, params: dict, base: str | Path | None = None,
           rounds: int | None = None, k: int | None = None, fps: float | dict[str, float] | None = None,
@@ -450,5 +471,5 @@ def main_cli(args: argparse.Namespace) -> int:
     return 0 if state["rounds_done"] or state["stopped"] else 1
 
 
-__all__ = ["PreferenceConfig", "preference_config", "collect_videos", "adapt", "guard_set", "guard_scores",
+__all__ = ["PreferenceConfig", "preference_config", "collect_videos", "adapt", "guard_set", "guard_scores", "log_markdown",
            "AdaptError"]
