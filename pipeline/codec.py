@@ -18,6 +18,18 @@ depth, height), mass, position (3), orientation (4, renormalised after decoding)
 velocity (3), angular velocity (3), material (sliding, rolling friction, damping): 19-21
 tokens. A 4-object scene is at most 2 + 3 + 4 * 21 = 89 answer tokens.
 
+**Ramps** (static geometry, issue 30): a codec made from params with ``sample.p_ramp > 0`` also
+writes the scene's ramp, between the camera and the objects, as ``<ramp> angle length width x y
+yaw`` (the numbers :func:`pipeline.static.ramp` builds it from: slope and heading in degrees,
+length and width in m, ``x y`` the centre of its top face; the thickness is the constant
+``sample.ramp_thickness``), at most one, as the sampler draws it::
+
+    <answer> h pitch fov  [<ramp> angle length width x y yaw]  <sphere> ... </answer>
+
+A codec without ramp fields (``p_ramp = 0``, the default, and every checkpoint trained before
+ramps) has no ``<ramp>`` token in its vocabulary or grammar and refuses a scene with static
+geometry.
+
 Quantisation: value ``v`` in ``[lo, hi]`` with ``n`` bins maps to ``round((v - lo) / step)``
 with ``step = (hi - lo) / (n - 1)``, so the bin centres include both ends and the error is at
 most ``step / 2`` (values outside the range are clipped; :meth:`SceneCodec.quantisation_error`
@@ -37,11 +49,19 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from pipeline.params import typed_section
 from pipeline.scene import SHAPES, Decimals, Scene, SceneError
+from pipeline.static import ramp, ramp_parameters
 
 THINK, END_THINK = "<think>", "</think>"
 ANSWER, END_ANSWER = "<answer>", "</answer>"
 SHAPE_TOKENS = {s: f"<{s}>" for s in SHAPES}
 """One token per primitive: ``<sphere>``, ``<cylinder>``, ``<box>``."""
+RAMP_TOKEN = "<ramp>"
+"""Token that opens a ramp's numbers (codecs with ramp fields only)."""
+RAMP_FIELDS = ("ramp.angle", "ramp.length", "ramp.width", "ramp.x", "ramp.y", "ramp.yaw")
+"""A ramp's fields in token order (:func:`pipeline.static.ramp`'s arguments: deg, m, m, m, m, deg)."""
+SCENE_CONSTANTS = ("duration", "fps", "gravity")
+"""Constants restored into every decoded scene (the codec's other constants, such as
+``ramp_thickness``, are not scene fields)."""
 SIZE_KEYS = {"sphere": ("radius",), "cylinder": ("radius", "height"), "box": ("width", "depth", "height")}
 """Size fields per shape, in schema order."""
 EVENT_SEPARATOR = ";"
@@ -165,6 +185,17 @@ class SceneCodec:
         quantizers = {k: Quantizer(k, lo, hi, n) for k, (lo, hi) in specs.items()}
         constants = {"duration": float(s.get("duration", 1.0)), "fps": int(s.get("fps", 30)),
                      "gravity": float(s.get("gravity", 9.81))}
+        if float(s.get("p_ramp", 0.0)) > 0:   # ramps in the token target (the sampler draws them)
+            ramp_specs = {"ramp.angle": _range(s.get("ramp_angle", (10.0, 30.0)), "sample.ramp_angle"),
+                          "ramp.length": _range(s.get("ramp_length", (0.7, 1.1)), "sample.ramp_length"),
+                          "ramp.width": _range(s.get("ramp_width", (0.45, 0.7)), "sample.ramp_width"),
+                          "ramp.x": specs["position.x"], "ramp.y": specs["position.y"], "ramp.yaw": (-180.0, 180.0)}
+            quantizers.update({k: Quantizer(k, lo, hi, n) for k, (lo, hi) in ramp_specs.items()})
+            constants["ramp_thickness"] = float(s.get("ramp_thickness", 0.03))
+        many = s.get("many_objects", (5, 6))
+        if int(s.get("n_test_many", 0) or 0) > 0 and t.max_objects < int(max(many)):
+            raise CodecError(f"params.yaml: tokens.max_objects: must be >= {int(max(many))} for the "
+                             f"sample.n_test_many scenes of {list(many)} objects, got {t.max_objects}")
         decimals = typed_section(params, "scene.decimals", Decimals)
         return cls(quantizers, constants, max_objects=t.max_objects, decimals=decimals)
 
@@ -191,40 +222,68 @@ class SceneCodec:
     CAMERA_FIELDS = ("camera.height", "camera.pitch", "camera.fov")
 
     @property
+    def has_ramps(self) -> bool:
+        """Whether the token target holds a ramp (the codec has the :data:`RAMP_FIELDS`)."""
+        return all(f in self.q for f in RAMP_FIELDS)
+
+    @property
     def answer_vocab(self) -> list[str]:
-        """Tokens of the answer: tags, shape tokens and the bins ``<0>``..``<n-1>``."""
+        """Tokens of the answer: tags, shape tokens (and ``<ramp>`` with :attr:`has_ramps`) and the
+        bins ``<0>``..``<n-1>``."""
         n = max(q.n for q in self.q.values())
-        return [ANSWER, END_ANSWER, *SHAPE_TOKENS.values(), *(bin_token(i) for i in range(n))]
+        ramp = [RAMP_TOKEN] if self.has_ramps else []
+        return [ANSWER, END_ANSWER, *SHAPE_TOKENS.values(), *ramp, *(bin_token(i) for i in range(n))]
 
     def max_answer_tokens(self) -> int:
-        """Longest answer: tags + camera + ``max_objects`` boxes."""
-        return 2 + len(self.CAMERA_FIELDS) + self.max_objects * (1 + len(self.object_fields("box")))
+        """Longest answer: tags + camera (+ a ramp) + ``max_objects`` boxes."""
+        ramp = 1 + len(RAMP_FIELDS) if self.has_ramps else 0
+        return 2 + len(self.CAMERA_FIELDS) + ramp + self.max_objects * (1 + len(self.object_fields("box")))
 
     # ------------------------------------------------------------------ encode / decode
     def encode(self, scene: Scene) -> list[str]:
         """Answer tokens of a scene (``<answer>`` ... ``</answer>``).
 
         Raises:
-            CodecError: 6-DoF camera, effects, static geometry or more than ``max_objects``
-            objects (not representable in the compact target).
+            CodecError: 6-DoF camera, effects, more than ``max_objects`` objects, or static
+            geometry other than one ramp of a codec with :attr:`has_ramps` (not representable in
+            the compact target).
         """
         if scene.camera.is_six_dof:
             raise CodecError("camera: the token target holds the paper camera (height, pitch, fov), got 6-DoF")
         if scene.effects:
             raise CodecError("effects: the token target holds scenes without effects")
-        if scene.static:
-            raise CodecError(f"static geometry is not part of the token target; the model predicts "
-                             f"objects only (got {len(scene.static)} static geoms: sample with sample.p_ramp = 0 "
-                             f"for token data)")
+        if scene.static and not self.has_ramps:
+            raise CodecError(f"static geometry is not part of this codec's token target (got {len(scene.static)} "
+                             f"static geoms): a codec made with sample.p_ramp > 0 writes one ramp")
+        if len(scene.static) > 1:
+            raise CodecError(f"static: the token target holds at most one ramp, got {len(scene.static)} geoms")
         if len(scene.objects) > self.max_objects:
             raise CodecError(f"objects: at most {self.max_objects} in the token target, got {len(scene.objects)}")
         cam = scene.camera
         out = [ANSWER] + [bin_token(self.q[f].encode(v)) for f, v in
                           zip(self.CAMERA_FIELDS, (cam.height, cam.pitch, cam.fov))]
+        for g in scene.static:
+            out += [RAMP_TOKEN] + [bin_token(self.q[f].encode(v)) for f, v in zip(RAMP_FIELDS, self._ramp_values(g))]
         for o in scene.objects:
             out.append(SHAPE_TOKENS[o.shape])
             out += [bin_token(self.q[f].encode(v)) for f, v in zip(self.object_fields(o.shape), _object_values(o))]
         return out + [END_ANSWER]
+
+    def _ramp_values(self, geom) -> list[float]:
+        """A static geom's numbers in :data:`RAMP_FIELDS` order (:func:`pipeline.static.ramp_parameters`).
+
+        Raises:
+            CodecError: not a ramp, or a thickness other than the codec's ``ramp_thickness``.
+        """
+        try:
+            p = ramp_parameters(geom)
+        except ValueError as exc:
+            raise CodecError(str(exc)) from None
+        thickness = self.constants.get("ramp_thickness")
+        if thickness is None or abs(p["thickness"] - thickness) > 1e-6:
+            raise CodecError(f"static: a ramp of the token target is {thickness} m thick (sample.ramp_thickness), "
+                             f"got {p['thickness']}")
+        return [p["angle_deg"], p["length"], p["width"], p["x"], p["y"], p["yaw_deg"]]
 
     def decode(self, tokens: Sequence[str], source: str = "answer") -> Scene:
         """Scene from answer tokens (tags optional); quaternions renormalised.
@@ -249,6 +308,15 @@ class SceneCodec:
             return self.q[field].decode(i)
 
         camera = {"height": take("camera.height"), "pitch": take("camera.pitch"), "fov": take("camera.fov")}
+        static = []
+        if pos < len(toks) and toks[pos] == RAMP_TOKEN:
+            if not self.has_ramps:
+                raise CodecError(f"{source}: token {pos}: {RAMP_TOKEN} in the answer of a codec without ramps")
+            pos += 1
+            v = {f: take(f) for f in RAMP_FIELDS}
+            g = ramp(v["ramp.angle"], v["ramp.length"], v["ramp.width"], self.constants["ramp_thickness"],
+                     v["ramp.x"], v["ramp.y"], v["ramp.yaw"])
+            static.append(g.model_dump(mode="json"))
         shapes = {v: k for k, v in SHAPE_TOKENS.items()}
         objects = []
         while pos < len(toks):
@@ -275,7 +343,10 @@ class SceneCodec:
             raise CodecError(f"{source}: no objects")
         if len(objects) > self.max_objects:
             raise CodecError(f"{source}: at most {self.max_objects} objects, got {len(objects)}")
-        data = {"version": 1, **self.constants, "camera": camera, "objects": objects, "effects": []}
+        data = {"version": 1, **{k: self.constants[k] for k in SCENE_CONSTANTS}, "camera": camera,
+                "objects": objects, "effects": []}
+        if static:
+            data["static"] = static
         try:
             return Scene.from_dict(data, source).rounded(self.decimals)
         except SceneError as exc:
@@ -301,12 +372,17 @@ class SceneCodec:
             pairs = list(zip(self.CAMERA_FIELDS, (cam.height, cam.pitch, cam.fov)))
             for o in scene.objects:
                 pairs += list(zip(self.object_fields(o.shape), _object_values(o)))
+            if self.has_ramps:
+                for g in scene.static:
+                    pairs += list(zip(RAMP_FIELDS, self._ramp_values(g)))
             for f, v in pairs:
                 q = self.q[f]
                 errs.setdefault(f, []).append(abs(q.decode(q.encode(v)) - v))
                 clipped[f] = clipped.get(f, 0) + int(not (q.lo - 1e-9 <= v <= q.hi + 1e-9))
         steps = {"camera.height": self.decimals.position, "camera.pitch": self.decimals.camera,
-                 "camera.fov": self.decimals.camera, "mass": self.decimals.mass}
+                 "camera.fov": self.decimals.camera, "mass": self.decimals.mass,
+                 "ramp.angle": self.decimals.camera, "ramp.yaw": self.decimals.camera,
+                 **{f"ramp.{k}": self.decimals.position for k in ("length", "width", "x", "y")}}
         out = {}
         for f, e in errs.items():
             group = f.split(".")[0]
@@ -345,6 +421,10 @@ class SceneCodec:
             return " ".join(f"bin{self.q[f].n}" for f in fields)
 
         rules += [f"camera ::= {seq(self.CAMERA_FIELDS)}"]
+        ramp = ""
+        if self.has_ramps:
+            rules += [f"ramp ::= {lit(RAMP_TOKEN)} {seq(RAMP_FIELDS)}"]
+            ramp = " (ramp)?"
         rules += [f"{s} ::= {lit(SHAPE_TOKENS[s])} {seq(self.object_fields(s))}" for s in SHAPES]
         rules += ["object ::= " + " | ".join(SHAPES)]
         # objects: 1..max_objects, as nested optionals: object (object (object)?)?
@@ -352,7 +432,7 @@ class SceneCodec:
         for _ in range(self.max_objects - 1):
             nested = f"object ({nested})?"
         rules += [f"objects ::= {nested}"]
-        rules += [f"answer ::= {lit(ANSWER)} camera objects {lit(END_ANSWER)}"]
+        rules += [f"answer ::= {lit(ANSWER)} camera{ramp} objects {lit(END_ANSWER)}"]
         if think_words is not None:
             times = [w for w in think_words if w.startswith("t=")]
             names = [w for w in think_words if "_" in w and not w.startswith("t=")]
@@ -426,5 +506,6 @@ def composition_of(tokens: Sequence[str]) -> tuple[str, ...]:
 
 
 __all__ = ["SceneCodec", "TokenConfig", "Quantizer", "CodecError", "think_tokens", "target_tokens",
-           "split_completion", "text_of", "composition_of", "bin_token", "SHAPE_TOKENS", "SIZE_KEYS",
+           "split_completion", "text_of", "composition_of", "bin_token", "SHAPE_TOKENS", "SIZE_KEYS", "RAMP_TOKEN",
+           "RAMP_FIELDS",
            "THINK", "END_THINK", "ANSWER", "END_ANSWER"]

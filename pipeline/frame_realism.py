@@ -18,6 +18,10 @@ the exposure drifts. This module draws, per training image:
 * **zoom-out** (:func:`zoom_out`): the frame shrunk into a reflect-padded canvas, so objects appear
   down to ~1/3 of their rendered size (real balls after the working crop are 5-25 px).
 
+For the model's training clips (the ``render`` stage, ``render.camera_effects``),
+:func:`camera_effects` degrades a rendered uint8 clip as a camera records it: defocus and
+camera-shake blur, an exposure drift, sensor noise and JPEG compression.
+
 Conventions are :func:`pipeline.segmenter.network_input`'s: ``x`` is ``(B, 4, H, W)`` float32,
 RGB / 255 - 0.5 then the largest RGB difference / 255; ``y`` is ``(B, 2, H, W)`` float32 targets
 (foreground, contact). All functions work in place on numpy arrays and draw from a
@@ -199,3 +203,66 @@ def realism(x: np.ndarray, y: np.ndarray, rng: np.random.Generator) -> None:
     zoom_out(x, y, rng)
     draw_scenery(x, y, rng)
     camera_noise(x, rng)
+
+
+# --------------------------------------------------------------------------- rendered clips
+CAMERA_BLUR_SIGMA = (0.3, 1.2)
+"""px: range of the defocus blur's Gaussian sigma (:func:`camera_effects`)."""
+CAMERA_MOTION_BLUR = (2, 5)
+"""px: range of the length of the camera-shake motion blur kernel."""
+CAMERA_GAIN = (0.85, 1.15)
+"""Range of the exposure gain the clip drifts to from 1 over its length (auto-exposure)."""
+CAMERA_NOISE_STD = (1.0, 6.0)
+"""Grey levels: range of the standard deviation of the per-frame sensor noise."""
+CAMERA_JPEG_QUALITY = (35, 90)
+"""Range of the JPEG quality the frames are compressed at (a phone's video codec)."""
+
+
+def camera_effects(rgb: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """A rendered clip as a camera would have recorded it (issue 30: training frames that look
+    like real ones): per clip, each with probability 1/2, a defocus blur
+    (:data:`CAMERA_BLUR_SIGMA`), a motion blur of a camera shake (a line kernel of
+    :data:`CAMERA_MOTION_BLUR` px at a random angle), an exposure drift (the gain moves linearly
+    from 1 to a value in :data:`CAMERA_GAIN` over the clip) and JPEG compression
+    (:data:`CAMERA_JPEG_QUALITY`); always sensor noise (Gaussian, fresh in every frame, sigma in
+    :data:`CAMERA_NOISE_STD`). Only the pixels change: the clip's truth (masks, depth, flow) is
+    the rendered one.
+
+    Args:
+        rgb: ``(T, H, W, 3)`` uint8 RGB frames.
+        rng: the clip's random generator (a seeded one repeats the clip exactly).
+    Returns:
+        ``(T, H, W, 3)`` uint8, a new array.
+    Raises:
+        ValueError: not a ``(T, H, W, 3)`` uint8 array.
+    """
+    if rgb.ndim != 4 or rgb.shape[-1] != 3 or rgb.dtype != np.uint8:
+        raise ValueError(f"camera_effects: rgb must be (T, H, W, 3) uint8, got {rgb.shape} {rgb.dtype}")
+    T = len(rgb)
+    blur = float(rng.uniform(*CAMERA_BLUR_SIGMA)) if rng.random() < 0.5 else 0.0
+    kernel = None
+    if rng.random() < 0.5:
+        n = int(rng.integers(CAMERA_MOTION_BLUR[0], CAMERA_MOTION_BLUR[1] + 1))
+        kernel = np.zeros((n, n), np.float32)
+        kernel[n // 2] = 1.0 / n
+        rot = cv2.getRotationMatrix2D(((n - 1) / 2, (n - 1) / 2), float(rng.uniform(0, 180)), 1.0)
+        kernel = cv2.warpAffine(kernel, rot, (n, n))
+        kernel /= max(float(kernel.sum()), 1e-6)
+    gain_end = float(rng.uniform(*CAMERA_GAIN)) if rng.random() < 0.5 else 1.0
+    quality = int(rng.integers(CAMERA_JPEG_QUALITY[0], CAMERA_JPEG_QUALITY[1] + 1)) if rng.random() < 0.5 else None
+    noise = float(rng.uniform(*CAMERA_NOISE_STD))
+    out = np.empty_like(rgb)
+    for t in range(T):
+        f = rgb[t].astype(np.float32)
+        if blur > 0:
+            f = cv2.GaussianBlur(f, (0, 0), blur)
+        if kernel is not None:
+            f = cv2.filter2D(f, -1, kernel, borderType=cv2.BORDER_REFLECT_101)
+        f *= 1.0 + (gain_end - 1.0) * (t / max(T - 1, 1))
+        f += rng.normal(0.0, noise, f.shape).astype(np.float32)
+        frame = np.clip(np.rint(f), 0, 255).astype(np.uint8)
+        if quality is not None:
+            ok, buf = cv2.imencode(".jpg", cv2.cvtColor(frame, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality])
+            frame = cv2.cvtColor(cv2.imdecode(buf, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+        out[t] = frame
+    return out

@@ -7,7 +7,9 @@ and what it fixes before any layout is drawn: the splits, each scene's seed and 
   (so any one scene can be regenerated alone).
 * :func:`sample_composition`: a scene's number of objects and their shapes. Splits
   ``train``/``val``/``test`` never hold a held-out 4-object composition (``held_out``,
-  resampled); split ``test_comp`` holds only those.
+  resampled); split ``test_comp`` holds only those; split ``test_many`` (``n_test_many``, 0 by
+  default) holds scenes of 5-6 objects (``many_objects``), more than training shows: the paper's
+  generalisation row (issue 30).
 
 Layouts that pass the paper's filters are drawn by :mod:`pipeline.sampler`.
 """
@@ -22,7 +24,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from pipeline.scene import SHAPES
 
-SPLITS = ("train", "val", "test", "test_comp")
+SPLITS = ("train", "val", "test", "test_comp", "test_many")
 """Splits in the order scenes are numbered."""
 
 Range = tuple[float, float]
@@ -37,6 +39,8 @@ class SampleConfig(BaseModel):
     n_val: int = Field(20, ge=0)
     n_test: int = Field(20, ge=0)
     n_test_comp: int = Field(20, ge=0)
+    n_test_many: int = Field(0, ge=0)      # scenes of many_objects objects (the generalisation row)
+    many_objects: tuple[int, int] = (5, 6)  # object counts of test_many, drawn uniformly
     shard_size: int = Field(100, gt=0)
     n_objects: dict[int, float] = {1: 0.35, 2: 0.3, 3: 0.2, 4: 0.15}
     shapes: dict[str, float] = {"sphere": 1 / 3, "cylinder": 1 / 3, "box": 1 / 3}
@@ -74,6 +78,7 @@ class SampleConfig(BaseModel):
     keep_in_view: bool = True
     placement_margin: float = Field(0.12, ge=0, lt=0.5)  # image fraction kept clear at the sides
     max_tries: int = Field(300, gt=0)
+    many_max_tries: int = Field(3000, gt=0)  # test_many: 5-6 objects that all pass the filters are rarer
     # static geometry (scene language ``static:``); p_ramp = 0 keeps every scene as before
     p_ramp: float = Field(0.0, ge=0, le=1)  # a scene gets one ramp with one object on it
     ramp_angle: Range = (10.0, 30.0)       # deg, slope
@@ -124,6 +129,8 @@ class SampleConfig(BaseModel):
             raise ValueError(f"ramp_angle: must be within [0, 90) deg, got {list(self.ramp_angle)}")
         if self.ramp_length[0] <= 0 or self.ramp_width[0] <= 0:
             raise ValueError("ramp_length, ramp_width: must be > 0")
+        if not 1 <= self.many_objects[0] <= self.many_objects[1] <= 6:
+            raise ValueError(f"many_objects: must be counts low <= high within 1..6, got {list(self.many_objects)}")
         if self.n_test_comp and not self.held_out:
             raise ValueError("n_test_comp > 0 needs at least one held_out composition")
         if self.n_objects.get(4, 0) > 0 and self.held_out:
@@ -134,7 +141,7 @@ class SampleConfig(BaseModel):
 
     @property
     def n_scenes(self) -> int:
-        return self.n_train + self.n_val + self.n_test + self.n_test_comp
+        return self.n_train + self.n_val + self.n_test + self.n_test_comp + self.n_test_many
 
     @property
     def min_pixels(self) -> int:
@@ -159,9 +166,10 @@ def _free_compositions(cfg: SampleConfig) -> list[tuple[str, ...]]:
 
 # --------------------------------------------------------------------------- seeds, splits
 def split_names(cfg: SampleConfig) -> list[str]:
-    """Split of every scene index: train first, then val, test, test_comp."""
+    """Split of every scene index: train first, then val, test, test_comp, test_many (last, so the
+    other scenes keep their indices and seeds whatever ``n_test_many`` is)."""
     return (["train"] * cfg.n_train + ["val"] * cfg.n_val + ["test"] * cfg.n_test
-            + ["test_comp"] * cfg.n_test_comp)
+            + ["test_comp"] * cfg.n_test_comp + ["test_many"] * cfg.n_test_many)
 
 
 def scene_seed(seed: int, index: int) -> int:
@@ -175,7 +183,8 @@ def scene_seed(seed: int, index: int) -> int:
 def sample_composition(rng: np.random.Generator, cfg: SampleConfig, split: str) -> list[str]:
     """Shapes of a scene's objects, in drawing order (not sorted).
 
-    ``test_comp``: one of ``held_out`` (uniformly), shuffled. Other splits: the count from
+    ``test_comp``: one of ``held_out`` (uniformly), shuffled. ``test_many``: a count drawn
+    uniformly from ``many_objects``, each shape i.i.d. from ``shapes``. Other splits: the count from
     ``n_objects``, each shape i.i.d. from ``shapes``; a held-out 4-object multiset is drawn again.
     """
     if split not in SPLITS:
@@ -184,6 +193,10 @@ def sample_composition(rng: np.random.Generator, cfg: SampleConfig, split: str) 
         comp = list(cfg.held_out[int(rng.integers(len(cfg.held_out)))])
         rng.shuffle(comp)
         return comp
+    names, ps = zip(*sorted(cfg.shapes.items()))
+    if split == "test_many":
+        n = int(rng.integers(cfg.many_objects[0], cfg.many_objects[1] + 1))
+        return [str(x) for x in rng.choice(names, size=n, p=ps)]
     counts, pc = zip(*sorted(cfg.n_objects.items()))
     n = int(rng.choice(counts, p=pc))
     names, ps = zip(*sorted(cfg.shapes.items()))

@@ -394,14 +394,15 @@ def sample_scene(rng: np.random.Generator, cfg: SampleConfig, split: str,
     Args:
         rng: the scene's generator (``np.random.default_rng(scene_seed(seed, index))``).
         cfg: sampling params.
-        split: ``train``, ``val``, ``test`` or ``test_comp``.
+        split: ``train``, ``val``, ``test``, ``test_comp`` or ``test_many``.
         filt: a :class:`SceneFilter` to reuse (one is made and closed if None).
         decimals: rounding of the quantised text (params ``scene.decimals``, default
             :class:`Decimals`); the filters see the scene as that text stores it.
     Returns:
         the scene as its canonical YAML represents it (rounded).
     Raises:
-        SamplingError: no layout passed within ``cfg.max_tries`` tries.
+        SamplingError: no layout passed within ``cfg.max_tries`` tries (``cfg.many_max_tries`` for
+            ``test_many``: six objects that each show 2.5 % of the frame took up to ~900 tries).
     """
     own = filt is None
     filt = filt or SceneFilter(cfg)
@@ -412,7 +413,8 @@ def sample_scene(rng: np.random.Generator, cfg: SampleConfig, split: str,
             ramp_rng = rng.spawn(1)[0]
             if not ramp_rng.random() < cfg.p_ramp:
                 ramp_rng = None
-        for _ in range(cfg.max_tries):
+        tries = cfg.many_max_tries if split == "test_many" else cfg.max_tries
+        for _ in range(tries):
             data = _sample_layout(rng, cfg, shapes, ramp_rng, decimals)
             if data is None:
                 filt.rejected["horizon"] += 1
@@ -422,7 +424,7 @@ def sample_scene(rng: np.random.Generator, cfg: SampleConfig, split: str,
             if reason is None:
                 return scene
             filt.rejected[reason] += 1
-        raise SamplingError(f"no layout of {sorted(shapes)} passed the filters in {cfg.max_tries} tries "
+        raise SamplingError(f"no layout of {sorted(shapes)} passed the filters in {tries} tries "
                             f"(rejected: {dict(filt.rejected)}); lower sample.min_pixel_fraction or "
                             f"raise sample.extent")
     finally:
@@ -506,7 +508,7 @@ def sample_chunk(chunk: SampleChunk) -> tuple[list[tuple[str, str, Scene]], Coun
 
 
 def sample_dataset(cfg: SampleConfig, seed: int, decimals: Decimals | None = None) -> list[tuple[str, str, Scene]]:
-    """All scenes of a dataset: ``[(scene_id, split, scene)]``, train, val, test, test_comp.
+    """All scenes of a dataset: ``[(scene_id, split, scene)]``, train, val, test, test_comp, test_many.
 
     Scene ``i`` depends only on ``(seed, i)`` (:func:`pipeline.sample_config.scene_seed`).
     """

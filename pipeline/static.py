@@ -69,6 +69,38 @@ def ramp(angle_deg: float, length: float, width: float, thickness: float, x: flo
                      position=tuple(float(c) for c in centre), orientation=tuple(float(c) for c in q))
 
 
+def ramp_parameters(geom: StaticGeomT, tol: float = 2e-3) -> dict[str, float]:
+    """The numbers :func:`ramp` was built from, read back from a static box: the inverse of
+    :func:`ramp` (the scene-token codec writes a ramp as these numbers, ``pipeline.codec``).
+
+    The box's local y axis (across the slope) must be horizontal, as :func:`ramp` makes it (a
+    tilt about local y after a yaw); then the slope is the angle of the top face's normal from
+    the vertical, the yaw the heading of the box's local x (downhill), and ``x, y`` the centre of
+    the top face.
+
+    Args:
+        geom: a static geom (:class:`~pipeline.scene.StaticBox` expected).
+        tol: largest vertical component of the box's local y axis accepted (the canonical text
+            rounds the quaternion).
+    Returns:
+        ``{"angle_deg", "length", "width", "thickness", "x", "y", "yaw_deg"}`` (degrees, m).
+    Raises:
+        ValueError: a plane, or a box that is not a ramp (its local y axis is not horizontal,
+            or it tilts the wrong way: the normal points down).
+    """
+    if geom.shape != "box":
+        raise ValueError(f"static: a ramp is a box, got a {geom.shape}")
+    R = quat_to_mat(np.asarray(geom.orientation, dtype=np.float64))
+    if abs(R[2, 1]) > tol or R[2, 2] <= 0.0:
+        raise ValueError("static: not a ramp (a box tilted about its horizontal local y axis, top face up)")
+    normal = R[:, 2]
+    angle = math.degrees(math.atan2(math.hypot(normal[0], normal[1]), normal[2]))
+    yaw = math.degrees(math.atan2(R[1, 0], R[0, 0]))
+    top = np.asarray(geom.position, dtype=np.float64) + geom.size.height / 2 * normal
+    return {"angle_deg": angle, "length": float(geom.size.width), "width": float(geom.size.depth),
+            "thickness": float(geom.size.height), "x": float(top[0]), "y": float(top[1]), "yaw_deg": yaw}
+
+
 def _support(geom: StaticGeomT, x: float, y: float) -> tuple[float, np.ndarray] | None:
     """(height, outward normal) where the vertical line through (x, y) leaves the geom's top."""
     R = quat_to_mat(geom.orientation)
@@ -115,4 +147,4 @@ def support_normal(geom: StaticGeomT, x: float, y: float) -> np.ndarray | None:
     return None if s is None else s[1]
 
 
-__all__ = ["ramp", "support_height", "support_normal"]
+__all__ = ["ramp", "ramp_parameters", "support_height", "support_normal"]

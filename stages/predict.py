@@ -38,7 +38,7 @@ def main() -> None:
     examples = shards.list_shards(examples_dir, "parquet")
     for i, shard in enumerate(examples):
         scenes = [r for r in shards.read_table(shard, columns=["scene_id", "split"]).to_pylist()
-                  if r["split"] in ("test", "test_comp")]
+                  if r["split"] in ("test", "test_comp", "test_many")]
         frames = read_inputs(path_of(p, "flow"), path_of(p, "video"), cfg,
                              [r["scene_id"] for r in scenes]) if scenes else {}
         rows = []

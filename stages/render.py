@@ -19,12 +19,19 @@ A scene whose MJCF does not compile or whose simulation diverges is left out of 
 listed by id in ``meta.json`` of both outputs (``failed``: [{scene_id, error}]), never dropped
 silently; the stage fails only when no scene at all could be rendered.
 
+With ``render.camera_effects`` = p > 0, each clip's RGB frames are, with probability p, degraded
+as a camera records them (blur, exposure drift, sensor noise, JPEG:
+``pipeline.frame_realism.camera_effects``; issue 30), drawn from a generator seeded by the
+project ``seed`` and the scene id, so a rerun writes the same pixels; masks, depth and flow stay
+the rendered truth. 0 (the default) writes the renders as they are.
+
 Every rendered rollout goes through the physical sanity checks (``pipeline.sanity.rollout_problems``
 and MuJoCo's warnings): a scene that fails one is kept and flagged, by scene id and check, in
 ``paths.traces``'s ``meta.json`` (``sanity``: scenes checked, flagged, counts per check); the
 stage prints the count.
 """
 
+import zlib
 from collections import Counter
 
 import numpy as np
@@ -32,6 +39,7 @@ from tqdm import tqdm
 
 from pipeline import shards
 from pipeline.entry import run_stage
+from pipeline.frame_realism import camera_effects
 from pipeline.parallel import compute_from_params, parallel_map
 from pipeline.params import load_params, path_of
 from pipeline.mjcf import compile_model
@@ -54,6 +62,7 @@ def render_shard(task: tuple[str, int, str, str, dict]) -> tuple[list[dict], dic
     """
     shard, i, video, traces, p = task
     W, H = int(p["render"]["width"]), int(p["render"]["height"])
+    p_camera = camera_effects_probability(p["render"])
     rows, failed = [], []
     flags: dict[str, list[str]] = {}
     table = shards.read_table(shard).to_pylist()
@@ -72,6 +81,10 @@ def render_shard(task: tuple[str, int, str, str, dict]) -> tuple[list[dict], dic
                 continue
             flags[r["scene_id"]] = [*(["mujoco_warning"] if trace.warnings else []),
                                     *rollout_problems(compile_model(r["mjcf"]), trace.qpos, trace.qvel)]
+            if p_camera > 0:
+                rng = np.random.default_rng([int(p.get("seed", 0)), zlib.crc32(str(r["scene_id"]).encode())])
+                if rng.random() < p_camera:
+                    frames.rgb = camera_effects(frames.rgb, rng)
             arrays.append({"rgb": frames.rgb, "seg": frames.seg, "depth": frames.depth.astype(np.float16),
                            "flow": frames.flow.astype(np.float16)}, scene_id=r["scene_id"])
             rows.append({"scene_id": r["scene_id"], "split": r["split"],
@@ -85,6 +98,22 @@ def render_shard(task: tuple[str, int, str, str, dict]) -> tuple[list[dict], dic
     return failed, flags
 
 
+def camera_effects_probability(render: dict) -> float:
+    """``render.camera_effects``: probability per clip of :func:`pipeline.frame_realism.camera_effects`.
+
+    Raises:
+        ValueError: not a number in [0, 1] (one line naming the field).
+    """
+    try:
+        value = float(render.get("camera_effects", 0.0))
+    except (TypeError, ValueError):
+        raise ValueError(f"params.yaml: render.camera_effects: must be a probability in [0, 1], "
+                         f"got {render.get('camera_effects')!r}") from None
+    if not 0.0 <= value <= 1.0:
+        raise ValueError(f"params.yaml: render.camera_effects: must be a probability in [0, 1], got {value}")
+    return value
+
+
 def main() -> None:
     p = load_params()
     W, H = int(p["render"]["width"]), int(p["render"]["height"])
@@ -92,7 +121,8 @@ def main() -> None:
     video, traces = shards.reset_dir(path_of(p, "video")), shards.reset_dir(path_of(p, "traces"))
     mjcf_shards = shards.list_shards(mjcf_dir, "parquet")
     attrs = {"units": UNITS, "params": {"render": p["render"]}, "width": W, "height": H}
-    params = {"render": p["render"]}
+    camera_effects_probability(p["render"])   # a bad value fails before any work
+    params = {"render": p["render"], "seed": int(p.get("seed", 0))}
     tasks = [(str(s), i, str(video), str(traces), params) for i, s in enumerate(mjcf_shards)]
     failed: list[dict] = []
     flags: dict[str, list[str]] = {}

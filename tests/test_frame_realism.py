@@ -65,3 +65,48 @@ def test_camera_noise_only_raises_the_difference_and_keeps_targets():
     np.testing.assert_array_equal(y, y0)
     assert (x[:, 3] >= x0[:, 3]).all()
     assert np.abs(x[:, :3]).max() <= 0.5 + 1e-6
+
+
+# ----------------------------------------------------------------------------- rendered clips (issue 30)
+def _clip(T: int = 12, H: int = 48, W: int = 64) -> np.ndarray:
+    """A grey clip (128) with a white vertical bar: a flat field and a sharp edge."""
+    rgb = np.full((T, H, W, 3), 128, np.uint8)
+    rgb[:, :, 40:48] = 250
+    return rgb
+
+
+def test_camera_effects_repeat_with_the_seed_and_keep_shape_and_dtype():
+    rgb = _clip()
+    a = R.camera_effects(rgb, np.random.default_rng(3))
+    b = R.camera_effects(rgb, np.random.default_rng(3))
+    c = R.camera_effects(rgb, np.random.default_rng(4))
+    assert a.shape == rgb.shape and a.dtype == np.uint8
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+    np.testing.assert_array_equal(rgb, _clip())                    # the input is not changed
+    import pytest
+    with pytest.raises(ValueError, match=r"\(T, H, W, 3\) uint8"):
+        R.camera_effects(rgb.astype(np.float32), np.random.default_rng(0))
+
+
+def test_camera_effects_stay_within_their_stated_ranges():
+    """Over many clips: the flat field's mean stays within the exposure gain range, its noise within
+    the sensor noise range (+ JPEG), the noise is fresh in every frame, and blur never sharpens."""
+    rgb = _clip()
+    lo_gain, hi_gain = R.CAMERA_GAIN
+    edge0 = np.abs(np.diff(rgb[0, 24, :, 0].astype(float))).max()
+    blurred = fresh = 0
+    for seed in range(30):
+        out = R.camera_effects(rgb, np.random.default_rng(seed)).astype(np.float64)
+        flat = out[:, 8:40, 4:32]                                  # away from the bar
+        assert lo_gain * 128 - 3 <= flat[-1].mean() <= hi_gain * 128 + 3
+        assert abs(flat[0].mean() - 128) <= 3                      # the drift starts at gain 1
+        # frame-to-frame difference of the first two frames (gain ~1 there): sqrt(2) x the noise
+        sd = np.std(flat[1] - flat[0]) / np.sqrt(2)
+        assert sd <= R.CAMERA_NOISE_STD[1] + 3.0, sd
+        fresh += sd >= 0.3                                         # (strong JPEG can flatten weak noise)
+        edge = np.abs(np.diff(out[0, 24, :, 0])).max()
+        assert edge <= edge0 * 1.15 + 3 * R.CAMERA_NOISE_STD[1]
+        blurred += edge < 0.7 * edge0
+    assert 5 <= blurred <= 28                                      # blur on some clips, not on all
+    assert fresh >= 20

@@ -233,6 +233,24 @@ def test_untrained_model_constrained_samples_are_valid_scenes(tokenizer):
     assert all(M.to_scene(t, CODEC)[0] is None for t in free)
 
 
+def test_untrained_model_with_a_ramp_codec_writes_valid_scenes_with_and_without_ramps():
+    """A codec made with sample.p_ramp > 0 (issue 30): its tokenizer holds ``<ramp>``, and every
+    grammar-constrained sample of random weights detokenises to a scene, with at most one ramp."""
+    codec = SceneCodec.from_params({"sample": {"p_ramp": 0.5}})
+    tok = M.build_tokenizer(codec, M.think_vocab(PARAMS, 4))
+    assert "<ramp>" in tok.get_vocab()
+    cfg = TINY.model_copy(update={"temperature": 1.0, "top_p": 1.0})
+    model = M.build_model(cfg, tok)
+    ramps = 0
+    for seed in range(2):
+        for toks in M.generate(model, tok, _frames(seed), cfg, codec, k=8, seed=seed):
+            scene, error = M.to_scene(toks, codec)
+            assert error is None and len(scene.static) <= 1 and 1 <= len(scene.objects) <= 4
+            assert Scene.from_yaml(scene.to_yaml()) == scene
+            ramps += len(scene.static)
+    assert ramps >= 1   # the grammar lets random weights write a ramp (it is optional at one place)
+
+
 def test_max_new_tokens_covers_the_longest_target():
     """Defaults: the grammar's think part + the longest answer fit in max_new_tokens."""
     cfg = M.ModelConfig()

@@ -161,3 +161,28 @@ def test_wide_profile_keeps_objects_within_max_floor_distance_and_in_the_frame()
             assert all((seg == k).sum() >= 0.006 * seg.size for k in range(len(s.objects)))
     with pytest.raises(ValidationError, match="1..6"):
         SampleConfig(n_objects={7: 1.0})
+
+
+# ----------------------------------------------------------------------------- test_many (issue 30)
+def test_test_many_split_holds_five_or_six_objects_and_leaves_the_other_scenes_alone():
+    """The generalisation row's split: scenes of 5-6 objects (more than training's 1-4), numbered
+    last, so every other scene keeps its index, seed and layout; they pass the paper's filters, and a
+    codec with room for 6 objects writes them (one with 4 refuses the params)."""
+    from pipeline.codec import CodecError, SceneCodec
+    base = SampleConfig(n_train=3, n_val=1, n_test=2, n_test_comp=1, width=96, height=64)
+    many = base.model_copy(update={"n_test_many": 4})
+    assert split_names(many) == split_names(base) + ["test_many"] * 4
+    a = list(iter_dataset(base, 7))
+    b = list(iter_dataset(many, 7))
+    assert [(i, s, x.to_yaml()) for i, s, x in a] == [(i, s, x.to_yaml()) for i, s, x in b[: len(a)]]
+    extra = [x for _, s, x in b if s == "test_many"]
+    assert len(extra) == 4 and all(5 <= len(x.objects) <= 6 for x in extra)
+    assert {len(x.objects) for x in extra} <= {5, 6}
+    params = {"sample": {"n_test_many": 4}, "tokens": {"max_objects": 6}}
+    codec = SceneCodec.from_params(params)
+    for x in extra:
+        assert codec.decode(codec.encode(x)).composition == x.composition
+    with pytest.raises(CodecError, match="tokens.max_objects: must be >= 6"):
+        SceneCodec.from_params({"sample": {"n_test_many": 4}})
+    with pytest.raises(ValidationError, match="many_objects"):
+        SampleConfig(many_objects=(6, 5))

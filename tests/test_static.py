@@ -78,9 +78,20 @@ def test_static_round_trips_and_is_omitted_when_empty():
 
 def test_codec_refuses_static_geometry_clearly():
     codec = SceneCodec.from_params({})
-    with pytest.raises(CodecError, match="static geometry is not part of the token target"):
+    with pytest.raises(CodecError, match="static geometry is not part of this codec's token target"):
         codec.encode(scene_with([STATIC_BOX]))
     codec.encode(scene_with([]))
+    # a codec with ramps (sample.p_ramp > 0) writes a ramp, but no other static geometry
+    ramps = SceneCodec.from_params({"sample": {"p_ramp": 0.5}})
+    rolled = {**STATIC_BOX, "orientation": [0.996, 0.087, 0.0, 0.0]}          # tilted about its local x
+    plane = {"shape": "plane", "size": {"width": 1.0, "depth": 1.0}, "position": [0.0, 0.3, 0.1]}
+    with pytest.raises(CodecError, match="not a ramp"):
+        ramps.encode(scene_with([rolled]))
+    with pytest.raises(CodecError, match="a ramp is a box, got a plane"):
+        ramps.encode(scene_with([plane]))
+    with pytest.raises(CodecError, match="0.03 m thick"):                      # STATIC_BOX is 0.02 m thick
+        ramps.encode(scene_with([STATIC_BOX]))
+    ramps.encode(scene_with([{**STATIC_BOX, "size": {**STATIC_BOX["size"], "height": 0.03}}]))
 
 
 def test_committed_json_schema_is_the_generated_one():
@@ -275,3 +286,16 @@ def test_scene_language_doc_examples_are_valid_scenes():
     on_ramp = next(s for s in scenes if s.static and s.objects[0].shape == "sphere")
     assert on_ramp.to_yaml() in text  # printed canonically
     assert sum(1 for s in scenes if s.static) >= 2
+
+
+def test_ramp_parameters_invert_ramp():
+    """``ramp_parameters`` reads back the numbers ``ramp`` was built from (the codec's ramp fields)."""
+    from pipeline.static import ramp_parameters
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        args = dict(angle_deg=float(rng.uniform(0, 60)), length=float(rng.uniform(0.3, 1.5)),
+                    width=float(rng.uniform(0.2, 0.8)), thickness=0.03, x=float(rng.uniform(-1, 1)),
+                    y=float(rng.uniform(-1, 1)), yaw_deg=float(rng.uniform(-179, 179)))
+        got = ramp_parameters(ramp(**args))
+        for k, v in args.items():
+            assert got[k] == pytest.approx(v, abs=1e-9), k

@@ -101,4 +101,4 @@ class SearchConfig(BaseModel):
     penalize_extra: bool = True
     fitness_iou: Literal["strict", "all_frames"] = "strict"
     epe_pixels: Literal["union", "observed"] = "union"
-    splits: tuple[str, ...] = ("test", "test_comp")
+    splits: tuple[str, ...] = ("test", "test_comp", "test_many")
