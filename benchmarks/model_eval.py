@@ -11,6 +11,9 @@ stage reads it). Per split, with bootstrap 95 % intervals over scenes (2,000 res
 * ``composition_any_of_k``: one of the K samples has the right composition (an upper bound of what
   Best@K can pick by re-simulation; not the paper's Best@K, which picks by fitness);
 * ``valid``: samples that decode to a scene;
+* ``ramp``: the first sample writes a ramp exactly when the scene has one (``<ramp>``, profiles with
+  ``sample.p_ramp > 0``), and ``ramp_recall``: of the scenes with a ramp, those whose first sample
+  writes one (a checkpoint without ramp fields never does);
 * the same composition by true object count.
 
 A checkpoint decodes with its own codec, so checkpoints trained with other token ranges are
@@ -39,7 +42,7 @@ sys.path.insert(0, str(ROOT))
 from pipeline import model as M  # noqa: E402
 from pipeline import shards  # noqa: E402
 from pipeline.atomic import write_text  # noqa: E402
-from pipeline.codec import composition_of, split_completion  # noqa: E402
+from pipeline.codec import RAMP_TOKEN, composition_of, split_completion  # noqa: E402
 from pipeline.params import load_params, path_of  # noqa: E402
 
 
@@ -64,7 +67,7 @@ def evaluate(model_dir: Path, params: dict, splits: list[str], k: int, limit: in
         if not sel:
             continue
         frames = M.read_inputs(path_of(params, "flow"), path_of(params, "video"), cfg, [r["scene_id"] for r in sel])
-        comp, count, anyk, valid, n_true = [], [], [], 0, []
+        comp, count, anyk, valid, n_true, ramp, has_ramp = [], [], [], 0, [], [], []
         for i, r in enumerate(sel):
             truth = composition_of(r["target"].split())
             samples = M.generate(model, tok, frames[r["scene_id"]], cfg, codec, k=k, seed=i)
@@ -75,27 +78,36 @@ def evaluate(model_dir: Path, params: dict, splits: list[str], k: int, limit: in
             count.append(written[0] is not None and len(written[0]) == len(truth))
             anyk.append(any(w == truth for w in written))
             n_true.append(len(truth))
-        comp, count, anyk, n_true = map(np.asarray, (comp, count, anyk, n_true))
+            has_ramp.append(RAMP_TOKEN in r["target"].split())
+            ramp.append(answers[0] is not None and (RAMP_TOKEN in answers[0]) == has_ramp[-1])
+        comp, count, anyk, n_true, ramp, has_ramp = map(np.asarray, (comp, count, anyk, n_true, ramp, has_ramp))
+        wrote = ramp & has_ramp
         out[split] = {"scenes": len(sel), "k": k,
                       "composition": round(float(comp.mean()), 3), "composition_ci95": bootstrap(comp),
                       "count": round(float(count.mean()), 3), "count_ci95": bootstrap(count),
                       "composition_any_of_k": round(float(anyk.mean()), 3), "valid": f"{valid}/{len(sel) * k}",
+                      "ramp": round(float(ramp.mean()), 3), "ramp_ci95": bootstrap(ramp),
+                      "ramp_scenes": int(has_ramp.sum()),
+                      "ramp_recall": round(float(wrote[has_ramp].mean()), 3) if has_ramp.any() else None,
                       "composition_by_objects": {int(n): round(float(comp[n_true == n].mean()), 3)
                                                  for n in sorted(set(n_true.tolist()))}}
     return out
 
 
 def markdown(results: dict, params_path: str, k: int) -> str:
-    lines = [f"# The scene-writing model on synthetic test splits\n",
+    lines = ["# The scene-writing model on synthetic test splits\n",
              f"Command: `python benchmarks/model_eval.py --params {params_path} ...` (first of K = {k} constrained "
              "samples at the checkpoint's temperature and top-p; 95 % bootstrap intervals over scenes).\n",
              "| model | split | scenes | composition (first sample) | object count | composition in any of K | valid "
-             "| composition by object count |", "|---|---|---|---|---|---|---|---|"]
+             "| composition by object count | ramp right (scenes with one) | ramp recall |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for label, res in results.items():
         for split, r in res.items():
             by = ", ".join(f"{n}: {v:.2f}" for n, v in r["composition_by_objects"].items())
             lines.append(f"| {label} | {split} | {r['scenes']} | {r['composition']:.3f} {r['composition_ci95']} | "
-                         f"{r['count']:.3f} {r['count_ci95']} | {r['composition_any_of_k']:.3f} | {r['valid']} | {by} |")
+                         f"{r['count']:.3f} {r['count_ci95']} | {r['composition_any_of_k']:.3f} | {r['valid']} | {by} | "
+                         f"{r.get('ramp', float('nan')):.3f} ({r.get('ramp_scenes', 0)}) | "
+                         f"{'-' if r.get('ramp_recall') is None else format(r['ramp_recall'], '.3f')} |")
     return "\n".join(lines) + "\n"
 
 
