@@ -244,7 +244,7 @@ def camera_effects(rgb: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     if rng.random() < 0.5:
         n = int(rng.integers(CAMERA_MOTION_BLUR[0], CAMERA_MOTION_BLUR[1] + 1))
         kernel = np.zeros((n, n), np.float32)
-        kernel[n // 2] = 1.0 / n
+        kernel[n // 2] = 1.0
         rot = cv2.getRotationMatrix2D(((n - 1) / 2, (n - 1) / 2), float(rng.uniform(0, 180)), 1.0)
         kernel = cv2.warpAffine(kernel, rot, (n, n))
         kernel /= max(float(kernel.sum()), 1e-6)
@@ -262,7 +262,7 @@ def camera_effects(rgb: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         f += rng.normal(0.0, noise, f.shape).astype(np.float32)
         frame = np.clip(np.rint(f), 0, 255).astype(np.uint8)
         if quality is not None:
-            ok, buf = cv2.imencode(".jpg", cv2.cvtColor(frame, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality])
+            _, buf = cv2.imencode(".jpg", cv2.cvtColor(frame, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality])
             frame = cv2.cvtColor(cv2.imdecode(buf, cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
         out[t] = frame
     return out

@@ -26,6 +26,8 @@ from pipeline.scene import SHAPES
 
 SPLITS = ("train", "val", "test", "test_comp", "test_many")
 """Splits in the order scenes are numbered."""
+TEST_SPLITS = ("test", "test_comp", "test_many")
+"""The splits the model is evaluated on (``predict``, ``best_of_k``, ``cmaes``, ``score``)."""
 
 Range = tuple[float, float]
 

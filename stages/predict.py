@@ -18,6 +18,7 @@ from pipeline.entry import run_stage
 from pipeline.model import (ModelConfig, checkpoint_config, generate, load_codec, load_model, read_inputs,
                             to_scene)
 from pipeline.params import load_params, path_of
+from pipeline.sample_config import TEST_SPLITS
 
 SCHEMA = pa.schema([("scene_id", pa.string()), ("split", pa.string()), ("sample", pa.int32()),
                     ("text", pa.string()), ("scene", pa.string()), ("error", pa.string())])
@@ -38,7 +39,7 @@ def main() -> None:
     examples = shards.list_shards(examples_dir, "parquet")
     for i, shard in enumerate(examples):
         scenes = [r for r in shards.read_table(shard, columns=["scene_id", "split"]).to_pylist()
-                  if r["split"] in ("test", "test_comp", "test_many")]
+                  if r["split"] in TEST_SPLITS]
         frames = read_inputs(path_of(p, "flow"), path_of(p, "video"), cfg,
                              [r["scene_id"] for r in scenes]) if scenes else {}
         rows = []

@@ -8,6 +8,8 @@ from typing import Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from pipeline.sample_config import TEST_SPLITS
+
 FreeField = Literal["position", "linear_velocity", "angular_velocity", "yaw", "size", "camera",
                     "mass", "friction", "damping", "restitution"]
 FREE_FIELDS: tuple[str, ...] = get_args(FreeField)
@@ -101,4 +103,4 @@ class SearchConfig(BaseModel):
     penalize_extra: bool = True
     fitness_iou: Literal["strict", "all_frames"] = "strict"
     epe_pixels: Literal["union", "observed"] = "union"
-    splits: tuple[str, ...] = ("test", "test_comp", "test_many")
+    splits: tuple[str, ...] = TEST_SPLITS
