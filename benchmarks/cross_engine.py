@@ -95,13 +95,13 @@ def run_clip(folder: Path, params: dict, mdir: Path, k: int, seed: int, cmaes: b
     scfg = at_width(job.scfg, W)
     picked: dict[str, Scene | None] = {"first_sample": scenes[0]}
     with EvaluatorPool(*obs.size, job.sim) as pool:
-        scores, best = best_of_k(scenes, obs.fit_seg, obs.flow, scfg, job.sim, pool=pool)
+        scores, best = best_of_k(scenes, obs.fit_seg, obs.fit_flow, scfg, job.sim, pool=pool)
         picked["best_of_k"] = None if best is None else scenes[best]
         picked["best_of_k_cmaes"] = picked["best_of_k"]
         if cmaes and best is not None:
-            refined, _ = staged_refine(scenes[best], obs.fit_seg, obs.flow, job.scfg, job.sim, seed=seed,
+            refined, _ = staged_refine(scenes[best], obs.fit_seg, obs.fit_flow, job.scfg, job.sim, seed=seed,
                                        restarts=job.rv.restarts, pool=pool, workers=job.rv.workers)
-            f_ref = score_scene(refined, obs.fit_seg, obs.flow, job.scfg, job.sim, pool=pool)["fitness"]
+            f_ref = score_scene(refined, obs.fit_seg, obs.fit_flow, job.scfg, job.sim, pool=pool)["fitness"]
             if f_ref > scores[best]["fitness"]:
                 picked["best_of_k_cmaes"] = refined
     want = true_composition(folder)

@@ -406,7 +406,7 @@ def adapt(videos: list[str | Path], out: str | Path, params: dict, base: str | P
                 s, _ = vlm.to_scene(t, codec)
                 scenes.append(None if s is None else s.replace(fps=obs.scene_fps, duration=obs.duration))
             with EvaluatorPool(*obs.size, job.sim) as pool:
-                scores, _ = best_of_k(scenes, reward_target(obs, pc.target), obs.flow, at_width(job.scfg, obs.size[0]), job.sim,
+                scores, _ = best_of_k(scenes, reward_target(obs, pc.target), obs.fit_flow, at_width(job.scfg, obs.size[0]), job.sim,
                                       pool=pool)
             fitness = [float(s["fitness"]) if s.get("valid") else None for s in scores]
             n_valid += sum(v is not None for v in fitness)

@@ -267,7 +267,9 @@ def flow_epe(flow_pred: np.ndarray, flow_obs: np.ndarray, fg_pred: np.ndarray, f
     Args:
         flow_pred: ``(T-1, H, W, 2)`` float re-simulated forward flow, px at the rendered
             resolution (``flow[..., 0]`` = u along x, ``[..., 1]`` = v along y).
-        flow_obs: ``(T-1, H, W, 2)`` float observed flow (float16 from the flow stage is fine).
+        flow_obs: ``(T-1, H, W, 2)`` float observed flow (float16 from the flow stage is fine);
+            NaN marks a pixel whose observed flow is not to be trusted (skipped:
+            :attr:`pipeline.observe.Observation.fit_flow`).
         fg_pred, fg_obs: ``(T-1, H, W)`` bool foreground of frames ``0..T-2`` (the frames the
             flow starts from), e.g. ``seg[:-1] >= 0``.
         over: ``"union"`` (the metric, docs/design.md §7): pixels where ``fg_pred | fg_obs``;
@@ -289,9 +291,13 @@ def flow_epe(flow_pred: np.ndarray, flow_obs: np.ndarray, fg_pred: np.ndarray, f
     if over not in ("union", "observed"):
         raise ValueError(f"flow_epe: over must be 'union' or 'observed', got {over!r}")
     idx = np.flatnonzero(mo if over == "observed" else mp | mo)  # the pixels of fp[mask], in order
+    obs = fo.reshape(-1, 2)[idx].astype(np.float64)
+    trusted = np.isfinite(obs).all(axis=-1)        # NaN: an observed flow not to be trusted there
+    if not trusted.all():
+        idx, obs = idx[trusted], obs[trusted]
     if not idx.size:
         return 0.0
-    d = fp.reshape(-1, 2)[idx].astype(np.float64) - fo.reshape(-1, 2)[idx].astype(np.float64)
+    d = fp.reshape(-1, 2)[idx].astype(np.float64) - obs
     return float(np.sqrt((d * d).sum(axis=-1)).mean())
 
 

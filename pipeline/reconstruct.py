@@ -430,7 +430,7 @@ def search_scene(candidates: list[Candidate], obs: Observation, scfg: SearchConf
     target = obs.fit_seg   # the objects the observation saw move (Observation.fit_seg)
     scenes = [c.scene for c in candidates]
     with EvaluatorPool(W, H, sim) as pool:
-        scores, best = best_of_k(scenes, target, obs.flow, at_width(scfg, W), sim, pool=pool)
+        scores, best = best_of_k(scenes, target, obs.fit_flow, at_width(scfg, W), sim, pool=pool)
         if best is None:
             raise VideoError(f"{obs.clip.source}: no proposal could be simulated ({scores[0].get('error')})")
         fittest = best   # the paper's Best@K; then the simplest shapes the re-simulation cannot tell apart
@@ -439,12 +439,12 @@ def search_scene(candidates: list[Candidate], obs: Observation, scfg: SearchConf
             print(f"[infer] Best@K: {candidates[best].label} (fitness {scores[best]['fitness']:.4f}) over "
                   f"{candidates[fittest].label} ({scores[fittest]['fitness']:.4f}): fewer shape parameters within "
                   f"{rv.shape_margin:g}")
-        refined, history = staged_refine(scenes[best], target, obs.flow, scfg, sim, seed=seed,
+        refined, history = staged_refine(scenes[best], target, obs.fit_flow, scfg, sim, seed=seed,
                                          restarts=rv.restarts, pool=pool, workers=rv.workers)
         # what scene.yaml holds is what is scored: the better of the search's result and its
         # start, each as written (overlaps resolved, canonical text) and as `dynamics simulate` checks it
         chosen, written, choice = choose_output([("cmaes", refined), ("best_of_k", scenes[best])],
-                                                target, obs.flow, scfg, sim, sanity, pool=pool)
+                                                target, obs.fit_flow, scfg, sim, sanity, pool=pool)
     gain = choice[0]["fitness"] - choice[1]["fitness"]
     search_gain = {
         "written": choice[chosen]["name"], "fitness_gain": round(gain, 6),
@@ -479,7 +479,7 @@ def add_objects_at_rest(scene: Scene, obs: Observation, scfg: SearchConfig, sim:
     placed, notes = perception.place_at_rest(scene, obs.seg, flags, *obs.size)
     if placed is scene:
         return scene, {"added": 0, "notes": notes, "candidates": []}
-    chosen, out, choice = choose_output([("with_objects_at_rest", placed), ("movers_only", scene)], obs.seg, obs.flow,
+    chosen, out, choice = choose_output([("with_objects_at_rest", placed), ("movers_only", scene)], obs.seg, obs.fit_flow,
                                         scfg, sim, sanity)
     n_placed = len(placed.objects) - len(scene.objects)
     added = n_placed if chosen == 0 else 0

@@ -775,3 +775,40 @@ def test_fused_segmenter_does_not_take_a_cast_shadow_from_the_finer_scale():
     fg, _ = _Fused(lambda f, b: (own, own), (fine, fine))(frames, bg)
     assert np.allclose(fg[:, 1:3, 1:3], 0.1) and np.allclose(fg[:, 3:5, 5:7], 0.9)
     assert np.allclose(fg[:, 0, :], 0.9)          # the unchanged background is not a shadow either
+
+
+def _disc_track(T: int, H: int, W: int, centres: list[tuple[float, float]], r: float) -> np.ndarray:
+    yy, xx = np.mgrid[0:H, 0:W]
+    return np.stack([(xx - cx) ** 2 + (yy - cy) ** 2 <= r * r for cx, cy in centres])
+
+
+def test_flow_agreement_distrusts_the_flow_where_it_misses_the_masks_motion():
+    """A small ball falling more than its size per frame: the masks step 20 px down, while the flow
+    estimator (here as DIS does on dev/04's fall) reads it still. Those pixels are not trusted and
+    the search's EPE skips them; where the flow follows the masks (the slow frames) it is kept, and
+    so is the background. An EPE computed against the gated flow charges a re-simulation that
+    moves as the masks do nothing on the frames the estimator missed."""
+    from pipeline.metrics import flow_epe
+    from pipeline.observe import flow_agreement
+
+    T, H, W = 6, 120, 40
+    centres = [(20.0, 10.0 + 4.0 * t) for t in range(3)] + [(20.0, 18.0 + 20.0 * (t - 1)) for t in range(3, T)]
+    seg = np.where(_disc_track(T, H, W, centres, 4.0), 0, -1).astype(np.int8)
+    flow = np.zeros((T - 1, H, W, 2), np.float32)
+    true_flow = np.zeros_like(flow)
+    for t in range(T - 1):
+        step = np.subtract(centres[t + 1], centres[t])
+        true_flow[t][seg[t] == 0] = step
+        if step[1] < 10:                                   # the estimator follows slow steps only
+            flow[t][seg[t] == 0] = step
+    ok = flow_agreement(seg, flow)
+    slow = [t for t in range(T - 1) if centres[t + 1][1] - centres[t][1] < 10]
+    fast = [t for t in range(T - 1) if t not in slow]
+    assert slow and fast
+    assert all(ok[t][seg[t] == 0].all() for t in slow)
+    assert not any(ok[t][seg[t] == 0].any() for t in fast)
+    assert ok[:, seg.max(axis=0) < 0].all()                # the background is always trusted
+    gated = np.where(ok[..., None], flow, np.nan)
+    fg = seg[:-1] >= 0
+    assert flow_epe(true_flow, gated, fg, fg, over="observed") == pytest.approx(0.0)
+    assert flow_epe(true_flow, flow, fg, fg, over="observed") > 5.0
