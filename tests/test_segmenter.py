@@ -782,6 +782,65 @@ def _disc_track(T: int, H: int, W: int, centres: list[tuple[float, float]], r: f
     return np.stack([(xx - cx) ** 2 + (yy - cy) ** 2 <= r * r for cx, cy in centres])
 
 
+def test_cast_shadow_is_dropped_only_when_it_looks_like_one_and_moves_with_an_object():
+    """dev/04: a red ball falls in front of a lit wall and its shadow falls with it, a few px away
+    (not touching, so not a part). The shadow is the wall darkened, with the wall's chromaticity and
+    its texture still there, and moves as the ball does: dropped. Kept: a grey object that moves
+    with the ball but hides the wall's texture (a grey object over a grey floor), a shadow-coloured
+    object moving on its own path, and one whose companion is as grey as itself."""
+    from pipeline.observe import cast_shadows, texture_kept, velocity_coupling
+
+    T, H, W = 12, 80, 80
+    rng = np.random.default_rng(0)
+    texture = rng.normal(0.0, 12.0, (H, W, 1)) + np.linspace(-10.0, 10.0, W)[None, :, None]
+    wall = np.clip(np.array([200.0, 190.0, 180.0]) + texture, 0, 255)            # (H, W, 3)
+    background = wall.astype(np.uint8)
+    ball_c = [(20.0, 5.0 + 0.5 * t * t + 2 * t) for t in range(T)]              # falling, speeding up
+    ball = _disc_track(T, H, W, ball_c, 4.0)
+    shadow = _disc_track(T, H, W, [(x - 8.0, y + 6.0) for x, y in ball_c], 4.0)
+
+    def clip(shadow_px, ball_rgb=(200.0, 30.0, 40.0)):
+        frames = np.tile(wall, (T, 1, 1, 1))
+        frames[shadow] = shadow_px(frames[shadow])
+        frames[ball] = ball_rgb
+        return frames.astype(np.uint8)
+
+    frames = clip(lambda px: 0.6 * px)                                           # the wall in shade
+    assert velocity_coupling(ball, shadow) == pytest.approx(1.0)
+    assert texture_kept(shadow, frames, background) > 0.9
+    assert texture_kept(ball, frames, background) == pytest.approx(0.0, abs=0.3)
+    assert cast_shadows([ball, shadow], frames, background) == {1}
+    assert cast_shadows([shadow], frames, background) == set()
+    # a flat grey object moving with the ball: shadow-coloured, but the wall's texture is hidden
+    grey = clip(lambda px: np.full_like(px, 0.6) * wall.mean(axis=(0, 1)))
+    assert cast_shadows([ball, shadow], grey, background) == set()
+    # a darkened patch on its own path (rising while the ball falls) is not the ball's shadow
+    own = _disc_track(T, H, W, [(60.0, 70.0 - 4.0 * t) for t in range(T)], 4.0)
+    f2 = np.tile(wall, (T, 1, 1, 1))
+    f2[own] *= 0.6
+    f2[ball] = (200.0, 30.0, 40.0)
+    assert velocity_coupling(ball, own) < 0.5
+    assert cast_shadows([ball, own], f2.astype(np.uint8), background) == set()
+    # a companion as grey as the shadow (a grey object and a piece of it): nothing dropped
+    f3 = clip(lambda px: 0.6 * px, ball_rgb=0.7 * wall.mean(axis=(0, 1)))
+    assert cast_shadows([ball, shadow], f3, background) == set()
+
+
+def test_velocity_coupling_ignores_a_few_swapped_steps():
+    """Where a tracker swaps two nearby tracks for a frame, those steps point the wrong way; the
+    share of steps that agree still reads the two as moving together."""
+    from pipeline.observe import velocity_coupling
+
+    T, H, W = 16, 100, 60
+    a_c = [(20.0, 5.0 + 5.0 * t) for t in range(T)]
+    b_c = [(40.0, 10.0 + 5.0 * t) for t in range(T)]
+    a_c[6], b_c[6] = b_c[6], a_c[6]                                      # one frame swapped
+    a, b = _disc_track(T, H, W, a_c, 3.0), _disc_track(T, H, W, b_c, 3.0)
+    assert velocity_coupling(a, b) >= 0.8
+    still = _disc_track(T, H, W, [(30.0, 50.0)] * T, 3.0)
+    assert velocity_coupling(a, still) == 0.0                            # no steps where both move
+
+
 def test_flow_agreement_distrusts_the_flow_where_it_misses_the_masks_motion():
     """A small ball falling more than its size per frame: the masks step 20 px down, while the flow
     estimator (here as DIS does on dev/04's fall) reads it still. Those pixels are not trusted and
