@@ -94,7 +94,8 @@ class Observation:
     moving: tuple[bool, ...] | None = None
     """Per object id of ``seg``: whether the observation saw it move (``hybrid`` and ``anchored``
     tell movers from objects at rest; every object of ``median``/``mog2`` moves; None: all)."""
-    _fit_flow: np.ndarray | None = field(default=None, repr=False, compare=False)
+    _fit_flow: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
+    """Cache of :attr:`fit_flow` (not an init field: ``dataclasses.replace`` starts it afresh)."""
 
     @property
     def moving_flags(self) -> tuple[bool, ...]:
