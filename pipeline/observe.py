@@ -165,12 +165,11 @@ def flow_agreement(seg: np.ndarray, flow: np.ndarray) -> np.ndarray:
         if not area.any():
             continue
         tol = max(FLOW_AGREE_PX, FLOW_AGREE_DIAMETER * 2.0 * math.sqrt(float(np.median(area[area > 0])) / math.pi))
+        steps = np.diff(_centroids(m), axis=0)                      # (T-1, 2), NaN where unseen
         for t in range(T - 1):
             if not (area[t] and area[t + 1]):
                 continue
-            ys, xs = np.nonzero(m[t])
-            ys2, xs2 = np.nonzero(m[t + 1])
-            step = np.array([xs2.mean() - xs.mean(), ys2.mean() - ys.mean()])
+            step = steps[t]
             med = np.median(np.asarray(flow[t])[m[t]], axis=0)
             if np.linalg.norm(med - step) > tol:
                 ok[t][m[t]] = False
