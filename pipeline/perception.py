@@ -56,6 +56,16 @@ COLLISION_RESTITUTION = 0.8
 ROLL_FACTOR = {"sphere": 5.0 / 7.0, "cylinder": 2.0 / 3.0}
 """``a / (g sin theta)`` of a solid sphere / cylinder rolling without slipping down a slope:
 ``1 / (1 + I / (m r^2))`` with ``I = 2/5 m r^2`` and ``1/2 m r^2`` (any mechanics text)."""
+ROLLING_GRIP = 0.5
+"""Sliding friction of a shape proposed rolling (a ball from above or on the floor): its deceleration
+measures its rolling resistance (:func:`rolling_resistance`), not its sliding friction, which only
+has to hold it rolling; 0.5 is the side view's default."""
+ROLLING_RESISTANCE_MAX = 0.1
+"""Largest rolling-resistance coefficient ``C_rr = mu_r / r`` (dimensionless) a proposal gives a
+rolling shape: a ball rolling on a golf green (stimpmeter speeds) decelerates at about 0.5 m/s^2,
+``C_rr`` about 0.07; hard balls on hard floors are 0.001-0.01 (rolling-resistance tables, e.g.
+Wikipedia "Rolling resistance"). A disc that decelerates faster than ``ROLL_FACTOR * C_rr * g`` is
+sliding, and the sphere hypothesis of it keeps the excess."""
 
 
 class PerceptionError(UserError, ValueError):
@@ -78,6 +88,7 @@ class Lifted:
     ramp: dict | None = None                  # static box under the path (side view)
     restitution: float | None = None
     angular_velocity: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
+    rolling_friction: float = 0.0             # MuJoCo rolling coefficient, m (a ball that slows as it rolls)
     notes: list[str] = field(default_factory=list)
 
 
@@ -187,11 +198,38 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
                 normal = np.array([2 * (q[1] * q[3] + q[0] * q[2]), 2 * (q[2] * q[3] - q[0] * q[1]),
                                    1 - 2 * (q[1] ** 2 + q[2] ** 2)])  # local +z of the ramp box
             lifted.angular_velocity = rolling_spin(normal, np.asarray(vel), size["radius"]).tolist()
+            if kind == "floor" and m.n >= 5:   # slowing as it rolls along the floor: rolling resistance
+                lifted.rolling_friction = rolling_resistance(-float(m.a[0]) * math.copysign(px, m.v0[0]),
+                                                             size["radius"], shape)
         elif kind == "fall":
             e = bounce_restitution(whole_frames(tr), fps)
             lifted.restitution = e
         objects.append(lifted)
     return cam, objects, notes
+
+
+def rolling_resistance(decel: float, radius: float, shape: str = "sphere") -> float:
+    """MuJoCo rolling coefficient ``mu_r`` (m, geom ``friction[2]``; the resisting torque is
+    ``mu_r * N``, MuJoCo docs "Contact") that slows a ``shape`` rolling without slipping on a level
+    plane by ``decel`` m/s^2.
+
+    Energy balance: the torque dissipates ``mu_r N w = mu_r m g v / r`` of the kinetic energy
+    ``1/2 (m + I / r^2) v^2``, so ``decel = ROLL_FACTOR * mu_r * g / r`` and
+    ``mu_r = decel * r / (ROLL_FACTOR * g)`` (:data:`ROLL_FACTOR`: 5/7 for a solid sphere, 2/3 for
+    a solid cylinder on its side). ``mu_r / r`` is capped at :data:`ROLLING_RESISTANCE_MAX`; a
+    negative ``decel`` (speeding up) gives 0. MuJoCo's soft contact meets the closed form to about
+    5 % for ``mu_r / r`` of 0.02-0.05 (``tests/test_physics.py``) and gives less where it is smaller.
+
+    Args:
+        decel: deceleration along the velocity, m/s^2; radius: m (> 0); shape: a key of
+            :data:`ROLL_FACTOR`.
+    Returns:
+        ``mu_r``, m.
+    Raises:
+        KeyError: ``shape`` does not roll.
+    """
+    crr = min(max(decel, 0.0) / (ROLL_FACTOR[shape] * G), ROLLING_RESISTANCE_MAX)
+    return float(crr * radius)
 
 
 def rolling_spin(normal: np.ndarray, velocity: np.ndarray, radius: float) -> np.ndarray:
@@ -226,7 +264,7 @@ def _ramp_under(tr: Track, m: Motion, px: float, cu: float, cv: float, cam_h: fl
         a_m = float(np.linalg.norm(m.a)) * px
         mu = math.tan(theta) - a_m / (G * math.cos(theta))
         return ramp, float(np.clip(mu, 0.0, 1.5))
-    return ramp, 0.5
+    return ramp, ROLLING_GRIP
 
 
 def lift_top(tracks: list[Track], motions: list[Motion], width: int, height: int,
@@ -235,7 +273,9 @@ def lift_top(tracks: list[Track], motions: list[Motion], width: int, height: int
 
     The scale is the size prior (median object diameter = :data:`SIZE_PRIOR`); positions are
     the rays through the centroids met with the plane of the object centres; friction from the
-    deceleration along the velocity, ``mu = -a.v_hat / g``.
+    deceleration along the velocity, ``mu = -a.v_hat / g``, for a sliding shape (cylinder, box); a
+    sphere rolls (:func:`rolling_spin`) and its deceleration is rolling resistance
+    (:func:`rolling_resistance`, sliding friction :data:`ROLLING_GRIP`).
     """
     K = intrinsics(FOV_PRIOR, width, height)
     f = K[0, 0]
@@ -271,9 +311,11 @@ def lift_top(tracks: list[Track], motions: list[Motion], width: int, height: int
         mu = float(np.clip(decel / ppm / G, 0.0, 1.0)) if m.n >= 5 else 0.2
         lifted = Lifted(shape, size, [float(p[0][0]), float(p[0][1]), float(half_h)], quat,
                         [float(vel[0]), float(vel[1]), 0.0], mu, _mass(shape, size), "plane")
-        if shape == "sphere":  # a ball on a table rolls
+        if shape == "sphere":  # a ball on a table rolls, slowed by rolling resistance, not sliding friction
             lifted.angular_velocity = rolling_spin(np.array([0.0, 0.0, 1.0]),
                                                    np.asarray(lifted.linear_velocity), size["radius"]).tolist()
+            lifted.rolling_friction = rolling_resistance(decel / ppm if m.n >= 5 else 0.0, size["radius"])
+            lifted.friction = ROLLING_GRIP
         objects.append(lifted)
     return cam, objects, notes
 
@@ -468,7 +510,7 @@ def _to_scene(cam: Camera, objs: list[Lifted], fps: float, duration: float) -> S
         objects.append({"shape": o.shape, "size": o.size, "mass": o.mass, "position": o.position,
                         "orientation": o.orientation, "linear_velocity": o.linear_velocity,
                         "angular_velocity": o.angular_velocity,
-                        "material": {"sliding_friction": o.friction}})
+                        "material": {"sliding_friction": o.friction, "rolling_friction": o.rolling_friction}})
         if o.ramp is not None:
             static.append(o.ramp)
     es = [o.restitution for o in objs if o.restitution is not None]

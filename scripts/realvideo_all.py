@@ -208,6 +208,35 @@ def table(rows: list[dict]) -> str:
     return "\n".join(out)
 
 
+def shape_choice(metrics: dict) -> dict:
+    """Why a clip's shapes are what they are (issue 29 item 4), from its ``metrics.json``: the
+    perception hypotheses' Best@K fitness, the fittest proposal, the one refined (the parsimony
+    rule, ``realvideo.shape_margin``, may take fewer shape parameters within the margin) and the
+    source of the written scene."""
+    hyps = [(p["label"].removeprefix("perception: "), p.get("fitness")) for p in metrics.get("proposals", [])
+            if p.get("source") == "perception" and p.get("valid")]
+    picked, fittest = metrics.get("best_of_k_label"), metrics.get("best_of_k_fittest_label")
+    why = ("fittest" if picked == fittest else
+           f"parsimony: fewer shape parameters within the margin of {fittest!r}")
+    if metrics.get("best_of_k_source") == "model":
+        why = "a model sample was fittest"
+    return {"hypotheses": hyps, "picked": picked, "fittest": fittest, "why": why}
+
+
+def shape_table(rows: list[dict], out: Path) -> str:
+    """Markdown table: per clip, the shapes written and why (:func:`shape_choice`)."""
+    lines = ["| clip | shapes written (true) | perception hypotheses: Best@K fitness | refined | why |", "|---|---|---|---|---|"]
+    for r in rows:
+        f = out / r["clip"] / "metrics.json"
+        if "error" in r or not f.exists():
+            continue
+        c = shape_choice(json.loads(f.read_text()))
+        hyps = "; ".join(f"{lab} {fit:.3f}" for lab, fit in c["hypotheses"] if fit is not None) or "–"
+        lines.append(f"| {r['clip']} | {', '.join(r.get('shapes_written', [])) or '–'} "
+                     f"({', '.join(r.get('shapes_true', []))}) | {hyps} | {c['picked']} | {c['why']} |")
+    return "\n".join(lines)
+
+
 def model_table(rows: list[dict]) -> str:
     """Markdown table of what the scene-writing model proposes on each clip (issue 30): its best
     proposal's IoU against the pseudo ground truth (strict / all frames) and which source Best@K
@@ -294,6 +323,8 @@ def main(argv: list[str] | None = None) -> int:
             "full-sequence IoU as the search reports it, and strict, over the frames where an object or its match "
             "is visible; \"re-sim vs scored masks\": foreground IoU of `dynamics simulate`'s masks against the masks "
             "the main job scored; labels: the hand labels on the window's labelled frames).\n\n" + table(rows)
+            + "\n\n## The shapes chosen and why (issue 29 item 4)\n\nThe written scene starts from the refined "
+            "proposal (staged CMA-ES keeps its shapes; objects at rest may be added).\n\n" + shape_table(rows, args.out)
             + "\n\n## The scene-writing model's proposals\n\n" + model_table(rows)
             + f"\n\nContact sheets ({len(sheets)} clips): `contact_sheets/<clip>.jpg`.")
     write_text(args.out / "table.md", text + "\n")

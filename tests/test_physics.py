@@ -105,6 +105,40 @@ def test_rolling_on_incline_accelerates_at_closed_form(shape, ratio):
     assert_allclose(trace.qvel[-1, 0, 1], -trace.qvel[-1, 0, 3] * 0.1, rtol=0.01)
 
 
+@pytest.mark.parametrize("cone,crr,rtol", [("elliptic", 0.0175, 0.02), ("elliptic", 0.05, 0.02),
+                                           ("pyramidal", 0.05, 0.06)])
+def test_rolling_resistance_slows_a_ball_at_closed_form(cone, crr, rtol):
+    # A ball rolling on a level floor with MuJoCo's rolling coefficient mu_r (torque mu_r N)
+    # slows at ROLL_FACTOR * mu_r * g / r (energy balance; perception.rolling_resistance inverts
+    # it). MuJoCo's elliptic cone meets it; the pyramidal cone (sim.cone's default) is weaker for
+    # small mu_r / r (0.54x at 0.0175 with these settings), so it is checked at 0.05 only.
+    from pipeline.perception import rolling_resistance, rolling_spin
+    r, v0 = 0.025, 0.3
+    decel = 5 / 7 * crr * G
+    mu_r = rolling_resistance(decel, r)
+    assert mu_r == pytest.approx(crr * r, rel=1e-9)
+    obj = sphere(r, (0.0, 0.0, r), (v0, 0.0, 0.0), mass=0.06)
+    obj["angular_velocity"] = rolling_spin(np.array([0.0, 0.0, 1.0]), np.array([v0, 0.0, 0.0]), r).tolist()
+    obj["material"]["rolling_friction"] = mu_r
+    scene = make_scene([obj], duration=0.5, fps=500)
+    trace = rollout(compile_model(scene, SimOptions(cone=cone)), 1, scene.n_frames, scene.fps)
+    keep = slice(len(trace.t) // 10, len(trace.t) // 2)      # after the contact settles
+    slope = np.polyfit(trace.t[keep], trace.qvel[keep, 0, 0], 1)[0]
+    assert -slope == pytest.approx(decel, rel=rtol)
+    # still rolling, not skidding: v = w r (the sliding friction holds it; the pyramidal cone creeps ~4 %)
+    assert_allclose(trace.qvel[len(trace.t) // 2, 0, 0], trace.qvel[len(trace.t) // 2, 0, 4] * r, rtol=rtol)
+
+
+def test_rolling_resistance_is_capped_and_never_negative():
+    from pipeline.perception import ROLLING_RESISTANCE_MAX, rolling_resistance
+    assert rolling_resistance(-1.0, 0.03) == 0.0                          # speeding up: no resistance
+    assert rolling_resistance(50.0, 0.03) == pytest.approx(ROLLING_RESISTANCE_MAX * 0.03)   # a skid, not a roll
+    # a cylinder on its side: decel = 2/3 mu_r g / r
+    assert rolling_resistance(2 / 3 * 0.02 * G, 0.05, "cylinder") == pytest.approx(0.02 * 0.05)
+    with pytest.raises(KeyError):
+        rolling_resistance(0.1, 0.05, "box")
+
+
 # --------------------------------------------------------------------------- 4. projectile
 def test_projectile_range_and_apex():
     # Drag-free projectile: apex height vz^2 / (2 g), range back to the launch height

@@ -57,3 +57,19 @@ def test_content_columns_score_a_written_scene(tmp_path):
     row = rv.content_columns("07_rolling_cylinder", clip)
     assert not row["shapes_right"] and row["support_written"] == "floor" and row["support_right"] is False
     assert row["objects_written"] == row["objects_true"] == 1
+
+
+def test_shape_choice_says_which_rule_picked_the_shapes():
+    """Issue 29 item 4: per clip, the shape chosen and why (the fittest, the parsimony rule, a model sample)."""
+    rv = _realvideo_all()
+    proposals = [{"source": "model", "label": "model sample 0", "valid": True, "fitness": 0.1},
+                 {"source": "perception", "label": "perception: top: cylinder", "valid": True, "fitness": 0.474},
+                 {"source": "perception", "label": "perception: top: sphere", "valid": True, "fitness": 0.46},
+                 {"source": "perception", "label": "perception: top: box", "valid": False, "fitness": None}]
+    m = {"proposals": proposals, "best_of_k_source": "perception", "best_of_k_label": "perception: top: sphere",
+         "best_of_k_fittest_label": "perception: top: cylinder"}
+    c = rv.shape_choice(m)
+    assert c["hypotheses"] == [("top: cylinder", 0.474), ("top: sphere", 0.46)]     # valid perception ones only
+    assert c["picked"] == "perception: top: sphere" and c["why"].startswith("parsimony")
+    assert rv.shape_choice({**m, "best_of_k_label": "perception: top: cylinder"})["why"] == "fittest"
+    assert rv.shape_choice({**m, "best_of_k_source": "model"})["why"] == "a model sample was fittest"
