@@ -217,8 +217,9 @@ def rolling_resistance(decel: float, radius: float, shape: str = "sphere") -> fl
     ``1/2 (m + I / r^2) v^2``, so ``decel = ROLL_FACTOR * mu_r * g / r`` and
     ``mu_r = decel * r / (ROLL_FACTOR * g)`` (:data:`ROLL_FACTOR`: 5/7 for a solid sphere, 2/3 for
     a solid cylinder on its side). ``mu_r / r`` is capped at :data:`ROLLING_RESISTANCE_MAX`; a
-    negative ``decel`` (speeding up) gives 0. MuJoCo's soft contact meets the closed form to about
-    5 % for ``mu_r / r`` of 0.02-0.05 (``tests/test_physics.py``) and gives less where it is smaller.
+    negative ``decel`` (speeding up) gives 0. MuJoCo's elliptic cone meets the closed form; its
+    pyramidal cone (``sim.cone``'s default) gives a small ``mu_r / r`` only part of its torque (at
+    0.3 m/s: 0.51x at 0.01, 0.79x at 0.0175, 0.96x at 0.05; ``docs/physics.md`` check 3b).
 
     Args:
         decel: deceleration along the velocity, m/s^2; radius: m (> 0); shape: a key of
