@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import copy
-import json
 import math
 import shutil
 import subprocess
@@ -32,8 +31,11 @@ import numpy as np
 from tqdm import tqdm
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+for p in (ROOT, ROOT / "benchmarks"):
+    if str(p) not in sys.path:
+        sys.path.insert(0, str(p))
+
+from cross_engine import composition, true_composition  # noqa: E402
 
 from pipeline.atomic import write_json, write_text  # noqa: E402
 from pipeline.params import load_params  # noqa: E402
@@ -51,11 +53,9 @@ def run_clip(folder: Path, params: dict, work: Path) -> dict:
                     labels=folder / "truth.npz")
     a = m["against_labels"]
     written = Scene.from_yaml((work / folder.name / "scene.yaml").read_text())
-    meta = json.loads((folder / "meta.json").read_text())
     return {"clip": folder.name, "resim_vs_truth": a["resim_vs_labels"], "observation_vs_truth": a["observation_vs_labels"],
             "objects_true": n_true, "objects_written": len(written.objects),
-            "shapes_true": sorted(o["shape"] for o in meta["objects"]),
-            "shapes_written": sorted(o.shape for o in written.objects),
+            "shapes_true": list(true_composition(folder)), "shapes_written": list(composition(written)),
             "objects_observed": m.get("objects_observed"), "seconds": m["seconds"],
             "best_of_k_label": m["best_of_k_label"]}
 

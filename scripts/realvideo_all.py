@@ -216,10 +216,8 @@ def shape_choice(metrics: dict) -> dict:
     hyps = [(p["label"].removeprefix("perception: "), p.get("fitness")) for p in metrics.get("proposals", [])
             if p.get("source") == "perception" and p.get("valid")]
     picked, fittest = metrics.get("best_of_k_label"), metrics.get("best_of_k_fittest_label")
-    why = ("fittest" if picked == fittest else
-           f"parsimony: fewer shape parameters within the margin of {fittest!r}")
-    if metrics.get("best_of_k_source") == "model":
-        why = "a model sample was fittest"
+    why = ("a model sample was fittest" if metrics.get("best_of_k_source") == "model" else
+           "fittest" if picked == fittest else f"parsimony: fewer shape parameters within the margin of {fittest!r}")
     return {"hypotheses": hyps, "picked": picked, "fittest": fittest, "why": why}
 
 
