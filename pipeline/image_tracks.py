@@ -35,6 +35,16 @@ CIRCLE_FILL, BOX_FILL = 0.80, 0.93
 """Fill ratios of the rotated box below which a silhouette is surely a disc, above which surely
 a rectangle; in between (small or blurred silhouettes) both are tried."""
 
+ELONGATED = 2.0
+"""Elongation (:attr:`Track.elongation`) from which a silhouette is not round: no sphere, nor a
+disc seen end-on, makes it. A sphere's outline under a pinhole camera is an ellipse of aspect
+``1 / cos(theta)``, ``theta`` its centre's angle off the optical axis (the image of a sphere
+is a conic: Hartley & Zisserman, *Multiple View Geometry*, 2nd ed.): 1.23 at the corner of a
+4:3 view 60 deg wide. Motion blur stretches a moving ball's silhouette along its path only in
+its fast frames, and a silhouette of a few pixels is one pixel off either way, so a ratio of 2
+in most frames is neither (measured, not tuned: rendered spheres, median ratio <= 1.51 on 80
+tracks; real balls, lower quartile 1.03-1.46 on 10 clips; `docs/realvideo.md`)."""
+
 
 
 # --------------------------------------------------------------------------------- tracks
@@ -54,7 +64,11 @@ class Track:
         angle: rotation of the box's long side from +u towards -v (counter-clockwise as seen),
             deg in (-90, 90].
         fill: median area / (long * short); ``pi/4 = 0.785`` for a disc, 1 for a rectangle.
-        shape: ``"circle"`` or ``"rectangle"``.
+        elongation: lower quartile of ``long / short`` over the frames not touching the border
+            (1.0 where there are none): the ratio in the frames least stretched by motion blur;
+            from :data:`ELONGATED` up the silhouette is not round.
+        shape: ``"circle"`` or ``"rectangle"`` (fill above the middle of :data:`CIRCLE_FILL` and
+            :data:`BOX_FILL`, or elongated).
         moving: the largest flow magnitude inside the mask over the window, px/frame.
         travel: largest distance of the centroid from its first position, px.
         clipped: ``(N,)`` bool, the mask touches the image border in that frame: part of the
@@ -75,6 +89,7 @@ class Track:
     moving: float
     travel: float = 0.0
     clipped: np.ndarray | None = None
+    elongation: float = 1.0
 
 
 def whole_frames(track: Track, min_frames: int = 3) -> Track:
@@ -155,18 +170,19 @@ def find_tracks(seg: np.ndarray, flow: np.ndarray | None = None, min_frames: int
             b = np.asarray(boxes)
             long_, short = float(np.median(b[:, 0])), float(np.median(b[:, 1]))
             fill = float(np.median(b[:, 3] / (b[:, 0] * b[:, 1])))
+            elongation = float(np.percentile(b[:, 0] / b[:, 1], 25))
             # angle: circular median over the frames with the largest area (least blur)
             ang = float(np.median(b[:, 2]))
         else:
             a = float(np.median(area))
             long_ = short = 2.0 * math.sqrt(a / math.pi)
-            fill, ang = math.pi / 4, 0.0
-        shape = "circle" if fill < 0.5 * (CIRCLE_FILL + BOX_FILL) else "rectangle"
+            fill, ang, elongation = math.pi / 4, 0.0, 1.0
+        shape = "circle" if fill < 0.5 * (CIRCLE_FILL + BOX_FILL) and elongation < ELONGATED else "rectangle"
         tracks.append(Track(label, np.asarray(frames), np.asarray(centre, dtype=np.float64),
                             np.asarray(area), np.asarray(bottom), short, (long_, short), ang, fill,
                             shape, moving,
                             float(np.linalg.norm(np.asarray(centre) - centre[0], axis=1).max()),
-                            np.asarray(clipped, dtype=bool)))
+                            np.asarray(clipped, dtype=bool), elongation))
     return tracks
 
 

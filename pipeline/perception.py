@@ -33,8 +33,8 @@ import numpy as np
 from pipeline.camera import intrinsics, pixel_to_plane
 from pipeline.errors import UserError
 from pipeline.geometry import volume
-from pipeline.image_tracks import (BOX_FILL, CIRCLE_FILL, Motion, Track, View, gravity_vote, bounce_restitution,
-                                   estimate_view, find_tracks, first_bounce, gravity_motion, initial_motion, initial_state_given, object_tracks,
+from pipeline.image_tracks import (BOX_FILL, CIRCLE_FILL, ELONGATED, Motion, Track, View, gravity_vote,
+                                   bounce_restitution, estimate_view, find_tracks, first_bounce, gravity_motion, initial_motion, initial_state_given, object_tracks,
                                    still_tracks, whole_frames)
 from pipeline.rotation import axis_angle_quat
 from pipeline.scene import Camera, Scene
@@ -324,8 +324,14 @@ def lift_top(tracks: list[Track], motions: list[Motion], width: int, height: int
 # --------------------------------------------------------------------------------- proposals
 def shape_candidates(track: Track, view: View) -> list[str]:
     """Shapes to try for a silhouette, most likely first: a disc is a sphere or a cylinder
-    (side view: sphere first; top view: a puck, cylinder first); a rectangle is a box."""
+    (side view: sphere first; top view: a puck, cylinder first); a rectangle is a box, and so is
+    an elongated silhouette (:data:`ELONGATED`, whatever its fill: a ragged or rounded outline
+    lowers the fill, not the ratio of its sides), which neither a sphere nor a disc seen
+    end-on can make (a cylinder lying with its axis in view would, but it slides along that
+    axis as a box does, and perception writes cylinders as discs and pucks)."""
     round_ = ["sphere", "cylinder"] if view == "side" else ["cylinder", "sphere"]
+    if track.elongation >= ELONGATED:
+        return ["box"]
     if track.fill < CIRCLE_FILL:
         return round_
     if track.fill > BOX_FILL:

@@ -15,8 +15,8 @@ import cv2
 import numpy as np
 import pytest
 
-from pipeline.image_tracks import (Track, find_tracks, first_bounce, initial_motion, initial_state_given, jitter,
-                                   object_tracks, whole_frames)
+from pipeline.image_tracks import (BOX_FILL, CIRCLE_FILL, ELONGATED, Track, find_tracks, first_bounce, initial_motion,
+                                   initial_state_given, jitter, object_tracks, whole_frames)
 
 W, H, FPS = 80, 120, 30.0
 R = 6.0                        # disc radius, px
@@ -142,3 +142,35 @@ def test_a_track_cut_by_the_border_throughout_is_not_an_object():
     assert [t.label for t in object_tracks(seg, None)] == [1]
     hand = np.where(seg == 0, 0, -1).astype(np.int8)
     assert [t.label for t in object_tracks(hand, None)] == [0]
+
+
+def _seg_of(shapes: list[tuple[tuple[float, float], tuple[float, float], float]], size=(160, 120)) -> np.ndarray:
+    """``(T, H, W)`` int8 labels: per frame one filled rotated ellipse ``(centre, axes, angle)``
+    as object 0 (axes: full lengths, px)."""
+    W_, H_ = size
+    seg = np.full((len(shapes), H_, W_), -1, np.int8)
+    for t, (c, axes, ang) in enumerate(shapes):
+        img = np.zeros((H_, W_), np.uint8)
+        cv2.ellipse(img, (c, axes, ang), 1, -1)
+        seg[t][img > 0] = 0
+    return seg
+
+
+def test_elongation_reads_the_silhouette_least_stretched_by_blur():
+    """Issue 29 (shapes): a ball whose silhouette motion blur stretches to 2.6 times its width
+    in its fast frames (a third of them) stays round by its elongation, the lower quartile of
+    long / short over whole frames; a bar 3.5 times longer than wide, with a ragged outline
+    that lowers its fill to a disc's, is elongated in every frame, and so a rectangle."""
+    fast = [((30.0 + 10 * t, 60.0), (26.0, 10.0), 0.0) for t in range(4)]
+    slow = [((70.0 + 2 * t, 60.0), (10.5, 10.0), 0.0) for t in range(8)]
+    ball = find_tracks(_seg_of(fast + slow))[0]
+    assert ball.elongation < 1.3 < ELONGATED
+    assert ball.shape == "circle"
+    # the bar: an ellipse (fill pi/4, a disc's) 3.5x longer than wide, turned 20 deg
+    bar = find_tracks(_seg_of([((40.0 + 5 * t, 60.0), (42.0, 12.0), 20.0) for t in range(10)]))[0]
+    assert bar.fill < 0.5 * (CIRCLE_FILL + BOX_FILL)
+    assert bar.elongation == pytest.approx(3.5, rel=0.1)
+    assert bar.shape == "rectangle"
+    # a silhouette cut by the image border is not read (its visible part can be any ratio)
+    clipped = find_tracks(_seg_of([((0.0, 60.0), (20.0, 20.0), 0.0)] * 5))[0]
+    assert clipped.elongation == 1.0

@@ -147,6 +147,26 @@ def test_oblique_view_sliding_box(tmp_path):
     assert _match_positions(truth, props.scenes[0], obs).max() < 0.5 * max(diameter_px, 20)
 
 
+def test_side_view_sliding_bar_is_proposed_as_a_box_of_its_silhouette(tmp_path):
+    """Issue 29 (shapes; dev/10, a glider on an air track, came back as a ball): a bar sliding
+    along its length, seen from the side, has a silhouette about five times longer than high.
+    No sphere and no disc makes that outline, so every proposal writes a box, with the
+    silhouette's proportions, where before its fill (0.90 here) let a sphere and a disc be
+    tried too. (Level
+    motion does not say which way is down, so the view may be read as top-down, as on dev/10;
+    the rule holds in either.)"""
+    bar = {"shape": "box", "size": {"width": 0.25, "depth": 0.05, "height": 0.05}, "mass": 0.4,
+           "position": [-0.15, -1.2, 0.025], "linear_velocity": [1.0, 0.0, 0.0],
+           "material": {"sliding_friction": 0.05}}
+    truth = _scene({"height": 0.1, "pitch": 0.0, "fov": 45.0}, [bar], duration=1.0)
+    obs, props = _recover(tmp_path, truth, "bar")
+    assert len(props.tracks) == 1
+    assert props.tracks[0].elongation >= perception.ELONGATED
+    assert {o.shape for sc in props.scenes for o in sc.objects} == {"box"}
+    size = props.scenes[0].objects[0].size
+    assert size.width / size.depth == pytest.approx(5.0, rel=0.3)
+
+
 def _puck_clip_without_model(tmp_path, monkeypatch, iterations: int) -> tuple[Path, dict]:
     """A rendered top-down clip of one sliding puck, and params with no trained model (none at
     ``paths.model``, no shipped checkpoint) and a tiny search (popsize 4, one restart)."""
