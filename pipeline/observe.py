@@ -25,7 +25,7 @@ earliest best window wins).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
@@ -222,6 +222,10 @@ def choose_window(video, fps: float | None, scene_fps: int, duration: float) -> 
     sums = sums[: last + 1]
     return float(np.argmax(sums)) / scene_fps, duration
 
+
+CONTEXT_S = 20.0
+"""s: the background's context is read from the first this many seconds of the clip (at most 120
+frames of them, evenly spaced, :func:`observe`)."""
 
 MASK_METHODS = ("median", "mog2", "segmenter", "hybrid", "anchored")
 """``realvideo.mask_method``: background subtraction (``median``, ``mog2``:
@@ -1323,10 +1327,16 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     span = duration + 1.0 / scene_fps
 
     def window(size, crop):
-        clip = read_video(video, fps=fps, start=start, duration=span, size=size, crop=crop)
+        # the background's context: the first CONTEXT_S of the clip; a window inside it is cut
+        # from the same decoded frames (the same pixels as decoding it apart, one decode fewer)
+        ctx = read_video(video, fps=fps, size=size, crop=crop, max_frames=int(CONTEXT_S * probe.fps))
+        first, count = round(start * probe.fps), max(1, round(span * probe.fps))
+        if first + count <= len(ctx.frames):
+            clip = replace(ctx, frames=ctx.frames[first:first + count], start_frame=first)
+        else:
+            clip = read_video(video, fps=fps, start=start, duration=span, size=size, crop=crop)
         if clip.duration + 0.5 / clip.fps < duration:
             raise VideoError(f"{video}: only {clip.duration:.3f} s after start={start:g} s, need {duration:g} s")
-        ctx = read_video(video, fps=fps, size=size, crop=crop, max_frames=int(20 * clip.fps))
         step = max(1, len(ctx.frames) // 120)
         return clip, resample(clip.frames, clip.fps, scene_fps, duration), ctx.frames[::step]
 
