@@ -463,7 +463,8 @@ def place_at_rest(scene: Scene, seg: np.ndarray, moving, width: int, height: int
     since the size depends on the depth), its size is its median image diameter (the short side
     of the rotated box, :class:`pipeline.image_tracks.Track`) times depth over focal length
     (pinhole: size = px * Z / f), its shape the first of :func:`shape_candidates` for the view
-    the camera's pitch gives, its mass from :data:`DENSITY`, its velocity 0. An object whose
+    the camera's pitch gives (an elongated box as long as its silhouette, turned with it:
+    :func:`_box_on_floor`), its mass from :data:`DENSITY`, its velocity 0. An object whose
     ray does not meet the floor (above the horizon) is left out, with a note.
 
     Args:
@@ -488,7 +489,7 @@ def place_at_rest(scene: Scene, seg: np.ndarray, moving, width: int, height: int
         tr = tracks[0]
         uv = np.median(tr.centre, axis=0)
         shape = shape_candidates(tr, view)[0]
-        z, size = 0.0, None
+        z, size, yaw = 0.0, None, 0.0
         for _ in range(4):
             point = pixel_to_plane(uv, z, cam, width, height)
             if not np.all(np.isfinite(point)):
@@ -498,17 +499,47 @@ def place_at_rest(scene: Scene, seg: np.ndarray, moving, width: int, height: int
             size = ({"radius": d / 2} if shape == "sphere" else
                     {"radius": d / 2, "height": d / 2} if shape == "cylinder" else
                     {"width": d, "depth": d, "height": d})
+            if shape == "box" and tr.elongation >= ELONGATED:   # a bar, not a cube: its length
+                size["width"], yaw = _box_on_floor(tr, uv, z, cam, width, height, view, tr.size[0] * depth / f)
             z = d / 2 if shape == "sphere" else 0.5 * size["height"]
         if size is None or not np.all(np.isfinite(point)):
             notes.append(f"object {k} at rest: its ray misses the floor (above the horizon), left out")
             continue
-        added.append({"shape": shape, "size": size, "mass": _mass(shape, size),
-                      "position": [float(point[0]), float(point[1]), float(z)]})
+        obj = {"shape": shape, "size": size, "mass": _mass(shape, size),
+               "position": [float(point[0]), float(point[1]), float(z)]}
+        if yaw:
+            obj["orientation"] = axis_angle_quat((0.0, 0.0, 1.0), yaw).tolist()
+        added.append(obj)
         notes.append(f"object {k} at rest: {shape} of {d:.3f} m on the floor at "
                      f"({point[0]:.2f}, {point[1]:.2f}) m")
     if not added:
         return scene, notes
     return scene.replace(objects=[o.model_dump() for o in scene.objects] + added), notes
+
+
+def _box_on_floor(tr: Track, uv: np.ndarray, z: float, cam: Camera, width: int, height: int, view: View,
+                  long_m: float) -> tuple[float, float]:
+    """Length (m) and yaw (rad) of an elongated box at rest (:data:`ELONGATED`; a squarer
+    silhouette's long side holds as much of the box's side faces as of its top, so a cube keeps
+    the short side for every edge) whose silhouette is ``tr`` (median centroid ``uv``, px): its
+    long side lies along the silhouette's long side. Seen from above
+    (``view`` ``top``), the long side's two ends are cast onto the plane at height ``z`` (m)
+    through ``cam`` and give both; seen from the side, the depth of two points of one image row
+    is ill-conditioned, so the box lies along x (yaw 0) with the long side's length at the
+    centroid's depth, ``long_m``. A length below ``long_m / 2`` or above ``2 long_m`` (a ray
+    nearly parallel to the floor) falls back to ``long_m``, yaw 0."""
+    if view != "top":
+        return long_m, 0.0
+    a = math.radians(tr.angle)                      # counter-clockwise from +u towards -v
+    half = 0.5 * tr.size[0] * np.array([math.cos(a), -math.sin(a)])
+    ends = pixel_to_plane(np.stack([uv - half, uv + half]), z, cam, width, height)
+    if not np.all(np.isfinite(ends)):
+        return long_m, 0.0
+    dx, dy = float(ends[1][0] - ends[0][0]), float(ends[1][1] - ends[0][1])
+    length = math.hypot(dx, dy)
+    if not 0.5 * long_m <= length <= 2.0 * long_m:
+        return long_m, 0.0
+    return length, math.atan2(dy, dx)
 
 
 def _to_scene(cam: Camera, objs: list[Lifted], fps: float, duration: float) -> Scene:

@@ -362,3 +362,34 @@ def test_dynamics_infer_hybrid_fits_the_mover_and_adds_the_object_at_rest(tmp_pa
         assert sorted(o["moving"].tolist()) == [False, True]
         s = observation_scores(true, resim["seg"], [True, False])
     assert s["still_iou"] >= 0.5, s["per_object"]
+
+
+@pytest.mark.parametrize("pitch,yaw_deg", [(70.0, 30.0), (20.0, 0.0)])
+def test_place_at_rest_lays_a_bar_along_its_silhouette(pitch, yaw_deg):
+    """Issue 36 (whole objects at rest): a bar at rest (40 x 8 x 8 cm) is elongated in the image,
+    so it is placed as a box as long as its silhouette, not as a cube of its short side; seen
+    from above (pitch 70 deg) it is turned as its silhouette is (yaw 30 deg), seen from the side
+    it lies along x. Its re-rendered mask covers the true one (IoU >= 0.5; a cube of the short
+    side covers at most a fifth of it)."""
+    from pipeline.metrics import observation_scores
+
+    y_rest = -1.3 if pitch > 60 else -0.6
+    bar = {"shape": "box", "size": {"width": 0.4, "depth": 0.08, "height": 0.08}, "mass": 2.0,
+           "position": [0.2, y_rest, 0.04], "orientation": [math.cos(math.radians(yaw_deg) / 2), 0.0, 0.0,
+                                                            math.sin(math.radians(yaw_deg) / 2)]}
+    scene = Scene.from_dict({"duration": 1.0, "fps": 30, "camera": {"height": 1.2, "pitch": pitch, "fov": 45.0},
+                             "objects": [bar, {"shape": "sphere", "size": {"radius": 0.06}, "mass": 0.5,
+                                               "position": [-0.5, y_rest - 0.2, 0.06],
+                                               "linear_velocity": [0.8, 0.0, 0.0]}]})
+    fr = render_scene(scene, 192, 144)[1]
+    movers = scene.replace(objects=[scene.objects[1].model_dump()])
+    out, notes = perception.place_at_rest(movers, fr.seg, (False, True), 192, 144)
+    placed = out.objects[1]
+    assert placed.shape == "box", notes
+    assert 0.8 * 0.4 <= placed.size.width <= 1.5 * 0.4, notes
+    q = placed.orientation
+    yaw = math.degrees(2 * math.atan2(q[3], q[0]))
+    assert abs((yaw - yaw_deg + 90) % 180 - 90) <= 10.0, (yaw, notes)
+    again = render_scene(out.replace(objects=[placed.model_dump()]), 192, 144)[1]
+    true_bar = np.where(fr.seg == 0, 0, -1).astype(np.int8)
+    assert observation_scores(true_bar, again.seg)["matched_iou"] >= 0.5
