@@ -25,6 +25,7 @@ earliest best window wins).
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field, replace
 
 import cv2
@@ -1329,14 +1330,18 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     def window(size, crop):
         # the background's context: the first CONTEXT_S of the clip; a window inside it is cut
         # from the same decoded frames (the same pixels as decoding it apart, one decode fewer)
-        ctx = read_video(video, fps=fps, size=size, crop=crop, max_frames=int(CONTEXT_S * probe.fps))
+        with warnings.catch_warnings(record=True) as ctx_warnings:   # said after the window is read, as apart
+            warnings.simplefilter("always")
+            ctx = read_video(video, fps=fps, size=size, crop=crop, max_frames=int(CONTEXT_S * probe.fps))
         first, count = round(start * probe.fps), max(1, round(span * probe.fps))
         if first + count <= len(ctx.frames):
             clip = replace(ctx, frames=ctx.frames[first:first + count], start_frame=first)
-        else:
+        else:   # past the context, or past the decodable part: read apart (its error names the truncation)
             clip = read_video(video, fps=fps, start=start, duration=span, size=size, crop=crop)
         if clip.duration + 0.5 / clip.fps < duration:
             raise VideoError(f"{video}: only {clip.duration:.3f} s after start={start:g} s, need {duration:g} s")
+        for w in ctx_warnings:
+            warnings.warn(w.message, stacklevel=2)
         step = max(1, len(ctx.frames) // 120)
         return clip, resample(clip.frames, clip.fps, scene_fps, duration), ctx.frames[::step]
 
