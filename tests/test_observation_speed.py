@@ -27,21 +27,27 @@ def _bench():
     return mod
 
 
-def test_time_clip_reports_the_window_and_the_phases_that_ran(tmp_path):
-    """A rendered 1.3-s clip of a ball rolling across a floor, observed as ``dynamics infer`` does:
-    a 1-s window of 30 frames, every phase took time, the segmenter's network is inside the masks,
-    and the reported seconds are the fastest run's. The Markdown table has one row per clip and the
-    summary counts the clips within the target."""
-    bench = _bench()
-    scene = Scene.from_dict({"duration": 1.3, "fps": 30, "camera": {"height": 1.0, "pitch": 40.0, "fov": 45.0},
+def _rolling_ball_video(tmp_path: Path, duration: float, x0: float, speed: float) -> Path:
+    """An mp4 (160 x 120, 30 fps) of a 12 cm ball rolling along x across a floor seen at 40 deg."""
+    scene = Scene.from_dict({"duration": duration, "fps": 30, "camera": {"height": 1.0, "pitch": 40.0, "fov": 45.0},
                              "objects": [{"shape": "sphere", "size": {"radius": 0.06}, "mass": 0.3,
-                                          "position": [-0.3, -1.3, 0.06], "linear_velocity": [0.6, 0.0, 0.0]}]})
+                                          "position": [x0, -1.3, 0.06], "linear_velocity": [speed, 0.0, 0.0]}]})
     frames = render_scene(scene, 160, 120)[1]
     video = tmp_path / "roll.mp4"
     writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 30, (160, 120))
     for f in frames.rgb:
         writer.write(cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
     writer.release()
+    return video
+
+
+def test_time_clip_reports_the_window_and_the_phases_that_ran(tmp_path):
+    """A rendered 1.3-s clip of a ball rolling across a floor, observed as ``dynamics infer`` does:
+    a 1-s window of 30 frames, every phase took time, the segmenter's network is inside the masks,
+    and the reported seconds are the fastest run's. The Markdown table has one row per clip and the
+    summary counts the clips within the target."""
+    bench = _bench()
+    video = _rolling_ball_video(tmp_path, 1.3, -0.3, 0.6)
     row = bench.time_clip(video, None, job_settings(load_params()), repeats=2)
     assert row["frames"] == 30 and row["window_s"][1] == pytest.approx(1.0)
     assert row["seconds"] == min(row["runs"]) and len(row["runs"]) == 2
@@ -68,15 +74,7 @@ def test_the_window_cut_from_the_context_is_the_window_decoded_apart(tmp_path):
     from pipeline.observe import observe
     from pipeline.video import read_video
 
-    scene = Scene.from_dict({"duration": 2.0, "fps": 30, "camera": {"height": 1.0, "pitch": 40.0, "fov": 45.0},
-                             "objects": [{"shape": "sphere", "size": {"radius": 0.06}, "mass": 0.3,
-                                          "position": [-0.4, -1.3, 0.06], "linear_velocity": [0.5, 0.0, 0.0]}]})
-    frames = render_scene(scene, 160, 120)[1]
-    video = tmp_path / "roll.mp4"
-    writer = cv2.VideoWriter(str(video), cv2.VideoWriter_fourcc(*"mp4v"), 30, (160, 120))
-    for f in frames.rgb:
-        writer.write(cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
-    writer.release()
+    video = _rolling_ball_video(tmp_path, 2.0, -0.4, 0.5)
     obs = observe(video, None, 0.5, 30, 1.0)
     apart = read_video(video, start=0.5, duration=1.0 + 1.0 / 30, size=obs.size, crop=obs.crop)
     assert obs.clip.start_frame == apart.start_frame == 15
