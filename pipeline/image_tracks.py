@@ -186,6 +186,22 @@ def find_tracks(seg: np.ndarray, flow: np.ndarray | None = None, min_frames: int
     return tracks
 
 
+def net_shift(track: Track, k: int = 3) -> float:
+    """Net displacement of a track from its start to its end, in diameters: the distance between
+    the mean centroid of its first ``k`` and of its last ``k`` frames, over
+    :attr:`Track.diameter`. An object that moves keeps its displacement (``net`` close to
+    ``travel / diameter``); the outline of scenery at rest that a mover passes in front of shifts
+    while it is occluded and comes back (``net`` close to 0 while ``travel`` is not).
+
+    Returns:
+        float >= 0; 0.0 for a track seen in fewer than ``2 * k`` frames.
+    """
+    if len(track.frames) < 2 * k:
+        return 0.0
+    shift = track.centre[-k:].mean(axis=0) - track.centre[:k].mean(axis=0)
+    return float(np.hypot(*shift) / max(track.diameter, 1e-6))
+
+
 def object_tracks(seg: np.ndarray, flow: np.ndarray | None, max_objects: int = 4) -> list[Track]:
     """The tracks that are objects: seen in at least 30 % of the frames (4 at least), moving
     somewhere (:func:`find_tracks`; and the centroid travels at least half a diameter: blobs

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from pipeline.image_tracks import (BOX_FILL, CIRCLE_FILL, ELONGATED, Track, find_tracks, first_bounce, initial_motion,
-                                   initial_state_given, jitter, object_tracks, whole_frames)
+                                   initial_state_given, jitter, net_shift, object_tracks, whole_frames)
 
 W, H, FPS = 80, 120, 30.0
 R = 6.0                        # disc radius, px
@@ -174,3 +174,20 @@ def test_elongation_reads_the_silhouette_least_stretched_by_blur():
     # a silhouette cut by the image border is not read (its visible part can be any ratio)
     clipped = find_tracks(_seg_of([((0.0, 60.0), (20.0, 20.0), 0.0)] * 5))[0]
     assert clipped.elongation == 1.0
+
+
+def test_net_shift_keeps_a_slow_objects_displacement_and_not_an_occluded_outline():
+    """Issue 36 (objects at rest are not slow objects): a disc 12 px wide pushed 9 px over the
+    window travels 0.75 diameters and moves 0.61 net (between the means of its first and last 3
+    frames: 9 px * 9 / 11), most of its travel; a bar at rest whose left half a mover
+    covers in the middle frames has its centroid pulled aside (travel >= a quarter diameter) and
+    back, so it has no net shift."""
+    pushed = find_tracks(_seg_of([((40.0 + 9.0 * t / 11, 60.0), (12.0, 12.0), 0.0) for t in range(12)]))[0]
+    assert net_shift(pushed) == pytest.approx(9.0 * 9 / 11 / 12, abs=0.05)
+    assert net_shift(pushed) >= 0.75 * pushed.travel / pushed.diameter
+    seg = _seg_of([((80.0, 60.0), (40.0, 12.0), 0.0)] * 12)
+    seg[4:8, :, :80] = -1                                      # occluded from the left in 4 frames
+    bar = find_tracks(seg)[0]
+    assert bar.travel >= 0.25 * bar.diameter
+    assert net_shift(bar) < 0.05
+    assert net_shift(find_tracks(_seg_of([((40.0, 60.0), (12.0, 12.0), 0.0)] * 5))[0]) == 0.0   # too short
