@@ -33,7 +33,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -42,9 +41,11 @@ import numpy as np
 from tqdm import tqdm
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+for p in (ROOT, ROOT / "benchmarks"):
+    if str(p) not in sys.path:
+        sys.path.insert(0, str(p))
 
+from provenance import tree_id  # noqa: E402
 from pipeline.atomic import write_json, write_text  # noqa: E402
 from pipeline.infer_report import scene_scores  # noqa: E402
 from pipeline.labels import labels_in_window, load_labels, score_against_labels  # noqa: E402
@@ -160,7 +161,7 @@ def save_report(stem: Path, script: str, argv: list[str] | None, body: dict, to_
     """Write ``stem.json`` (``command``, ``commit`` and ``body``) and ``stem.md``
     (``to_markdown(report)``), print the Markdown; returns the report. Shared by the benchmarks of
     the scene writer (this one, ``preference_eval.py``, ``preference_real.py``)."""
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
+    commit = tree_id()
     report = {"command": f"python benchmarks/{script} " + " ".join(argv if argv is not None else sys.argv[1:]),
               "commit": commit, **body}
     stem.parent.mkdir(parents=True, exist_ok=True)

@@ -37,7 +37,9 @@ from tqdm import tqdm
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 
+from provenance import tree_id  # noqa: E402
 from pipeline.atomic import write_bytes, write_json, write_text  # noqa: E402
 from pipeline.flow import estimate_flow, flow_to_rgb  # noqa: E402
 from pipeline.observe import choose_window  # noqa: E402
@@ -375,8 +377,7 @@ def main(argv: list[str] | None = None) -> int:
     figure(methods, test, args.pybullet, args.report.with_suffix(".png"))
     if args.figure_only:
         return 0
-    import subprocess
-    tree = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
+    tree = tree_id()
     res = {"command": "MUJOCO_GL=egl python benchmarks/flow_epe.py" + "".join(f" --raft-weights {w}" for w in args.raft_weights),
            "tree": tree, "date": time.strftime("%Y-%m-%d"),
            "raft_weights": {k: str(v.relative_to(ROOT) if v.is_relative_to(ROOT) else v) for k, v in weights.items()}}

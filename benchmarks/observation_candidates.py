@@ -24,7 +24,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import subprocess
 import sys
 from collections import Counter
 from pathlib import Path
@@ -40,6 +39,7 @@ for p in (ROOT, ROOT / "benchmarks", ROOT / "scripts"):
 from observation_truth import SETS, STILL_M, ensure_set, labelled_still, write_report  # noqa: E402
 from realvideo_all import CLIPS, LABELS, REAL  # noqa: E402
 
+from provenance import tree_id  # noqa: E402
 from pipeline.flow import flow_config  # noqa: E402
 from pipeline.labels import labels_in_window, load_labels  # noqa: E402
 from pipeline.observe import observe, scene_rate, truth_in_window  # noqa: E402
@@ -216,7 +216,7 @@ def main(argv: list[str] | None = None) -> int:
             cands, objs = real_candidates(REAL / rel, fps, LABELS / name.split("_")[0], params, segmenter)
             rows.append({"clip": name, "candidates": cands, "objects": objs})
         sets["real (19, main job's window)"] = rows
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
+    commit = tree_id()
     report = {"command": "python benchmarks/observation_candidates.py " + " ".join(argv if argv is not None else sys.argv[1:]),
               "commit": commit, "summary": {k: summarize(v) for k, v in sets.items()}, "sets": sets}
     write_report(args.report, report, markdown(report))

@@ -32,7 +32,6 @@ import cProfile
 import io
 import os
 import pstats
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -40,10 +39,11 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-for p in (ROOT, ROOT / "scripts"):
+for p in (ROOT, ROOT / "benchmarks", ROOT / "scripts"):
     if str(p) not in sys.path:
         sys.path.insert(0, str(p))
 
+from provenance import tree_id  # noqa: E402
 from pipeline.atomic import write_json, write_text  # noqa: E402
 from pipeline.params import load_params  # noqa: E402
 from pipeline.reconstruct import job_settings, observe_window  # noqa: E402
@@ -106,14 +106,6 @@ def rendered_clips(root: Path, sets: list[str], n: int) -> list[tuple[str, Path,
     return out
 
 
-def _commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
-                              text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
 def markdown(report: dict) -> str:
     """The report as a Markdown table (per clip, then a summary per group)."""
     lines = ["# The main job's observation: seconds per clip (issue 36)", "",
@@ -169,7 +161,7 @@ def main(argv: list[str] | None = None) -> int:
                       "within_target": int(sum(x <= TARGET_S for x in s))}
     given = sys.argv[1:] if argv is None else argv
     report = {"command": " ".join(["python benchmarks/observation_speed.py", *given]),
-              "commit": _commit(), "cpu_count": os.cpu_count(), "torch_threads": torch.get_num_threads(),
+              "commit": tree_id(), "cpu_count": os.cpu_count(), "torch_threads": torch.get_num_threads(),
               "repeats": args.repeats, "load_before": list(load0), "load_after": list(os.getloadavg()),
               "target_s": TARGET_S, "summary": summary, "clips": rows}
     write_json(args.report.with_suffix(".json"), report)

@@ -48,10 +48,11 @@ import numpy as np
 from tqdm import tqdm
 
 ROOT = Path(__file__).resolve().parents[1]
-for p in (ROOT, ROOT / "scripts"):
+for p in (ROOT, ROOT / "benchmarks", ROOT / "scripts"):
     if str(p) not in sys.path:
         sys.path.insert(0, str(p))
 
+from provenance import tree_id  # noqa: E402
 from pipeline.atomic import write_json, write_text  # noqa: E402
 from pipeline.flow import flow_config  # noqa: E402
 from pipeline.metrics import observation_scores  # noqa: E402
@@ -255,7 +256,7 @@ def main(argv: list[str] | None = None) -> int:
                         continue
                     rows.append(real_clip(clip, spec, FIXTURES, vdir, params, segmenter))
                 sets[f"{tag}{name}"] = rows
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
+    commit = tree_id()
     report = {"command": "python benchmarks/observation_truth.py " + " ".join(argv if argv is not None else sys.argv[1:]),
               "commit": commit, "method": f"mask methods {', '.join(methods)}; default realvideo.mask_method={default}; "
                         f"realvideo.fine_scale={realvideo_config(params).fine_scale}",

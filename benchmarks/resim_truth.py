@@ -22,7 +22,6 @@ import argparse
 import copy
 import math
 import shutil
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -37,6 +36,7 @@ for p in (ROOT, ROOT / "benchmarks"):
 
 from cross_engine import composition, true_composition  # noqa: E402
 
+from provenance import tree_id  # noqa: E402
 from pipeline.atomic import write_json, write_text  # noqa: E402
 from pipeline.params import load_params  # noqa: E402
 from pipeline.reconstruct import realvideo_config, reconstruct  # noqa: E402
@@ -116,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
                 work.mkdir()
     finally:
         shutil.rmtree(work, ignore_errors=True)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
+    commit = tree_id()
     report = {"command": "python benchmarks/resim_truth.py " + " ".join(argv if argv is not None else sys.argv[1:]),
               "commit": commit, "summary": {k: summarize(v) for k, v in sets.items()}, "sets": sets}
     args.report.parent.mkdir(parents=True, exist_ok=True)

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import subprocess
 import sys
 from pathlib import Path
 
@@ -34,6 +33,7 @@ for p in (ROOT, ROOT / "benchmarks"):
 
 from observation_truth import SETS, STILL_M, write_report  # noqa: E402
 
+from provenance import tree_id  # noqa: E402
 from pipeline.observe import FG_THRESHOLD  # noqa: E402
 from pipeline.observe import fused_foreground  # noqa: E402
 from pipeline.segmenter import median_background, shipped  # noqa: E402
@@ -135,7 +135,7 @@ def main(argv: list[str] | None = None) -> int:
         clips = sorted(p for p in folder.iterdir() if (p / "truth.npz").exists())
         sets[f"{engine} {split}"] = [r for c in tqdm(clips, desc=f"{engine}/{split}")
                                      for r in clip_recall(c, segmenter, size, args.frames, fine_size)]
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT).stdout.strip()
+    commit = tree_id()
     report = {"command": "python benchmarks/segmenter_recall.py " + " ".join(argv if argv is not None else sys.argv[1:]),
               "commit": commit, "size": list(size),
               "fine_size": list(fine_size) if fine_size else None, "frames": args.frames, "sets": sets}

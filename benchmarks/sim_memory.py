@@ -30,9 +30,11 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+for p in (ROOT, ROOT / "benchmarks"):
+    if str(p) not in sys.path:
+        sys.path.insert(0, str(p))
 
+from provenance import tree_id  # noqa: E402
 from pipeline.atomic import write_json, write_text  # noqa: E402
 
 SCENE = """\
@@ -105,18 +107,6 @@ def pipeline_origin(code: Path | None) -> str:
                           env=env, capture_output=True, text=True, check=True).stdout.strip()
 
 
-def git_commit(where: Path) -> str:
-    """``git describe``-like id of the checkout at ``where`` (``<sha>`` plus ``-dirty``)."""
-    try:
-        sha = subprocess.run(["git", "-C", str(where), "rev-parse", "--short", "HEAD"], capture_output=True,
-                             text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(where), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, check=True).stdout.strip()
-        return sha + ("-dirty" if dirty else "")
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
 def with_ratios(runs: list[dict]) -> list[dict]:
     """Add ``ratio`` (peak / the first run's peak at the same size) to each run."""
     base: dict[tuple[int, int], float] = {}
@@ -151,7 +141,7 @@ def main() -> int:
 
     code_dir = args.code.resolve() if args.code is not None else ROOT
     origin = pipeline_origin(args.code)
-    print(f"pipeline from {origin} ({git_commit(code_dir)})")
+    print(f"pipeline from {origin} ({tree_id(code_dir)})")
     jobs = [(f, args.width, args.height) for f in args.frames]
     if args.info_size:
         jobs += [(f, 480, 320) for f in (args.info_frames or args.frames)]
@@ -169,7 +159,7 @@ def main() -> int:
                "peak_longest_mb": longest["peak_mb"], "peak_target_mb": PEAK_TARGET_MB,
                "met": bool(ratio <= RATIO_TARGET and longest["peak_mb"] <= PEAK_TARGET_MB)}
     command = "MUJOCO_GL=egl nice python benchmarks/sim_memory.py " + shlex.join(sys.argv[1:])
-    report = {"command": command.strip(), "pipeline": origin, "commit": git_commit(code_dir),
+    report = {"command": command.strip(), "pipeline": origin, "commit": tree_id(code_dir),
               "scene": "shared/repro/round3/scene_1000_frames_10GB.yaml with duration 1 s, fps = frames",
               "measure": "peak RSS of the child process (os.wait4 ru_maxrss), MB = 10^6 bytes; wall seconds",
               "cpu_count": os.cpu_count(), "load_after": list(os.getloadavg()), "runs": runs, "targets": targets}
