@@ -20,6 +20,7 @@ Usage::
     MUJOCO_GL=egl .venv/bin/python benchmarks/discrepancy_speed.py               # ~6 min on 2 cores
     MUJOCO_GL=egl .venv/bin/python benchmarks/discrepancy_speed.py --effects none --skip-serial
     MUJOCO_GL=egl .venv/bin/python benchmarks/discrepancy_speed.py --skip-serial --timestep-ab 0.0025
+    MUJOCO_GL=egl .venv/bin/python benchmarks/discrepancy_speed.py --skip-serial --jac-refresh-ab 1
 """
 
 from __future__ import annotations
@@ -56,20 +57,23 @@ def main() -> None:
     ap.add_argument("--timestep-ab", type=float, default=None, metavar="DT",
                     help="also time each dataset with the fits' step bounded by DT s (discrepancy.timestep), "
                          "same data, alternating with the default in one run: the ratio is the A/B")
+    ap.add_argument("--jac-refresh-ab", type=int, default=None, metavar="N",
+                    help="also time each dataset with discrepancy.jac_refresh N (1: a finite-difference Jacobian "
+                         "on every least-squares iteration), same data, in one run: the ratio is the A/B")
     ap.add_argument("--out", default="reports/bench_discrepancy_speed.json")
     args = ap.parse_args()
+    ab = {k: v for k, v in (("timestep", args.timestep_ab), ("jac_refresh", args.jac_refresh_ab)) if v is not None}
     load0 = os.getloadavg()
     rows = []
     for i, effect in enumerate(e.strip() for e in args.effects.split(",") if e.strip()):
         seed = args.seed + i
         row = {"seed": seed, "effect": effect,
                "fast": run_once(seed, effect, D.DiscrepancyConfig(workers=args.workers))}
-        if args.timestep_ab:
-            ab_cfg = D.DiscrepancyConfig(workers=args.workers, timestep=args.timestep_ab)
-            row["fast_ab"] = run_once(seed, effect, ab_cfg)
+        if ab:
+            row["fast_ab"] = run_once(seed, effect, D.DiscrepancyConfig(workers=args.workers, **ab))
             row["ab_ratio"] = row["fast_ab"]["seconds"] / row["fast"]["seconds"]
             row["ab_same_named"] = row["fast_ab"]["named"] == row["fast"]["named"]
-            print(f"{effect:16s} timestep <= {args.timestep_ab:g} s: {row['fast_ab']['seconds']:6.1f} s named "
+            print(f"{effect:16s} {ab}: {row['fast_ab']['seconds']:6.1f} s named "
                   f"{row['fast_ab']['named']} ({row['ab_ratio']:.2f}x the default's time)", flush=True)
         if not args.skip_serial:
             row["serial"] = run_once(seed, effect, D.DiscrepancyConfig(workers=1, screen_gain=0.0))
@@ -83,10 +87,12 @@ def main() -> None:
     summary = {"datasets": len(rows), "fast_mean_s": sum(fast) / len(fast), "fast_max_s": max(fast),
                "workers": args.workers, "load_before": load0, "load_after": os.getloadavg(),
                "cpu_count": os.cpu_count()}
-    if args.timestep_ab:
-        ab = [r["fast_ab"]["seconds"] for r in rows]
-        summary.update(ab_timestep=args.timestep_ab, ab_mean_s=sum(ab) / len(ab), ab_ratio=sum(ab) / sum(fast),
+    if ab:
+        t_ab = [r["fast_ab"]["seconds"] for r in rows]
+        summary.update(ab_settings=ab, ab_mean_s=sum(t_ab) / len(t_ab), ab_ratio=sum(t_ab) / sum(fast),
                        ab_same_named=all(r["ab_same_named"] for r in rows))
+        if args.timestep_ab:
+            summary["ab_timestep"] = args.timestep_ab
     if not args.skip_serial:
         serial = [r["serial"]["seconds"] for r in rows]
         summary.update(serial_mean_s=sum(serial) / len(serial), ratio=sum(serial) / sum(fast),

@@ -15,7 +15,7 @@ from pipeline import discrepancy as D
 from pipeline.discrepancy.benchmark import null_value, null_valued
 from pipeline.discrepancy.noise import drop_outliers, find_outliers
 from pipeline.discrepancy.trajectories import Clip, ObjectSpec, Track
-from pipeline.discrepancy.fit import Fit
+from pipeline.discrepancy.fit import Fit, broyden_blocks
 from pipeline.discrepancy import workflow as W
 from pipeline.discrepancy.workflow import _excess, _explains, _MismatchProfile, _null_test
 from pipeline.mjcf import SimOptions
@@ -410,3 +410,25 @@ def test_fit_timestep_bounds_the_fits_step_and_keeps_samples_on_steps():
     np.testing.assert_allclose(q[:, 2], 2.0 + t - 0.5 * 9.81 * t * (t + dt), atol=1e-9)
     with pytest.raises(ValueError, match="timestep"):
         D.DiscrepancyConfig(timestep=0.0)
+
+
+def test_broyden_blocks_meets_the_secant_condition_and_keeps_clips_apart():
+    """``discrepancy.jac_refresh``: the Broyden update of a two-clip Jacobian reproduces the change
+    of each clip's residuals along the step it was given (the secant condition, Nocedal & Wright
+    eq. 11.28), leaves the exact Jacobian of a linear model unchanged, and never couples one
+    clip's residuals to the other clip's own parameters."""
+    rng = np.random.default_rng(0)
+    rows, offs = np.array([0, 5, 9]), np.array([0, 3, 5])          # clip 0: 5 rows, 3 params; clip 1: 4, 2
+    A = np.zeros((9, 6))                                            # + 1 shared coefficient (column 5)
+    A[0:5, [0, 1, 2, 5]] = rng.normal(size=(5, 4))
+    A[5:9, [3, 4, 5]] = rng.normal(size=(4, 3))
+    du = rng.normal(size=6)
+    assert np.allclose(broyden_blocks(A, du, A @ du, rows, offs), A)     # exact stays exact
+    J0 = A + 0.3 * rng.normal(size=A.shape) * (A != 0)              # a stale Jacobian, same zeros
+    dr = A @ du
+    J1 = broyden_blocks(J0, du, dr, rows, offs)
+    for c in range(2):
+        cols = np.r_[offs[c]:offs[c + 1], 5]
+        assert np.allclose(J1[rows[c]:rows[c + 1]][:, cols] @ du[cols], dr[rows[c]:rows[c + 1]])
+    assert np.all(J1[0:5, 3:5] == 0) and np.all(J1[5:9, 0:3] == 0)
+    assert np.array_equal(broyden_blocks(J0, np.zeros(6), dr, rows, offs), J0)

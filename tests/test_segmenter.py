@@ -251,6 +251,28 @@ def test_at_rest_needs_a_steady_confident_silhouette_seen_throughout():
     assert _at_rest(occluded, fg, frames, T)
 
 
+def test_slow_object_must_end_where_it_did_not_start():
+    """A slow object (hybrid): a disc pushed 0.75 diameters over the window, whose pixels barely
+    flow, is one; a bar at rest whose left part a mover covers for 8 of 24 frames travels as far
+    in its outline, comes back, and is not (``SLOW_NET``, ``net_shift``)."""
+    from pipeline.image_tracks import find_tracks
+    from pipeline.observe import _slow_object
+    T, H, W = 24, 60, 80
+    yy, xx = np.mgrid[:H, :W]
+    disc = np.stack([(xx - (30 + 9.0 * t / (T - 1))) ** 2 + (yy - 30) ** 2 <= 36 for t in range(T)])
+    bar = np.zeros((T, H, W), bool)
+    bar[:, 26:34, 20:60] = True
+    bar[8:16, 26:34, 20:40] = False                                    # occluded from the left
+    for m in (disc, bar):
+        tr = find_tracks(np.where(m, 0, -1).astype(np.int8))[0]
+        assert tr.travel >= 0.25 * tr.diameter                        # both shift by "travel"
+    fg = lambda m: np.where(m, 0.97, 0.02).astype(np.float32)          # noqa: E731
+    t_disc = find_tracks(np.where(disc, 0, -1).astype(np.int8))[0]
+    t_bar = find_tracks(np.where(bar, 0, -1).astype(np.int8))[0]
+    assert _slow_object(t_disc, disc, fg(disc), T)
+    assert not _slow_object(t_bar, bar, fg(bar), T)
+
+
 def test_interpolate_is_the_weighted_mean_of_two_checkpoints(tmp_path):
     """WiSE-FT weights (pipeline.segmenter.interpolate): alpha 0 and 1 give the two checkpoints,
     0.5 their mean; two different networks are one error."""

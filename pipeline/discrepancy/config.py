@@ -109,6 +109,11 @@ class DiscrepancyConfig(StrictModel):
             (the variant of :func:`forward_gap` in which an effect with
             ``Effect.replaces_damping`` stands in for the linear damping).
         diff_step: finite-difference step, in units of each parameter's scale.
+        jac_refresh: a least-squares fit's Jacobian is a full finite-difference one on every
+            ``jac_refresh``-th call and a Broyden update of the last one in between (1: always
+            finite differences, the default; :func:`pipeline.discrepancy.fit.fit_clips`). Measured,
+            not adopted: 2 took the drag set 0.48x the time, but the wind set's fit ended in another
+            optimum (held-out gap 1.07 -> 2.36 mm) at 0.93x (``docs/discrepancy.md``).
         ci_level: confidence level of the coefficient intervals.
         contact_timeconst: s, ``solref`` time constant of the base model's object and floor
             contacts in the workflow's fits (critically damped); the params ``sim`` value
@@ -184,6 +189,7 @@ class DiscrepancyConfig(StrictModel):
     forward_split: float = Field(0.6, gt=0, lt=1)
     hold_damping: bool = False
     diff_step: float = Field(1e-2, gt=0)
+    jac_refresh: int = Field(1, ge=1)
     ci_level: float = Field(0.95, gt=0, lt=1)
     contact_timeconst: float = Field(0.005, gt=0)
     timestep: float | None = Field(None, gt=0, le=0.01)

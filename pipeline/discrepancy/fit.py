@@ -255,6 +255,36 @@ def bounded_effect_values(start: Mapping[str, Mapping[str, float]], keys: Sequen
     return _effect_values(start, keys, np.clip(theta, [s.low for s in specs], [s.high for s in specs]))
 
 
+def broyden_blocks(J: np.ndarray, du: np.ndarray, dr: np.ndarray, rows: np.ndarray, offs: np.ndarray
+                   ) -> np.ndarray:
+    """Broyden's rank-one update of a block-sparse least-squares Jacobian, block by block.
+
+    ``J_new = J + (dr - J du) du^T / (du^T du)`` (Broyden, Math. Comp. 19, 1965, the "good"
+    update; Nocedal & Wright, *Numerical Optimization*, eq. 11.28) applied to each clip's rows
+    with only that clip's own columns and the shared coefficients' columns, so that the zeros
+    between clips (a clip's residuals do not depend on another clip's parameters) stay zero.
+
+    Args:
+        J: ``(n_res, n_par)`` float64 Jacobian at the previous point.
+        du: ``(n_par,)`` step from the previous point; dr: ``(n_res,)`` change of the residuals.
+        rows: ``(n_clips + 1,)`` int row offsets of the clips; offs: ``(n_clips + 1,)`` int column
+            offsets of their own parameters (the shared coefficients follow ``offs[-1]``).
+    Returns:
+        ``(n_res, n_par)`` float64 updated Jacobian (a copy; blocks whose step is zero unchanged).
+    """
+    J = J.copy()
+    shared = np.arange(offs[-1], J.shape[1])
+    for c in range(len(rows) - 1):
+        cols = np.concatenate([np.arange(offs[c], offs[c + 1]), shared])
+        d = du[cols]
+        dd = float(d @ d)
+        if dd <= 0.0:
+            continue
+        blk = J[rows[c]:rows[c + 1]][:, cols]
+        J[rows[c]:rows[c + 1], cols] = blk + np.outer(dr[rows[c]:rows[c + 1]] - blk @ d, d) / dd
+    return J
+
+
 def fit_clips(clips: Sequence[Clip], models: Sequence[ClipModel], weights: Sequence[Weights],
               start_nuisance: Sequence[np.ndarray], start_effects: Mapping[str, Mapping[str, float]],
               cfg: DiscrepancyConfig, fit_effects: bool = True, with_ci: bool = False,
@@ -349,8 +379,20 @@ def fit_clips(clips: Sequence[Clip], models: Sequence[ClipModel], weights: Seque
     rows = np.concatenate([[0], np.cumsum([len(r) for r in all_res(u0)])]).astype(int)
     h = cfg.diff_step
 
+    last: dict[str, Any] = {}                          # the last Jacobian, for Broyden updates
+    refresh = cfg.jac_refresh
+
     def jac(u: np.ndarray) -> np.ndarray:
         base = all_res(u)
+        if refresh > 1 and last and last["age"] < refresh - 1:
+            J = broyden_blocks(last["J"], u - last["u"], np.concatenate(base) - last["r"], rows, offs)
+            last.update(J=J, u=u.copy(), r=np.concatenate(base), age=last["age"] + 1)
+            return J
+        J = fd_jac(u, base)
+        last.update(J=J, u=u.copy(), r=np.concatenate(base), age=0)
+        return J
+
+    def fd_jac(u: np.ndarray, base: list[np.ndarray]) -> np.ndarray:
         nuis, theta = unpack(u)
         values = _effect_values(start_effects, keys, theta)
         J = np.zeros((rows[-1], len(u)))
@@ -409,7 +451,7 @@ def fit_clips(clips: Sequence[Clip], models: Sequence[ClipModel], weights: Seque
     fit = Fit(values, nuis, chi2, sq, n_res, n_pos, k=len(u), theta_keys=keys, nfev=counter["nfev"],
               status=status, iterations=iterations, converged=bool(converge and status > 0))
     if with_ci and n_theta:
-        J, r = jac(u), fun(u)
+        J, r = fd_jac(u, all_res(u)), fun(u)
         fit.ci_gn = _intervals(J, r, keys, th_scale, theta, offs[-1], cfg.ci_level)
         fit.clip_info = clip_information(J, r, rows, offs, th_scale, theta)
         fit.ci = {e: {p: list(v) for p, v in d.items()} for e, d in fit.ci_gn.items()}
