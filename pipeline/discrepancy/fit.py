@@ -384,12 +384,14 @@ def fit_clips(clips: Sequence[Clip], models: Sequence[ClipModel], weights: Seque
 
     def jac(u: np.ndarray) -> np.ndarray:
         base = all_res(u)
-        if refresh > 1 and last and last["age"] < refresh - 1:
-            J = broyden_blocks(last["J"], u - last["u"], np.concatenate(base) - last["r"], rows, offs)
-            last.update(J=J, u=u.copy(), r=np.concatenate(base), age=last["age"] + 1)
-            return J
-        J = fd_jac(u, base)
-        last.update(J=J, u=u.copy(), r=np.concatenate(base), age=0)
+        if refresh == 1:                               # the default: no Broyden bookkeeping
+            return fd_jac(u, base)
+        r = np.concatenate(base)
+        if last and last["age"] < refresh - 1:
+            J, age = broyden_blocks(last["J"], u - last["u"], r - last["r"], rows, offs), last["age"] + 1
+        else:
+            J, age = fd_jac(u, base), 0
+        last.update(J=J, u=u.copy(), r=r, age=age)
         return J
 
     def fd_jac(u: np.ndarray, base: list[np.ndarray]) -> np.ndarray:
