@@ -24,6 +24,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from collections import Counter
 from pathlib import Path
@@ -37,7 +38,7 @@ for p in (ROOT, ROOT / "benchmarks", ROOT / "scripts"):
         sys.path.insert(0, str(p))
 
 from observation_truth import SETS, STILL_M, ensure_set, labelled_still, write_report  # noqa: E402
-from realvideo_all import CLIPS, LABELS, REAL  # noqa: E402
+from realvideo_all import CLIPS, LABELS, REAL, _content  # noqa: E402
 
 from provenance import tree_id  # noqa: E402
 from pipeline.flow import flow_config  # noqa: E402
@@ -91,6 +92,9 @@ def clip_candidates(folder: Path, params: dict, segmenter) -> tuple[list[dict], 
     pos = truth["pos"][frames]
     still = np.linalg.norm(pos - pos[:1], axis=-1).max(axis=0) < STILL_M
     cands = matched(found, seg)
+    shapes = [o["shape"] for o in json.loads((folder / "meta.json").read_text())["objects"]]
+    for c in cands:
+        c["shape_true"] = shapes[c["truth"]] if c["object"] else None
     ids = [k for k in range(len(still)) if (seg == k).any()]
     return cands, true_objects(cands, ids, [bool(still[k]) for k in ids])
 
@@ -154,6 +158,26 @@ def summarize(rows: list[dict]) -> dict:
     return out
 
 
+SILHOUETTE = ("ellipse", "polygon", "fill", "elongation")
+
+
+def silhouette_table(sets: dict[str, list[dict]]) -> list[str]:
+    """Markdown rows: quartiles of the silhouette features (:class:`pipeline.image_tracks.Track`)
+    of the kept candidates that are objects, by set and true shape; what shape the silhouette
+    cue (:func:`pipeline.perception.shape_candidates`) would try first is judged from these."""
+    lines = ["| set | true shape | n | " + " | ".join(f"{k} q25 / q50 / q75" for k in SILHOUETTE) + " |",
+             "|---" * (3 + len(SILHOUETTE)) + "|"]
+    for name, rows in sets.items():
+        for shape in ("sphere", "cylinder", "box"):
+            sel = [c for r in rows for c in r["candidates"]
+                   if c["kept"] and c.get("shape_true") == shape and np.isfinite(c.get("ellipse", np.nan))]
+            if not sel:
+                continue
+            q = [" / ".join(f"{v:.3f}" for v in np.percentile([c[k] for c in sel], [25, 50, 75])) for k in SILHOUETTE]
+            lines.append(f"| {name} | {shape} | {len(sel)} | " + " | ".join(q) + " |")
+    return lines
+
+
 def markdown(report: dict) -> str:
     cols = ["clips", "objects", "moving objects", "moving: no candidate", "moving: lost later", "still objects",
             "still: no candidate", "still: lost later", "candidates"] \
@@ -173,6 +197,12 @@ def markdown(report: dict) -> str:
              "| set | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
     for name, s in report["summary"].items():
         lines.append(f"| {name} | " + " | ".join(str(s[c]) for c in cols) + " |")
+    lines += ["", "## Silhouettes of the kept objects by true shape", "",
+              "`ellipse`, `polygon`: IoU of the silhouette with its least-squares ellipse and with its convex polygon "
+              "of few corners (`pipeline.image_tracks.silhouette_fit`, median over the track's whole frames); `fill`: "
+              "area over the rotated box; `elongation`: lower quartile of the box's long / short side. True shapes: "
+              "`meta.json` (rendered), `tests/fixtures/realvideo/content.yaml` (real).", ""]
+    lines += silhouette_table(report["sets"])
     return "\n".join(lines) + "\n"
 
 
@@ -214,6 +244,9 @@ def main(argv: list[str] | None = None) -> int:
         rows = []
         for name, rel, fps in tqdm(CLIPS, desc="real"):
             cands, objs = real_candidates(REAL / rel, fps, LABELS / name.split("_")[0], params, segmenter)
+            shapes = set(_content().get(name, {}).get("objects", []))
+            for c in cands:   # every object of a real clip has one shape (content.yaml)
+                c["shape_true"] = next(iter(shapes)) if c["object"] and len(shapes) == 1 else None
             rows.append({"clip": name, "candidates": cands, "objects": objs})
         sets["real (19, main job's window)"] = rows
     commit = tree_id()

@@ -19,6 +19,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+from collections import Counter
 import copy
 import math
 import shutil
@@ -68,6 +69,9 @@ def summarize(rows: list[dict]) -> dict:
             "count_right": round(float(np.mean([r["objects_written"] == r["objects_true"] for r in rows])), 3) if rows else None,
             "composition_right": round(float(np.mean([r["shapes_written"] == r["shapes_true"] for r in rows])), 3)
             if rows else None,
+            "shapes_right": round(sum(sum((Counter(r["shapes_true"]) & Counter(r["shapes_written"])).values())
+                                      for r in rows) / max(sum(len(r["shapes_true"]) for r in rows), 1), 3)
+            if rows else None,
             "observation_vs_truth": mean("observation_vs_truth"), "seconds": mean("seconds")}
 
 
@@ -76,14 +80,16 @@ def markdown(report: dict) -> str:
              f"Command: `{report['command']}` (tree `{report['commit']}`). Matched per-object IoU against the "
              "true masks of every window frame (unmatched true objects, at rest included, score 0); the search "
              "fits the observation and never reads the truth.", "",
-             "Composition: the multiset of shapes written equals the true one (`meta.json`).", "",
+             "Composition: the multiset of shapes written equals the true one (`meta.json`). Shapes right: the "
+             "true objects whose shape is written, over all true objects (the multisets' intersection, summed over "
+             "the clips, over the true count).", "",
              "| mask method | set | clips | re-simulation vs truth | observation vs truth | objects written = true | "
-             "composition right | s / clip |",
-             "|---|---|---|---|---|---|---|---|"]
+             "composition right | shapes right | s / clip |",
+             "|---|---|---|---|---|---|---|---|---|"]
     for key, s in report["summary"].items():
         method, name = key.split(": ", 1)
         lines.append(f"| {method} | {name} | {s['clips']} | {s['resim_vs_truth']} | {s['observation_vs_truth']} | "
-                     f"{s['count_right']} | {s.get('composition_right')} | {s['seconds']} |")
+                     f"{s['count_right']} | {s.get('composition_right')} | {s.get('shapes_right')} | {s['seconds']} |")
     return "\n".join(lines) + "\n"
 
 

@@ -426,7 +426,8 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
                                "travel": tr.travel / max(tr.diameter, 1e-6), "net": net_shift(tr), "flow_moves": moves,
                                "confidence": confidence, "stability": mask_stability(m, tr.frames),
                                "fill": float(tr.fill), "aspect": tr.size[0] / max(tr.size[1], 1e-6),
-                               "in_view": _in_view(m), "border": border_fraction(m), "decision": decision})
+                               "ellipse": float(tr.ellipse), "polygon": float(tr.polygon),
+                               "elongation": float(tr.elongation), "in_view": _in_view(m), "border": border_fraction(m), "decision": decision})
     movers = join_movers(movers)
     unseen = [(None, m, []) for k, m in enumerate(bs_masks)   # movers only background subtraction saw
               if k not in linked and m.any() and overlap[k] <= 0.2 * m.sum()]

@@ -34,7 +34,7 @@ from pipeline.camera import intrinsics, pixel_to_plane
 from pipeline.errors import UserError
 from pipeline.geometry import volume
 from pipeline.image_tracks import (BOX_FILL, CIRCLE_FILL, ELONGATED, Motion, Track, View, gravity_vote,
-                                   bounce_restitution, estimate_view, find_tracks, first_bounce, gravity_motion, initial_motion, initial_state_given, object_tracks,
+                                   round_silhouette, bounce_restitution, estimate_view, find_tracks, first_bounce, gravity_motion, initial_motion, initial_state_given, object_tracks,
                                    still_tracks, whole_frames)
 from pipeline.rotation import axis_angle_quat
 from pipeline.scene import Camera, Scene
@@ -105,6 +105,12 @@ def _side_motion_kind(track: Track, m: Motion) -> str:
     return "floor"
 
 
+def _side_body(track: Track, shape: str) -> str:
+    """How a shape moves in :func:`lift_side`: a cylinder whose silhouette is not round stands on
+    its end and slides as a box does (``"box"``); otherwise the shape itself."""
+    return "box" if shape == "cylinder" and not round_silhouette(track) else shape
+
+
 def side_scale(track: Track, m: Motion, kind: str, shape: str) -> tuple[float, str]:
     """Pixels per metre at the object's depth for a side view, and where it came from.
 
@@ -141,7 +147,7 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
     scales, kinds = [], []
     for tr, m in zip(tracks, motions):
         kind = _side_motion_kind(tr, m)
-        ppm, src = side_scale(tr, m, kind, shape_of[tr.label])
+        ppm, src = side_scale(tr, m, kind, _side_body(tr, shape_of[tr.label]))
         scales.append(ppm)
         kinds.append(kind)
         notes.append(f"object {tr.label}: {kind}, {tr.shape} -> {shape_of[tr.label]}, scale {ppm:.0f} px/m from {src}")
@@ -175,10 +181,17 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
             size = {"radius": tr.diameter / 2 * px}
             quat = [1.0, 0.0, 0.0, 0.0]
             half_h = size["radius"]
-        elif shape == "cylinder":  # a disc seen end-on: axis along the line of sight (y)
+        elif shape == "cylinder" and round_silhouette(tr):  # a disc seen end-on: axis along the line of sight (y)
             size = {"radius": tr.diameter / 2 * px, "height": 0.4 * tr.diameter * px}
             quat = axis_angle_quat((1.0, 0.0, 0.0), -math.pi / 2).tolist()
             half_h = size["radius"]
+        elif shape == "cylinder":  # standing on its end: the rectangle's side nearest the vertical is its axis
+            long_, short = tr.size
+            across, along, tilt = (long_, short, tr.angle) if abs(tr.angle) <= 45.0 else \
+                (short, long_, tr.angle - math.copysign(90.0, tr.angle))
+            size = {"radius": across / 2 * px, "height": along * px}
+            quat = axis_angle_quat((0.0, 1.0, 0.0), -math.radians(tilt)).tolist()
+            half_h = along / 2 * px
         else:  # box in the image plane, turned by the silhouette's angle about -y
             long_, short = tr.size
             size = {"width": long_ * px, "depth": short * px, "height": short * px}
@@ -187,9 +200,10 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
         z = max(z, half_h + 1e-3)
         friction = 0.5
         lifted = Lifted(shape, size, [float(x), float(y), float(z)], quat, vel, friction, _mass(shape, size), kind)
+        body = _side_body(tr, shape)
         if kind == "ramp":
-            lifted.ramp, lifted.friction = _ramp_under(tr, m, px, cu, cv, cam.height, y, half_h, shape)
-        if kind in ("ramp", "floor") and shape in ROLL_FACTOR:
+            lifted.ramp, lifted.friction = _ramp_under(tr, m, px, cu, cv, cam.height, y, half_h, body)
+        if kind in ("ramp", "floor") and body in ROLL_FACTOR:
             # already rolling, not skidding: a ball launched without spin slides until friction
             # has spun it up, losing 2/7 of its speed (sphere; 1/3 for a cylinder)
             normal = np.array([0.0, 0.0, 1.0])
@@ -323,13 +337,27 @@ def lift_top(tracks: list[Track], motions: list[Motion], width: int, height: int
 
 # --------------------------------------------------------------------------------- proposals
 def shape_candidates(track: Track, view: View) -> list[str]:
-    """Shapes to try for a silhouette, most likely first: a disc is a sphere or a cylinder
-    (side view: sphere first; top view: a puck, cylinder first); a rectangle is a box, and so is
-    an elongated silhouette (:data:`ELONGATED`, whatever its fill: a ragged or rounded outline
-    lowers the fill, not the ratio of its sides), which neither a sphere nor a disc seen
-    end-on can make (a cylinder lying with its axis in view would, but it slides along that
-    axis as a box does, and perception writes cylinders as discs and pucks)."""
+    """Shapes to try for a silhouette, most likely first.
+
+    * A round silhouette (:func:`pipeline.image_tracks.round_silhouette`: an ellipse, not
+      elongated) is a sphere or a disc seen along its axis: side view, sphere first; top view, a
+      puck, cylinder first.
+    * Any other silhouette is not a sphere (a sphere's outline is an ellipse from every view): a
+      box first where a polygon of few corners fits it better than an ellipse
+      (:attr:`Track.polygon` > :attr:`Track.ellipse`: corners), else a cylinder first (straight
+      sides and elliptical ends). In a side view the cylinder stands on its end (its outline a
+      rectangle, :func:`lift_side`). In a top view an elongated silhouette is a box only:
+      perception writes a cylinder there as a puck, whose outline is a disc.
+    * Without an ellipse fit (every frame cut by the border) the rotated box's fill decides:
+      below :data:`CIRCLE_FILL` round, above :data:`BOX_FILL` a box, in between both.
+    """
     round_ = ["sphere", "cylinder"] if view == "side" else ["cylinder", "sphere"]
+    if math.isfinite(track.ellipse):
+        if round_silhouette(track):
+            return round_
+        if view == "top" and track.elongation >= ELONGATED:
+            return ["box"]
+        return ["box", "cylinder"] if track.polygon > track.ellipse else ["cylinder", "box"]
     if track.elongation >= ELONGATED:
         return ["box"]
     if track.fill < CIRCLE_FILL:

@@ -10,13 +10,15 @@ every number below is known in closed form.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import cv2
 import numpy as np
 import pytest
 
-from pipeline.image_tracks import (BOX_FILL, CIRCLE_FILL, ELONGATED, Track, find_tracks, first_bounce, initial_motion,
-                                   initial_state_given, jitter, net_shift, object_tracks, whole_frames)
+from pipeline.image_tracks import (BOX_FILL, CIRCLE_FILL, ELLIPSE_FIT, ELONGATED, Track, find_tracks, first_bounce,
+                                   initial_motion, initial_state_given, jitter, net_shift, object_tracks,
+                                   round_silhouette, silhouette_fit, whole_frames)
 
 W, H, FPS = 80, 120, 30.0
 R = 6.0                        # disc radius, px
@@ -191,3 +193,45 @@ def test_net_shift_keeps_a_slow_objects_displacement_and_not_an_occluded_outline
     assert bar.travel >= 0.25 * bar.diameter
     assert net_shift(bar) < 0.05
     assert net_shift(find_tracks(_seg_of([((40.0, 60.0), (12.0, 12.0), 0.0)] * 5))[0]) == 0.0   # too short
+
+
+def _fit(draw) -> tuple[float, float]:
+    m = np.zeros((120, 160), np.uint8)
+    draw(m)
+    fit = silhouette_fit(m > 0)
+    assert fit is not None
+    return fit
+
+
+@pytest.mark.parametrize("radius", [4, 8, 25])
+def test_silhouette_fit_reads_an_ellipse_as_round_at_every_size(radius):
+    """A sphere's outline is an ellipse (a conic: Hartley & Zisserman): rasterised discs and
+    ellipses of 4-25 px radius fit their ellipse above :data:`ELLIPSE_FIT`, so a ball is not
+    excluded for being small."""
+    ell, _ = _fit(lambda m: cv2.circle(m, (80, 60), radius, 1, -1))
+    assert ell >= ELLIPSE_FIT
+    ell, _ = _fit(lambda m: cv2.ellipse(m, ((80, 60), (2.6 * radius, 2 * radius), 30.0), 1, -1))
+    assert ell >= ELLIPSE_FIT
+
+
+@pytest.mark.parametrize("angle", [0.0, 20.0, 45.0])
+@pytest.mark.parametrize("side", [10, 40])
+def test_silhouette_fit_reads_a_square_as_a_polygon_not_an_ellipse(angle, side):
+    """A square's corners lie outside its best ellipse: the ellipse fit falls below
+    :data:`ELLIPSE_FIT` (a disc of the same area is above it) and the polygon fits better, at any
+    rotation; so a box seen face-on is not a sphere candidate."""
+    pts = cv2.boxPoints(((80.0, 60.0), (float(side), float(side)), angle)).astype(np.int32)
+    ell, poly = _fit(lambda m: cv2.fillPoly(m, [pts], 1))
+    assert ell < ELLIPSE_FIT and poly > ell + 0.05
+
+
+def test_round_silhouette_needs_an_ellipse_and_falls_back_to_fill_without_one():
+    """:func:`round_silhouette`: the ellipse fit decides where measured (a fill that says disc
+    does not make a polygonal outline round), elongation vetoes, and without a fit the fill
+    decides as :attr:`Track.shape` does."""
+    tr = _track(np.zeros((6, 2)), diameter=20.0)
+    assert round_silhouette(replace(tr, fill=0.78, ellipse=0.97, polygon=0.9))
+    assert not round_silhouette(replace(tr, fill=0.78, ellipse=0.86, polygon=0.95))
+    assert not round_silhouette(replace(tr, fill=0.78, ellipse=0.97, elongation=ELONGATED + 0.1))
+    assert round_silhouette(replace(tr, fill=0.78, ellipse=math.nan))
+    assert not round_silhouette(replace(tr, fill=0.95, ellipse=math.nan))
