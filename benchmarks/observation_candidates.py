@@ -199,7 +199,7 @@ def markdown(report: dict) -> str:
         lines.append(f"| {name} | " + " | ".join(str(s[c]) for c in cols) + " |")
     lines += ["", "## Silhouettes of the kept objects by true shape", "",
               "`ellipse`, `polygon`: IoU of the silhouette with its least-squares ellipse and with its convex polygon "
-              "of few corners (`pipeline.image_tracks.silhouette_fit`, median over the track's whole frames); `fill`: "
+              "of few corners (`pipeline.image_tracks.silhouette_fit`, upper quartile over the track's whole frames); `fill`: "
               "area over the rotated box; `elongation`: lower quartile of the box's long / short side. True shapes: "
               "`meta.json` (rendered), `tests/fixtures/realvideo/content.yaml` (real).", ""]
     lines += silhouette_table(report["sets"])
