@@ -34,14 +34,19 @@ from pipeline import discrepancy as D
 from pipeline.shards import write_json
 
 
-def run_once(seed: int, effect: str, cfg: D.DiscrepancyConfig) -> dict:
+def run_once(seed: int, effect: str, cfg: D.DiscrepancyConfig, log: bool = False) -> dict:
     """Generate the dataset of ``seed``/``effect`` (on the default settings' model, whatever
-    ``cfg`` fits with) and time one workflow run on it."""
+    ``cfg`` fits with) and time one workflow run on it; with ``log``, print the workflow's log
+    lines with the seconds since its start (where a dataset's time goes, phase by phase)."""
     hidden = D.HiddenConfig(n_clips=8, duration=1.5, fps=60)
     cols, truth = D.generate_hidden(seed, hidden, effect=effect)
     clips = D.clips_from_columns(cols, f"<hidden seed {seed}>")
     t0 = time.perf_counter()
-    result = D.run_workflow(clips, cfg)
+
+    def say(line: str) -> None:
+        print(f"  {time.perf_counter() - t0:7.1f} s | {line}", flush=True)
+
+    result = D.run_workflow(clips, cfg, log=say if log else None)
     return {"seconds": time.perf_counter() - t0, "named": [n["effect"] for n in result.named],
             "truth": truth["effect"], "gap_before_mm": 1e3 * result.gap["before"],
             "gap_after_mm": 1e3 * result.gap["after"]}
@@ -60,6 +65,8 @@ def main() -> None:
     ap.add_argument("--jac-refresh-ab", type=int, default=None, metavar="N",
                     help="also time each dataset with discrepancy.jac_refresh N (1: a finite-difference Jacobian "
                          "on every least-squares iteration), same data, in one run: the ratio is the A/B")
+    ap.add_argument("--log", action="store_true",
+                    help="print the workflow's log with the seconds since its start (the time per phase)")
     ap.add_argument("--out", default="reports/bench_discrepancy_speed.json")
     args = ap.parse_args()
     ab = {k: v for k, v in (("timestep", args.timestep_ab), ("jac_refresh", args.jac_refresh_ab)) if v is not None}
@@ -68,7 +75,7 @@ def main() -> None:
     for i, effect in enumerate(e.strip() for e in args.effects.split(",") if e.strip()):
         seed = args.seed + i
         row = {"seed": seed, "effect": effect,
-               "fast": run_once(seed, effect, D.DiscrepancyConfig(workers=args.workers))}
+               "fast": run_once(seed, effect, D.DiscrepancyConfig(workers=args.workers), args.log)}
         if ab:
             row["fast_ab"] = run_once(seed, effect, D.DiscrepancyConfig(workers=args.workers, **ab))
             row["ab_ratio"] = row["fast_ab"]["seconds"] / row["fast"]["seconds"]

@@ -745,6 +745,7 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
             tests = {e: _null_test(ws, idx, final, e, cfg) for e in named_order}
             fails = [e for e in named_order if not tests[e]["passed"]]
             if not fails:
+                say(f"final fit: {', '.join(named_order)} still exclude(s) the null value (every clip refitted without)")
                 break
             worst = min(fails, key=lambda e: tests[e]["statistic"])
             dropped.append({"effect": worst, "parameters": dict(final.effects[worst]), **tests[worst]})
@@ -781,6 +782,7 @@ def _select(ws: "Workspace", cfg: DiscrepancyConfig, say, t_start: float) -> Res
         segs += residual_segments(ws.clips[c], q0, ws.noise[c], ph, cfg)
         segs_after += residual_segments(ws.clips[c], q1, ws.noise[c], ph, cfg)
     if n >= 2:
+        say("held-out: each clip predicted with the coefficients of the others (converged per-clip fits)")
         base_ho, cur_ho = _converged_heldout(ws, idx, base, base_ho, final, cur_ho if named_order else None,
                                              clip_profile)
         if named_order and cfg.ci_jackknife:   # a diagnostic beside the reported interval
