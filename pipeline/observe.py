@@ -342,7 +342,8 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
     * a mover that is a part of another mover (:func:`attached_parts`: it touches a larger mover
       that moves more in nearly every frame: a cast shadow, a fragment, a piece of a hand) is
       dropped, and so is the cast shadow of a mover that does not touch it (:func:`cast_shadows`:
-      shadow-coloured, the background's texture seen through it, moving with the other) and any
+      shadow-coloured, the background's texture seen through it, moving with the other; the frames
+      where the tracker swapped the two are given back first: :func:`untangle_shadows`) and any
       track whose size is not that of one rigid object (:func:`rigid_size`: flicker, a caption);
     * a moving track of background subtraction that lies mostly (80 %) outside the segmenter
       tracks of its size class is a mover of its own (its masks as they are): a small or blurred
@@ -432,7 +433,9 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
     unseen = [(None, m, []) for k, m in enumerate(bs_masks)   # movers only background subtraction saw
               if k not in linked and m.any() and overlap[k] <= 0.2 * m.sum()]
     parts = attached_parts([m for _, m, _ in movers + unseen], flow)   # shadows, fragments, hands
-    parts |= cast_shadows([m for _, m, _ in movers + unseen], frames, background)   # shadows apart
+    shadows = cast_shadow_pairs([m for _, m, _ in movers + unseen], frames, background)   # shadows apart
+    untangle_shadows([m for _, m, _ in movers + unseen], shadows, frames, background)   # swapped frames back
+    parts |= set(shadows)
     movers, unseen = ([x for i, x in enumerate(movers) if i not in parts],
                       [x for i, x in enumerate(unseen, len(movers)) if i not in parts])
     _dropped(candidates, [x[1] for x in movers + stills], "part")
@@ -796,7 +799,20 @@ def texture_kept(mask: np.ndarray, frames: np.ndarray, background: np.ndarray) -
 
 
 def cast_shadows(masks: list, frames: np.ndarray, background: np.ndarray) -> set[int]:
-    """Movers that are the cast shadow of another mover, not objects (``hybrid``).
+    """Movers that are the cast shadow of another mover, not objects (``hybrid``): the keys of
+    :func:`cast_shadow_pairs`.
+
+    Args:
+        masks: ``(T, H, W)`` bool masks, one per mover; frames: ``(T, H, W, 3)`` uint8 RGB;
+            background: ``(H, W, 3)`` uint8 RGB (:func:`pipeline.segmenter.median_background`).
+    Returns:
+        Indices into ``masks`` of the shadows (to drop).
+    """
+    return set(cast_shadow_pairs(masks, frames, background))
+
+
+def cast_shadow_pairs(masks: list, frames: np.ndarray, background: np.ndarray) -> dict[int, int]:
+    """Movers that are the cast shadow of another mover, each with the mover that casts it.
 
     A ball in front of a lit wall casts a shadow that the segmenter marks and that moves with the
     ball (real clip dev/04: a grey disc a few px below the red ball through the whole fall). It does
@@ -817,22 +833,64 @@ def cast_shadows(masks: list, frames: np.ndarray, background: np.ndarray) -> set
         masks: ``(T, H, W)`` bool masks, one per mover; frames: ``(T, H, W, 3)`` uint8 RGB;
             background: ``(H, W, 3)`` uint8 RGB (:func:`pipeline.segmenter.median_background`).
     Returns:
-        Indices into ``masks`` of the shadows (to drop).
+        ``{shadow: caster}``: indices into ``masks``; the caster is the mover that moves most with
+        the shadow among those that pass.
     """
     if len(masks) < 2:
-        return set()
+        return {}
     shade = shadow_like(frames, background)                          # (T, H, W) bool
     share = [float(shade[m].mean()) if m.any() else 0.0 for m in masks]
-    out = set()
+    out: dict[int, int] = {}
     for i, m in enumerate(masks):
         if share[i] < SHADOW_SHARE:
             continue
-        if not any(j != i and share[j] <= SHADOW_SHARE / 2 and velocity_coupling(m, masks[j]) >= SHADOW_COUPLED
-                   for j in range(len(masks))):
-            continue
-        if texture_kept(m, frames, background) >= SHADOW_TEXTURE:
-            out.add(i)
+        coupled = [(velocity_coupling(m, masks[j]), j) for j in range(len(masks))
+                   if j != i and share[j] <= SHADOW_SHARE / 2]
+        coupled = [(c, j) for c, j in coupled if c >= SHADOW_COUPLED]
+        if coupled and texture_kept(m, frames, background) >= SHADOW_TEXTURE:
+            out[i] = max(coupled)[1]
     return out
+
+
+def untangle_shadows(masks: list, pairs: dict[int, int], frames: np.ndarray, background: np.ndarray) -> int:
+    """Give back to each caster the frames the tracker gave to its shadow, in place (``hybrid``).
+
+    A ball and its shadow a few px apart are two blobs of the same size and speed; where the
+    segmenter misses the ball for a frame (motion blur at an impact), the tracker carries the
+    ball's identity on to the shadow and the shadow's on to the ball (real clip dev/04: 3 of its
+    first 8 frames). Once :func:`cast_shadow_pairs` has named the shadow over the whole track, a
+    frame is repaired when its photometric test (:func:`pipeline.masks.shadow_like`) reads the
+    other way round: the caster's mask is shadow-like (at least :data:`SHADOW_SHARE` of its px) and
+    the shadow's is not (swapped), or the caster is unseen there and the shadow's mask is clearly not
+    shadow-like (under half that share: moved to the caster).
+
+    Args:
+        masks: ``(T, H, W)`` bool masks, one per mover (modified in place);
+        pairs: ``{shadow: caster}`` (:func:`cast_shadow_pairs`);
+        frames: ``(T, H, W, 3)`` uint8 RGB; background: ``(H, W, 3)`` uint8 RGB.
+    Returns:
+        The number of frames repaired.
+    """
+    if not pairs:
+        return 0
+    shade = shadow_like(frames, background)
+    repaired = 0
+    for s, c in pairs.items():
+        sm, cm = masks[s], masks[c]
+        for t in range(len(sm)):
+            s_px, c_px = int(sm[t].sum()), int(cm[t].sum())
+            if not s_px:
+                continue
+            s_share = float(shade[t][sm[t]].mean())
+            if c_px:
+                swap = s_share < SHADOW_SHARE <= float(shade[t][cm[t]].mean())
+            else:
+                swap = s_share < SHADOW_SHARE / 2
+            if swap:
+                a, b = sm[t].copy(), cm[t].copy()
+                sm[t], cm[t] = b, a
+                repaired += 1
+    return repaired
 
 
 AREA_SPREAD = 2.0

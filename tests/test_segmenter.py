@@ -848,6 +848,44 @@ def test_cast_shadow_is_dropped_only_when_it_looks_like_one_and_moves_with_an_ob
     assert cast_shadows([ball, shadow], f3, background) == set()
 
 
+def test_untangle_shadows_gives_the_caster_back_the_frames_the_tracker_swapped():
+    """dev/04: where the segmenter misses the blurred ball for a frame, the tracker carries the ball's
+    identity on to its shadow and back. Once the shadow is named over the whole track, those frames
+    are swapped back (and a frame where only the ball was seen, under the shadow's id, is moved),
+    so the caster's track is the ball in every frame and follows its fall; the shadow track keeps
+    only shadow pixels."""
+    from pipeline.observe import cast_shadow_pairs, untangle_shadows
+
+    T, H, W = 24, 130, 80
+    rng = np.random.default_rng(1)
+    texture = rng.normal(0.0, 12.0, (H, W, 1)) + np.linspace(-10.0, 10.0, W)[None, :, None]
+    wall = np.clip(np.array([200.0, 190.0, 180.0]) + texture, 0, 255)
+    background = wall.astype(np.uint8)
+    ball_c = [(20.0, 5.0 + 0.15 * t * t + t) for t in range(T)]
+    shadow_c = [(x + 12.0, y + 6.0) for x, y in ball_c]
+    ball = _disc_track(T, H, W, ball_c, 4.0)
+    shadow = _disc_track(T, H, W, shadow_c, 4.0)
+    frames = np.tile(wall, (T, 1, 1, 1))
+    frames[shadow] *= 0.6
+    frames[ball] = (200.0, 30.0, 40.0)
+    frames = frames.astype(np.uint8)
+    a, b = ball.copy(), shadow.copy()          # the tracker's two ids
+    for t in (4, 6):                           # swapped
+        a[t], b[t] = shadow[t], ball[t]
+    a[9], b[9] = False, ball[9]                # the ball seen under the shadow's id only
+    pairs = cast_shadow_pairs([a, b], frames, background)
+    assert pairs == {1: 0}
+    assert untangle_shadows([a, b], pairs, frames, background) == 3
+    assert np.array_equal(a, ball)                                   # every frame the ball's
+    assert np.array_equal(b[[t for t in range(T) if t != 9]], shadow[[t for t in range(T) if t != 9]])
+    assert not b[9].any()
+    # the centroid now falls as the ball does: the second differences are its 0.3 px/frame^2
+    ys = np.array([np.nonzero(a[t])[0].mean() for t in range(T)])
+    assert np.allclose(np.diff(ys, 2), 0.3, atol=0.5)
+    assert np.abs(np.diff(ys, 2)).max() < 1.0      # before: jumps of 2x the 12 px between the two
+    assert untangle_shadows([a, b], {}, frames, background) == 0     # nothing named, nothing moved
+
+
 def test_velocity_coupling_ignores_a_few_swapped_steps():
     """Where a tracker swaps two nearby tracks for a frame, those steps point the wrong way; the
     share of steps that agree still reads the two as moving together."""
