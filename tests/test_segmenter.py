@@ -417,6 +417,40 @@ def test_merge_fragments_joins_pieces_of_one_colour_only():
     np.testing.assert_array_equal(out[2][1], shadow)
 
 
+def test_merge_fragments_joins_pieces_with_a_gap_that_move_as_one_rigid_body():
+    """dev/12: an upright can sliding across a table comes back as its top and the rest of it, a gap
+    between them, one colour, their offset fixed while they travel: one object, whose silhouette is
+    the convex hull of both (the whole can). Two balls of that colour that do not keep their offset
+    (one overtakes the other), and two pieces of one colour that do not move, stay apart."""
+    from pipeline.observe import merge_fragments, rigid_pair
+
+    T, H, W = 12, 48, 96
+    yy, xx = np.mgrid[:H, :W]
+    frames = np.full((T, H, W, 3), 128, np.uint8)
+    top, body, other, still_a, still_b = (np.zeros((T, H, W), bool) for _ in range(5))
+    for t in range(T):
+        x = 10 + 3 * t                                                   # 3 px / frame
+        top[t, 6:12, x:x + 10] = True                                    # the can's top...
+        body[t, 15:30, x:x + 10] = True                                  # ...3 px of gap, the rest
+        other[t] = (xx - (10 + 5 * t)) ** 2 + (yy - 40) ** 2 <= 16       # a faster ball below
+        still_a[t, 36:42, 80:86] = True
+        still_b[t, 44:47, 80:86] = True
+    for m in (top, body, other, still_a, still_b):
+        frames[m] = (180, 170, 160)                                      # one colour
+    assert rigid_pair(top, body)
+    assert not rigid_pair(top, other)                                    # the offset changes 2 px a frame
+    assert not rigid_pair(still_a, still_b)                              # a fixed offset, but no travel
+    ranked = [(None, top, []), (None, body, [2]), (None, other, []), (None, still_a, []), (None, still_b, [])]
+    out, kinds = merge_fragments(ranked, ["mover", "mover", "mover", "mover", "mover"], frames)
+    assert len(out) == 4 and kinds == ["mover"] * 4
+    can = np.zeros((T, H, W), bool)
+    for t in range(T):
+        can[t, 6:30, 10 + 3 * t:20 + 3 * t] = True                       # top, gap and body: the hull
+    np.testing.assert_array_equal(out[0][1], can)
+    assert out[0][2] == [2]
+    np.testing.assert_array_equal(out[1][1], other)
+
+
 def test_join_movers_joins_a_mover_lost_and_found_again_only():
     """A fast square the tracker loses half way comes back as a second track further along its
     path: one mover. Two halves of a square seen together (two objects that touch and move alike)
