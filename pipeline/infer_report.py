@@ -28,6 +28,16 @@ from pipeline.scene import Scene
 from pipeline.shard_viewer import camera_dict, scene_objects
 
 
+VIEW_BINS = (22.5, 67.5)
+"""deg: a written camera pitch below the first is a side view, above the second a top-down view, and
+an oblique view between (halfway between the views' canonical 0, 45 and 90 deg)."""
+
+
+def view_of_pitch(pitch: float) -> str:
+    """``"side"``, ``"oblique"`` or ``"top"`` for a camera pitch in deg (:data:`VIEW_BINS`)."""
+    return "side" if pitch < VIEW_BINS[0] else "top" if pitch > VIEW_BINS[1] else "oblique"
+
+
 def scene_scores(scene: Scene, obs: Observation, sim: SimOptions) -> tuple[dict, tuple]:
     """Re-simulate ``scene`` at the observation's working size and score it against what the
     search fits (``obs.fit_seg``: the observed objects that move, docs/design.md §7).
@@ -138,6 +148,7 @@ def write_outputs(out: str | Path, video: str | Path, fps: float | None, obs: Ob
                                  "at_rest": sum(not m for m in obs.moving_flags)},
             "object_pixels": [round(float(np.median(t.area)), 1) for t in tracks],
             "view": proposals.view if proposals else None,
+            "view_written": view_of_pitch(written.camera.pitch) if written.camera.pitch is not None else None,
             "perception_notes": notes, "model_note": model_note,
             "sources": {name: source_summary(candidates, scores, name) for name in ("model", "perception")},
             "proposals": [{"source": c.source, "label": c.label, "valid": s["valid"],

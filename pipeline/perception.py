@@ -30,7 +30,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from pipeline.camera import intrinsics, pixel_to_plane
+from pipeline.camera import intrinsics, pixel_to_plane, project
 from pipeline.errors import UserError
 from pipeline.geometry import volume
 from pipeline.image_tracks import (BOX_FILL, CIRCLE_FILL, ELONGATED, Motion, Track, View, gravity_vote,
@@ -46,9 +46,30 @@ SIZE_PRIOR = 0.05
 SIZE_RANGE = (0.01, 0.15)
 """Plausible object sizes, m: a gravity scale implying a size outside falls back to the prior."""
 FOV_PRIOR = 45.0
-"""Prior vertical field of view, deg (a phone or webcam at its widest is 40-60 deg)."""
+"""Prior vertical field of view of a whole video frame, deg (a phone or webcam at its widest is 40-60
+deg)."""
+
+
+def crop_fov(crop_height: float, frame_height: float, fov: float = FOV_PRIOR) -> float:
+    """Vertical field of view (deg) of a crop ``crop_height`` px tall of a frame ``frame_height`` px
+    tall whose vertical field of view is ``fov`` deg (pinhole, centred principal point:
+    ``tan(fov_crop / 2) = tan(fov / 2) * crop_height / frame_height``). The main job's working image
+    is the region of motion cropped out of the frame (:func:`pipeline.observe.motion_crop`): seen
+    through the whole frame's prior, a crop of half its height would get twice its focal length's
+    perspective.
+
+    Raises:
+        ValueError: a height <= 0, or a crop taller than the frame.
+    """
+    if not 0 < crop_height <= frame_height:
+        raise ValueError(f"crop_fov: crop height must be in (0, {frame_height}], got {crop_height}")
+    return math.degrees(2.0 * math.atan(math.tan(math.radians(fov) / 2.0) * crop_height / frame_height))
 TOP_DOWN_PITCH = 89.0
 """Camera pitch of a top-down view, deg (the scene language allows at most 89)."""
+OBLIQUE_PITCH = 45.0
+"""Camera pitch of the oblique proposals, deg: wherever top-down proposals are made, the same objects
+on the floor seen from halfway between the side and above are proposed too, and the re-simulation
+decides (real clips dev/05, dev/09, dev/11-13 are filmed from 20-60 deg)."""
 DENSITY = 1000.0
 """Prior density of the objects, kg/m^3 (masses only matter relative to each other here)."""
 COLLISION_RESTITUTION = 0.8
@@ -133,15 +154,16 @@ def side_scale(track: Track, m: Motion, kind: str, shape: str) -> tuple[float, s
 
 
 def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: int, fps: float,
-              shape_of: dict[int, str]) -> tuple[Camera, list[Lifted], list[str]]:
-    """Metric scene of a side view (camera pitch 0, fov :data:`FOV_PRIOR`).
+              shape_of: dict[int, str], fov: float = FOV_PRIOR) -> tuple[Camera, list[Lifted], list[str]]:
+    """Metric scene of a side view (camera pitch 0, vertical field of view ``fov`` deg: the prior's,
+    or that of the crop the image is, :func:`crop_fov`).
 
     Each object lies in the vertical plane at its own depth ``D = f / ppm`` (:func:`side_scale`);
     the camera height puts the floor ``z = 0`` under the lowest contact seen (the bottom of a
     falling track, one radius under a bounce's impact, and never above the main object's start)
     or at the image bottom. Returns ``(camera, objects, notes)``.
     """
-    K = intrinsics(FOV_PRIOR, width, height)
+    K = intrinsics(fov, width, height)
     f, cu, cv = K[0, 0], K[0, 2], K[1, 2]
     notes: list[str] = []
     scales, kinds = [], []
@@ -167,7 +189,7 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
     v_floor = lowest if kinds[main] == "fall" else max(lowest + 1.0, float(height))
     v_floor = max(v_floor, cv + 0.05 * height)
     cam_h = (v_floor - cv) * D0 / f
-    cam = Camera(height=round(max(cam_h, 0.01), 4), pitch=0.0, fov=FOV_PRIOR)
+    cam = Camera(height=round(max(cam_h, 0.01), 4), pitch=0.0, fov=fov)
     objects = []
     for tr, m, ppm, kind in zip(tracks, motions, scales, kinds):
         shape = shape_of[tr.label]
@@ -283,8 +305,12 @@ def _ramp_under(tr: Track, m: Motion, px: float, cu: float, cv: float, cam_h: fl
 
 
 def lift_top(tracks: list[Track], motions: list[Motion], width: int, height: int,
-             shape_of: dict[int, str]) -> tuple[Camera, list[Lifted], list[str]]:
-    """Metric scene of a top-down view (pitch :data:`TOP_DOWN_PITCH`, fov :data:`FOV_PRIOR`).
+             shape_of: dict[int, str], pitch: float = TOP_DOWN_PITCH, fov: float = FOV_PRIOR
+             ) -> tuple[Camera, list[Lifted], list[str]]:
+    """Metric scene of a top-down view (pitch :data:`TOP_DOWN_PITCH`, vertical field of view ``fov``
+    deg as :func:`lift_side`), or of
+    an oblique view of the objects on the floor at another ``pitch`` (deg): the camera then sits at
+    the size prior's distance from the objects' plane along its optical axis.
 
     The scale is the size prior (median object diameter = :data:`SIZE_PRIOR`); positions are
     the rays through the centroids met with the plane of the object centres; friction from the
@@ -292,29 +318,47 @@ def lift_top(tracks: list[Track], motions: list[Motion], width: int, height: int
     sphere rolls (:func:`rolling_spin`) and its deceleration is rolling resistance
     (:func:`rolling_resistance`, sliding friction :data:`ROLLING_GRIP`).
     """
-    K = intrinsics(FOV_PRIOR, width, height)
+    K = intrinsics(fov, width, height)
     f = K[0, 0]
     d_px = float(np.median([t.diameter for t in tracks]))
     ppm = d_px / SIZE_PRIOR
-    notes = [f"top-down view: scale {ppm:.0f} px/m from the size prior ({SIZE_PRIOR} m for {d_px:.1f} px)"]
+    oblique = pitch < TOP_DOWN_PITCH
+    notes = [f"{'oblique view (pitch %g deg)' % pitch if oblique else 'top-down view'}: scale {ppm:.0f} px/m "
+             f"from the size prior ({SIZE_PRIOR} m for {d_px:.1f} px)"]
     dist = f / ppm  # camera to the objects' plane, m
-    objects, specs = [], []
-    for tr in tracks:
-        shape = shape_of[tr.label]
-        px = 1.0 / ppm
+
+    def spec(tr: Track, shape: str, px: float) -> tuple[dict, float]:
         if shape == "sphere":
-            size, half_h = {"radius": tr.diameter / 2 * px}, tr.diameter / 2 * px
-        elif shape == "cylinder":  # a puck: axis vertical
+            return {"radius": tr.diameter / 2 * px}, tr.diameter / 2 * px
+        if shape == "cylinder":  # a puck: axis vertical
             size = {"radius": tr.diameter / 2 * px, "height": 0.3 * tr.diameter * px}
-            half_h = size["height"] / 2
-        else:
-            long_, short = tr.size
-            size = {"width": long_ * px, "depth": short * px, "height": 0.5 * short * px}
-            half_h = size["height"] / 2
-        specs.append((shape, size, half_h))
+            return size, size["height"] / 2
+        long_, short = tr.size
+        size = {"width": long_ * px, "depth": short * px, "height": 0.5 * short * px}
+        return size, size["height"] / 2
+
+    specs = [(shape_of[tr.label],) + spec(tr, shape_of[tr.label], 1.0 / ppm) for tr in tracks]
     z_c = float(np.median([s[2] for s in specs]))
-    cam = Camera(height=round(dist + z_c, 4), pitch=TOP_DOWN_PITCH, fov=FOV_PRIOR)
-    for tr, m, (shape, size, half_h) in zip(tracks, motions, specs):
+    # straight above at TOP_DOWN_PITCH the objects' plane is fronto-parallel (sin 89 deg = 0.99985):
+    # one scale; at a lower pitch the optical axis meets the objects' plane at the distance ``dist``,
+    # and each object's scale is that of its own depth (pinhole: m per px = Z / f), found by
+    # fixed-point iteration from the size prior's (its depth depends on its height, its size)
+    rise = dist if not oblique else dist * math.sin(math.radians(pitch))
+    cam = Camera(height=round(rise + z_c, 4), pitch=pitch, fov=fov)
+    scales = [ppm] * len(tracks)
+    objects: list[Lifted] = []
+    if oblique:
+        for k, (tr, m) in enumerate(zip(tracks, motions)):
+            shape, size, half_h = specs[k]
+            for _ in range(4):
+                point = pixel_to_plane(m.p0, half_h, cam, width, height)
+                if not np.all(np.isfinite(point)):
+                    break
+                depth = float(project(point, cam, width, height)[1])
+                scales[k] = f / depth
+                size, half_h = spec(tr, shape, 1.0 / scales[k])
+            specs[k] = (shape, size, half_h)
+    for tr, m, (shape, size, half_h), ppm_k in zip(tracks, motions, specs, scales):
         dt = 0.05
         p = pixel_to_plane(np.stack([m.p0, m.p0 + m.v0 * dt]), half_h, cam, width, height)
         vel = (p[1] - p[0]) / dt
@@ -323,13 +367,13 @@ def lift_top(tracks: list[Track], motions: list[Motion], width: int, height: int
             quat = axis_angle_quat((0.0, 0.0, 1.0), math.radians(tr.angle)).tolist()
         nv = float(np.linalg.norm(m.v0))
         decel = -float(m.a @ m.v0) / nv if nv > 1e-6 else 0.0
-        mu = float(np.clip(decel / ppm / G, 0.0, 1.0)) if m.n >= 5 else 0.2
+        mu = float(np.clip(decel / ppm_k / G, 0.0, 1.0)) if m.n >= 5 else 0.2
         lifted = Lifted(shape, size, [float(p[0][0]), float(p[0][1]), float(half_h)], quat,
                         [float(vel[0]), float(vel[1]), 0.0], mu, _mass(shape, size), "plane")
         if shape == "sphere":  # a ball on a table rolls, slowed by rolling resistance, not sliding friction
             lifted.angular_velocity = rolling_spin(np.array([0.0, 0.0, 1.0]),
                                                    np.asarray(lifted.linear_velocity), size["radius"]).tolist()
-            lifted.rolling_friction = rolling_resistance(decel / ppm if m.n >= 5 else 0.0, size["radius"])
+            lifted.rolling_friction = rolling_resistance(decel / ppm_k if m.n >= 5 else 0.0, size["radius"])
             lifted.friction = ROLLING_GRIP
         objects.append(lifted)
     return cam, objects, notes
@@ -402,7 +446,7 @@ class Proposals:
 
 
 def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: float,
-            max_objects: int = 4, still: bool = False) -> Proposals:
+            max_objects: int = 4, still: bool = False, fov: float = FOV_PRIOR) -> Proposals:
     """Scene-language proposals for a labelled clip (see module docstring).
 
     Args:
@@ -415,6 +459,8 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
             seen often enough is an object, moving or not (:func:`still_tracks`);
             otherwise only tracks that move (:func:`object_tracks`: background-subtraction masks
             also hold shadows and flicker).
+        fov: vertical field of view of the image ``seg`` covers, deg (:func:`crop_fov` of the
+            main job's crop; the prior for a whole frame).
     Returns:
         :class:`Proposals` with at least one valid scene.
     Raises:
@@ -449,17 +495,18 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
     falls = any(ok and _side_motion_kind(t, m) == "fall" for t, m, ok in zip(tracks, side_motions, shows))
     # a clear fall settles it; a speed-up along a line may also be perspective (an object
     # rolling towards an oblique camera), so the top-down reading is tried as well
-    views: list[View] = ["side"] if falls else (["side", "top"] if view == "side" else ["top"])
+    views: list[str] = ["side"] if falls else (["side", "top", "oblique"] if view == "side" else ["top", "oblique"])
     scenes, labels = [], []
     notes = [f"view: {view} (gravity {'seen' if view == 'side' else 'not seen'} in the tracks)"
              + ("" if len(views) == 1 else "; top-down proposals tried too")]
     for v in views:
         first = True
-        for shape_of in _hypotheses(tracks, v):
+        for shape_of in _hypotheses(tracks, "side" if v == "side" else "top"):
             if v == "side":
-                cam, objs, n = lift_side(tracks, side_motions, W, H, fps, shape_of)
+                cam, objs, n = lift_side(tracks, side_motions, W, H, fps, shape_of, fov)
             else:
-                cam, objs, n = lift_top(tracks, motions, W, H, shape_of)
+                cam, objs, n = lift_top(tracks, motions, W, H, shape_of,
+                                        TOP_DOWN_PITCH if v == "top" else OBLIQUE_PITCH, fov)
             if first:
                 notes += n
                 first = False
@@ -467,7 +514,7 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
             label = f"{v}: " + ", ".join(o.shape + (" on a ramp" if o.ramp else "") for o in objs)
             scenes.append(scene)
             labels.append(label)
-            if v == "top" and len(objs) > 1 and not scene.effects:
+            if v != "side" and len(objs) > 1 and not scene.effects:
                 # objects that may collide: also try elastic-ish contacts (MuJoCo's default
                 # contact is critically damped, e ~ 0; air-table pucks, billiard balls ~ 0.9)
                 scenes.append(scene.replace(effects=[{"effect": "restitution",

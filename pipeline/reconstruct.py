@@ -379,8 +379,9 @@ def propose_candidates(obs: Observation, mdir: Path | None, params: dict, rv: Re
         candidates += [Candidate(sc, "model", f"model sample {i}", err) for i, (sc, err) in enumerate(zip(scenes, errs))]
     proposals, notes = None, []
     try:
+        fov = perception.crop_fov(obs.crop[3], obs.clip.original_size[1])   # the working image is a crop
         proposals = perception.propose(obs.fit_seg, obs.flow, obs.scene_fps, obs.duration, rv.max_objects,
-                                       still=obs.mask_method in LEARNED)
+                                       still=obs.mask_method in LEARNED, fov=fov)
         candidates += [Candidate(sc, "perception", f"perception: {lab}") for sc, lab in zip(proposals.scenes,
                                                                                            proposals.labels)]
         notes = proposals.notes

@@ -111,7 +111,8 @@ def content_columns(name: str, clip_out: Path) -> dict:
     tilts = [float(np.degrees(np.arccos(np.clip(quat_to_mat(g.orientation)[2, 2], -1.0, 1.0)))) for g in scene.static]
     incline = any(2.0 < t < 60.0 for t in tilts) or any(e.effect == "floor_tilt" for e in scene.effects)
     support = "incline" if incline else "floor"
-    view = json.loads((clip_out / "metrics.json").read_text()).get("view")
+    m = json.loads((clip_out / "metrics.json").read_text())
+    view = m.get("view_written") or m.get("view")   # the written camera's view (older runs: perception's)
     return {"objects_written": len(shapes), "objects_true": len(truth["objects"]),
             "shapes_written": shapes, "shapes_true": sorted(truth["objects"]),
             "shapes_right": shapes == sorted(truth["objects"]),
