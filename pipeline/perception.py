@@ -8,8 +8,11 @@ scenes:
 1. **Camera and ground plane** (:func:`pipeline.image_tracks.estimate_view`): where gravity
    shows in the image the view is a *side* view (camera pitch 0, image up = world up);
    otherwise objects move in the ground plane (constant velocity, friction decelerates them)
-   and the view is *top-down* (pitch :data:`TOP_DOWN_PITCH`). The field of view is a prior
-   (:data:`FOV_PRIOR`): with one view and unknown intrinsics it trades off with depth.
+   and the view is *top-down* (pitch :data:`TOP_DOWN_PITCH`); the same objects on the ground
+   seen *obliquely* (pitch :data:`OBLIQUE_PITCH`) are proposed beside it, and the re-simulation
+   chooses. The field of view is a prior for the whole frame (:data:`FOV_PRIOR`), narrowed to the
+   crop the image is (:func:`crop_fov`): with one view and unknown intrinsics it trades off with
+   depth.
 2. **Metric scale** (:func:`lift_side`, :func:`lift_top`): where an object falls, the parabola's
    curvature is g (``a_px = g * f / depth``); where it rolls down a slope of angle theta without
    slipping, ``a = k g sin(theta)`` with ``k = 5/7`` (sphere) or ``2/3`` (cylinder); otherwise
