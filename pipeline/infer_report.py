@@ -148,7 +148,7 @@ def write_outputs(out: str | Path, video: str | Path, fps: float | None, obs: Ob
                                  "at_rest": sum(not m for m in obs.moving_flags)},
             "object_pixels": [round(float(np.median(t.area)), 1) for t in tracks],
             "view": proposals.view if proposals else None,
-            "view_written": view_of_pitch(written.camera.pitch) if written.camera.pitch is not None else None,
+            "view_written": view_of_pitch(written.camera.pitch),
             "perception_notes": notes, "model_note": model_note,
             "sources": {name: source_summary(candidates, scores, name) for name in ("model", "perception")},
             "proposals": [{"source": c.source, "label": c.label, "valid": s["valid"],

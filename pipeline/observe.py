@@ -433,8 +433,9 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
     unseen = [(None, m, []) for k, m in enumerate(bs_masks)   # movers only background subtraction saw
               if k not in linked and m.any() and overlap[k] <= 0.2 * m.sum()]
     parts = attached_parts([m for _, m, _ in movers + unseen], flow)   # shadows, fragments, hands
-    shadows = cast_shadow_pairs([m for _, m, _ in movers + unseen], frames, background)   # shadows apart
-    untangle_shadows([m for _, m, _ in movers + unseen], shadows, frames, background)   # swapped frames back
+    moving = [m for _, m, _ in movers + unseen]
+    shadows = cast_shadow_pairs(moving, frames, background)            # shadows apart
+    untangle_shadows(moving, shadows, frames, background)              # swapped frames back
     parts |= set(shadows)
     movers, unseen = ([x for i, x in enumerate(movers) if i not in parts],
                       [x for i, x in enumerate(unseen, len(movers)) if i not in parts])
