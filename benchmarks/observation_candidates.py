@@ -45,7 +45,7 @@ from pipeline.flow import flow_config  # noqa: E402
 from pipeline.labels import labels_in_window, load_labels  # noqa: E402
 from pipeline.observe import observe, scene_rate, truth_in_window  # noqa: E402
 from pipeline.params import load_params  # noqa: E402
-from pipeline.reconstruct import realvideo_config  # noqa: E402
+from pipeline.reconstruct import observation_segmenters, realvideo_config  # noqa: E402
 from pipeline.segmenter import shipped  # noqa: E402
 from pipeline.video import read_video  # noqa: E402
 
@@ -87,7 +87,8 @@ def clip_candidates(folder: Path, params: dict, segmenter) -> tuple[list[dict], 
     truth = np.load(folder / "truth.npz", allow_pickle=False)
     found: list[dict] = []
     obs = observe(folder / "video.mp4", float(truth["fps"]), None, rv.fps, rv.duration, flow_config(params),
-                  rv.mask_method, rv.max_objects, segmenter, found, fine_scale=rv.fine_scale)
+                  rv.mask_method, rv.max_objects, segmenter, found, fine_scale=rv.fine_scale,
+                  rest_segmenter=observation_segmenters(params)[1])
     seg, frames = truth_in_window(truth["seg"], obs)
     pos = truth["pos"][frames]
     still = np.linalg.norm(pos - pos[:1], axis=-1).max(axis=0) < STILL_M
@@ -128,7 +129,8 @@ def real_candidates(video: Path, fps: float | None, labels_dir: Path, params: di
     rv = realvideo_config(params)
     found: list[dict] = []
     obs = observe(video, fps, None, scene_rate(video, fps, rv.fps), rv.duration, flow_config(params),
-                  rv.mask_method, rv.max_objects, segmenter, found, fine_scale=rv.fine_scale)
+                  rv.mask_method, rv.max_objects, segmenter, found, fine_scale=rv.fine_scale,
+                  rest_segmenter=observation_segmenters(params)[1])
     ks, seg = (np.zeros(0, np.int64), None)
     if labels_dir.is_dir():
         ks, seg = labels_in_window(load_labels(labels_dir, read_video(video, fps=fps, max_frames=1).original_size), obs)

@@ -58,7 +58,7 @@ from pipeline.flow import flow_config  # noqa: E402
 from pipeline.metrics import observation_scores  # noqa: E402
 from pipeline.observe import observe, truth_in_window  # noqa: E402
 from pipeline.params import load_params  # noqa: E402
-from pipeline.reconstruct import realvideo_config  # noqa: E402
+from pipeline.reconstruct import observation_segmenters, realvideo_config  # noqa: E402
 from pipeline.segmenter import shipped  # noqa: E402
 
 SETS = {("mujoco", "dev"): (0, 24), ("mujoco", "heldout"): (1, 12),
@@ -91,7 +91,8 @@ def rendered_clip(folder: Path, params: dict, segmenter=None) -> dict:
     truth = np.load(folder / "truth.npz", allow_pickle=False)
     t0 = time.perf_counter()
     obs = observe(folder / "video.mp4", float(truth["fps"]), None, rv.fps, rv.duration, fcfg,
-                  rv.mask_method, rv.max_objects, segmenter, fine_scale=rv.fine_scale)
+                  rv.mask_method, rv.max_objects, segmenter, fine_scale=rv.fine_scale,
+                  rest_segmenter=observation_segmenters(params)[1])
     seconds = time.perf_counter() - t0
     seg, frames = truth_in_window(truth["seg"], obs)
     pos = truth["pos"][frames]                                              # (T, n, 3) m
@@ -144,7 +145,8 @@ def real_clip(name: str, spec: dict, fixtures: Path, video_dir: Path, params: di
     t0 = time.perf_counter()
     rv = realvideo_config(params)
     pred = observe_frames(video_dir / spec["file"], spec.get("fps"), idx, size,
-                          max_objects=rv.max_objects, mask_method=rv.mask_method, segmenter=segmenter)
+                          max_objects=rv.max_objects, mask_method=rv.mask_method, segmenter=segmenter,
+                          rest_segmenter=observation_segmenters(params)[1])
     seconds = time.perf_counter() - t0
     still = [labelled_still(true, k) for k in range(len(spec["objects"]))]
     s = observation_scores(true.astype(np.int8), pred, still)

@@ -31,7 +31,7 @@ from pipeline.metrics import sequence_iou
 from pipeline.mjcf import SimOptions
 from pipeline.observe import observe
 from pipeline.params import load_params, typed_section
-from pipeline.reconstruct import realvideo_config
+from pipeline.reconstruct import observation_segmenters, realvideo_config
 from pipeline.render import render_scene
 from pipeline.scene import Decimals, load_scene
 
@@ -54,6 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     fcfg = flow_config(params)
     sim = typed_section(params, "sim", SimOptions, required=True)
     rows = []
+    segmenter, rest_segmenter = observation_segmenters(params)
     for r in json.loads((args.runs / "summary.json").read_text()):
         folder = args.runs / r["clip"]
         if "error" in r or not (folder / "scene.yaml").exists():
@@ -61,7 +62,7 @@ def main(argv: list[str] | None = None) -> int:
         m = json.loads((folder / "metrics.json").read_text())
         # the scene rate the main job used (realvideo.fps, or higher for a short clip: observe.scene_rate)
         obs = observe(m["video"], r["fps"], None, int(m["window"]["fps"]), rv.duration, fcfg, rv.mask_method,
-                      rv.max_objects)
+                      rv.max_objects, segmenter, fine_scale=rv.fine_scale, rest_segmenter=rest_segmenter)
         scene = load_scene(folder / "scene.yaml")
         new = score(scene, obs.seg, sim)
         old = score(scene.rounded(Decimals()), obs.seg, sim)

@@ -261,7 +261,7 @@ def rest_size_class(area: float, ref: float) -> bool:
 
 def segment_objects(frames: np.ndarray, context: np.ndarray, method: str, max_objects: int,
                     explain: list | None = None, segmenter: Segmenter | None = None,
-                    candidates: list | None = None) -> np.ndarray:
+                    candidates: list | None = None, rest_segmenter: Segmenter | None = None) -> np.ndarray:
     """Masks of the objects in ``frames``, split into tracks (before :func:`keep_objects`).
 
     ``median`` / ``mog2``: background subtraction against ``context``
@@ -278,6 +278,8 @@ def segment_objects(frames: np.ndarray, context: np.ndarray, method: str, max_ob
         explain: ``hybrid`` only: one dict per object (:func:`hybrid_objects`).
         segmenter: the learned methods' segmenter (None: :func:`pipeline.segmenter.shipped`).
         candidates: ``hybrid`` only: one dict per segmenter candidate track (:func:`hybrid_objects`).
+        rest_segmenter: ``hybrid`` only: a second network for objects at rest the first misses
+            (:func:`second_opinion_rests`; None: none).
     Returns:
         ``(T, H, W)`` int8 track ids, -1 background.
     Raises:
@@ -289,7 +291,7 @@ def segment_objects(frames: np.ndarray, context: np.ndarray, method: str, max_ob
         masks = pseudo_masks(frames, method=method, background=context)
         return label_objects(masks, max_objects=max_objects)
     if method == "hybrid":
-        return hybrid_objects(frames, context, max_objects, explain, segmenter, candidates)
+        return hybrid_objects(frames, context, max_objects, explain, segmenter, candidates, rest_segmenter)
     if method == "anchored":    # needs the flow-checked movers: observe() / observe_frames() run it
         raise ValueError("segment_objects: 'anchored' runs in observe(), after the median movers are kept")
     fg, contact = (segmenter or shipped())(frames, median_background(context))
@@ -320,7 +322,7 @@ def _segmenter_tracks(fg: np.ndarray, contact: np.ndarray, max_objects: int,
 
 def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
                    explain: list | None = None, segmenter: Segmenter | None = None,
-                   candidates: list | None = None) -> np.ndarray:
+                   candidates: list | None = None, rest_segmenter: Segmenter | None = None) -> np.ndarray:
     """The segmenter first, background subtraction where it misses (``mask_method: hybrid``).
 
     The segmenter (:mod:`pipeline.segmenter`) gives whole silhouettes of objects moving or at
@@ -358,6 +360,9 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
       1/:data:`REST_SIZE_CLASS`..:data:`REST_SIZE_CLASS` times theirs); so is a track that
       travels but fails the mover tests when it still looks like a whole object that ends
       where it did not start (:func:`_slow_object`: a slow object, not scenery a mover occludes);
+    * with ``rest_segmenter``, a second network is asked for objects at rest where neither the
+      segmenter's accepted tracks nor background subtraction found anything
+      (:func:`second_opinion_rests`); they join the objects at rest;
     * movers first (the segmenter's that background subtraction confirms, the segmenter's
       others, then those of background subtraction alone, each seen longest first), then objects
       at rest (largest first); tracks that are pieces of one object (touching, one colour:
@@ -371,6 +376,7 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
         explain: if given, one dict per kept object is appended: ``kind`` (``mover``,
             ``mover_bs_only``, ``at_rest``), ``area`` (median px), ``frames`` (seen in).
         segmenter: the object segmenter (None: :func:`pipeline.segmenter.shipped`).
+        rest_segmenter: a second segmenter for objects at rest the first missed (None: none).
         candidates: if given, one dict per segmenter candidate track (seen in 15 % of the frames),
             before the later filters (parts, rigid size, size class, ``max_objects``): ``mask``
             (``(T, H, W)`` bool), ``seen`` (fraction of frames), ``area`` (median px),
@@ -429,6 +435,10 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
                                "fill": float(tr.fill), "aspect": tr.size[0] / max(tr.size[1], 1e-6),
                                "ellipse": float(tr.ellipse), "polygon": float(tr.polygon),
                                "elongation": float(tr.elongation), "in_view": _in_view(m), "border": border_fraction(m), "decision": decision})
+    if rest_segmenter is not None:
+        seen = np.logical_or.reduce([m for _, m, _ in movers] + [m for _, m in stills] + bs_masks
+                                    + [np.zeros((T, H, W), bool)])
+        stills += second_opinion_rests(frames, background, rest_segmenter, seen, candidates)
     movers = join_movers(movers)
     unseen = [(None, m, []) for k, m in enumerate(bs_masks)   # movers only background subtraction saw
               if k not in linked and m.any() and overlap[k] <= 0.2 * m.sum()]
@@ -483,6 +493,56 @@ RIGID_FRAMES, RIGID_SPREAD, RIGID_TRAVEL = 5, 0.1, 0.5
 ``RIGID_FRAMES`` frames, the offset between their centroids varies by at most ``RIGID_SPREAD`` of the
 smaller one's diameter (standard deviation, each image axis) and they travel together at least
 ``RIGID_TRAVEL`` diameters (two objects at rest keep their offset too)."""
+
+
+def second_opinion_rests(frames: np.ndarray, background: np.ndarray, segmenter: Segmenter, seen: np.ndarray,
+                         candidates: list | None = None) -> list:
+    """Objects at rest that a second segmenter finds where the first found nothing
+    (``realvideo.rest_segmenter_weights``, :func:`hybrid_objects`).
+
+    The shipped segmenter often does not mark an object at rest seen from above (pitch 53-86 deg,
+    ``reports/segmenter_recall.md``); the wider GPU-trained one (``segmenter_wide.pt``) does more
+    often, but marks real scenery and is 4-5x slower, so it is not the observation's segmenter.
+    Asked only for objects at rest, only where nothing was found, it adds what the first missed and
+    leaves every mover as it was. A track of the second network is a candidate when at most 10 %
+    of its pixels are ``seen`` already and it travels less than a quarter of its diameter; it is
+    an object at rest by the same test as the first network's (:func:`_whole_object_at_rest`,
+    on the second network's probabilities). The caller applies the later filters (rigid size,
+    the movers' size class, ``max_objects``) to both alike.
+
+    Args:
+        frames: ``(T, H, W, 3)`` uint8 RGB; background: ``(H, W, 3)`` uint8 RGB
+            (:func:`pipeline.segmenter.median_background`).
+        segmenter: the second network (a :class:`pipeline.segmenter.Segmenter` or any callable of
+            that signature).
+        seen: ``(T, H, W)`` bool pixels already explained (the first segmenter's movers and objects
+            at rest, background subtraction's movers).
+        candidates: as :func:`hybrid_objects`; each candidate of the second network is appended
+            with ``second: True`` and decision ``at_rest`` or ``rejected``.
+    Returns:
+        ``(track, mask)`` pairs of the new objects at rest (:class:`pipeline.image_tracks.Track`,
+        ``(T, H, W)`` bool).
+    """
+    T = len(frames)
+    fg, contact = segmenter(frames, background)
+    sg = _segmenter_tracks(fg > FG_THRESHOLD, contact > 0.5, 16, frames)
+    out = []
+    for tr in find_tracks(sg, None, min_frames=max(3, int(0.15 * T))):
+        m = sg == tr.label
+        if (m & seen).sum() > 0.1 * m.sum() or tr.travel >= 0.25 * tr.diameter:
+            continue
+        ok = _whole_object_at_rest(tr, m, fg, T)
+        if ok:
+            out.append((tr, m))
+        if candidates is not None:
+            candidates.append({"mask": m, "seen": len(tr.frames) / T, "area": float(np.median(tr.area)),
+                               "travel": tr.travel / max(tr.diameter, 1e-6), "net": net_shift(tr), "flow_moves": False,
+                               "confidence": float(fg[m].mean()), "stability": mask_stability(m, tr.frames),
+                               "fill": float(tr.fill), "aspect": tr.size[0] / max(tr.size[1], 1e-6),
+                               "ellipse": float(tr.ellipse), "polygon": float(tr.polygon),
+                               "elongation": float(tr.elongation), "in_view": _in_view(m), "border": border_fraction(m),
+                               "decision": "at_rest" if ok else "rejected", "second": True})
+    return out
 
 
 def rigid_pair(a: np.ndarray, b: np.ndarray) -> bool:
@@ -1415,7 +1475,8 @@ def fine_probabilities(p: np.ndarray, det_size: tuple[int, int], orig_size: tupl
 def observe(video, fps: float | None, start: float | None, scene_fps: int, duration: float,
             flow: FlowConfig | None = None, mask_method: str = "median",
             max_objects: int = 4, segmenter: Segmenter | None = None,
-            candidates: list | None = None, fine_scale: bool = False) -> Observation:
+            candidates: list | None = None, fine_scale: bool = False,
+            rest_segmenter: Segmenter | None = None) -> Observation:
     """Read a window of a real video at its working crop and size; pseudo masks and flow.
 
     Args:
@@ -1437,6 +1498,11 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
             are appended (:func:`hybrid_objects`), for diagnosis.
         fine_scale: the learned methods: fuse the detection pass's segmenter probabilities into the
             working pass's where they are finer (:data:`FINE_SCALE`, ``realvideo.fine_scale``).
+        rest_segmenter: ``hybrid`` only: the second network that looks for objects at rest in the
+            working pass (:func:`second_opinion_rests`; the main job passes params
+            ``realvideo.rest_segmenter_weights``; None: none). Not in the detection pass: there it
+            cost 4.5 s of a 1-s clip (the full frame at 320 px) and found one object of six
+            (``docs/observation.md``).
     Raises:
         VideoError: unreadable video or window past its end.
     """
@@ -1487,7 +1553,7 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
         if fine[0] is not None:
             net = _Fused(recorded.segmenter, (fine[0], fine[1]))
     kinds: list = []
-    seg = segment_objects(frames, ctx, bs_method, max_objects, kinds, net, candidates)
+    seg = segment_objects(frames, ctx, bs_method, max_objects, kinds, net, candidates, rest_segmenter)
     flow = flow or FlowConfig()
     flow_px = flow_of(frames, flow)
     seg, kept = keep_objects(seg if learned else hold_resting(seg, min_frames=HELD_MIN_FRAMES), flow_px,
@@ -1516,15 +1582,15 @@ def original_frames(obs: Observation, video, fps: float | None, height: int = 32
 
 def observe_frames(video, fps: float | None, frame_indices, size: tuple[int, int] | None = None,
                    max_objects: int = 4, mask_method: str = "median",
-                   segmenter: Segmenter | None = None) -> np.ndarray:
+                   segmenter: Segmenter | None = None, rest_segmenter: Segmenter | None = None) -> np.ndarray:
     """The observation's masks of chosen source frames of a whole clip (for scoring against hand
     labels, which are spread over the clip rather than one window): the same masks as
     :func:`observe`, tracked over the whole clip at ``size`` (at most :data:`MAX_LONG_SIDE` px long,
     scaled up to ``size``; :func:`pipeline.masks.pseudo_ground_truth` or the segmenter),
     keeping the tracks that are objects (seen in 4 tracked frames or more, the centroid travels half
     a diameter, a median area within 1/4..4 times that of the track seen longest, the
-    ``max_objects`` seen longest; no flow over the whole clip, so no flow check). ``segmenter``:
-    as in :func:`observe`.
+    ``max_objects`` seen longest; no flow over the whole clip, so no flow check). ``segmenter``,
+    ``rest_segmenter``: as in :func:`observe`.
 
     Returns:
         ``(len(frame_indices), H, W)`` int8 object ids, -1 background.
@@ -1566,7 +1632,8 @@ def observe_frames(video, fps: float | None, frame_indices, size: tuple[int, int
                                      method="median", crop=(0, 0, *probe.original_size))
         seg = anchored_objects(clip.frames[tracked], clip.frames[fit], movers, max_objects, segmenter=segmenter)
     else:
-        seg = segment_objects(clip.frames[tracked], clip.frames[fit], mask_method, max_objects, segmenter=segmenter)
+        seg = segment_objects(clip.frames[tracked], clip.frames[fit], mask_method, max_objects, segmenter=segmenter,
+                              rest_segmenter=rest_segmenter)
         seg, _ = keep_objects(seg, None, max_objects, still=True)
     where = {t: k for k, t in enumerate(tracked)}
     out = seg[[where[i] for i in wanted]]

@@ -79,7 +79,10 @@ class RealVideoConfig(BaseModel):
     The window (``fps`` frames per s of scene time, ``duration`` s), the observation
     (``mask_method``, one of :data:`pipeline.observe.MASK_METHODS`; ``max_objects`` tracks;
     ``segmenter_weights``: the object segmenter's checkpoint, None = the shipped one, ``wide`` = the
-    GPU-trained wider one, or a path, :func:`pipeline.segmenter.resolve_weights`; ``fine_scale``: its
+    GPU-trained wider one, or a path, :func:`pipeline.segmenter.resolve_weights`;
+    ``rest_segmenter_weights``: a second checkpoint, read the same way, that ``hybrid`` asks for
+    objects at rest where the first found nothing (None: none,
+    :func:`pipeline.observe.second_opinion_rests`); ``fine_scale``: its
     probabilities fused with the detection pass's where those are finer, :data:`pipeline.observe.FINE_SCALE`), the
     scene writer without ``--model`` (``model``: ``wide``, ``trained`` or a folder,
     :func:`default_model_dir`), the
@@ -98,6 +101,7 @@ class RealVideoConfig(BaseModel):
     duration: float = Field(1.0, gt=0)
     mask_method: str = "hybrid"
     segmenter_weights: str | None = None
+    rest_segmenter_weights: str | None = "wide"
     fine_scale: bool = False
     model: str = "trained"
     max_objects: int = Field(4, ge=1)
@@ -132,7 +136,8 @@ class JobSettings:
         rv: section ``realvideo``; fcfg: the flow estimator (section ``flow``);
         scfg: the search (section ``search`` with ``realvideo``'s popsize, iterations, lambda_epe
             and epe_pixels); sim, sanity: sections ``sim`` and ``sanity``;
-        segmenter: the object segmenter the observation uses (:func:`pipeline.segmenter.shipped`).
+        segmenter: the object segmenter the observation uses (:func:`pipeline.segmenter.shipped`);
+        rest_segmenter: the second one for objects at rest, or None.
     """
 
     rv: RealVideoConfig
@@ -141,6 +146,7 @@ class JobSettings:
     sim: SimOptions
     sanity: SanityConfig
     segmenter: object
+    rest_segmenter: object = None
 
 
 def job_settings(params: dict) -> JobSettings:
@@ -158,16 +164,36 @@ def job_settings(params: dict) -> JobSettings:
                                    "epe_pixels": rv.epe_pixels})
     sim = typed_section(params, "sim", SimOptions, required=True)
     sanity = typed_section(params, "sanity", SanityConfig)
-    try:                                       # the segmenter the observation uses, checked before any decoding
-        segmenter = shipped(resolve_weights(rv.segmenter_weights, getattr(params, "root", None)))
-    except SegmenterError as exc:
-        raise ParamsError(f"{getattr(params, 'source', 'params.yaml')}: realvideo.segmenter_weights: {exc}") from None
+    segmenter, rest_segmenter = observation_segmenters(params)
     frames = int(round(rv.fps * rv.duration))
     if not 2 <= frames <= MAX_WINDOW_FRAMES:   # before any video is decoded
         raise ParamsError(f"{getattr(params, 'source', 'params.yaml')}: realvideo.duration * realvideo.fps: must give "
                           f"2..{MAX_WINDOW_FRAMES} frames (the main job holds the window's frames, flow and masks "
                           f"in memory, ~2.5 MB per frame), got {frames}")
-    return JobSettings(rv, fcfg, scfg, sim, sanity, segmenter)
+    return JobSettings(rv, fcfg, scfg, sim, sanity, segmenter, rest_segmenter)
+
+
+def observation_segmenters(params: dict) -> tuple[object, object]:
+    """The observation's segmenters of params ``realvideo``: ``(segmenter, rest_segmenter)``
+    (:func:`pipeline.segmenter.shipped` of ``segmenter_weights`` and of
+    ``rest_segmenter_weights``, the second None when that is null), loaded before any video is
+    decoded.
+
+    Raises:
+        ParamsError: a checkpoint is missing or unreadable (one line naming the field).
+    """
+    rv = realvideo_config(params)
+    out = []
+    for field in ("segmenter_weights", "rest_segmenter_weights"):
+        choice = getattr(rv, field)
+        if field == "rest_segmenter_weights" and choice is None:
+            out.append(None)
+            continue
+        try:
+            out.append(shipped(resolve_weights(choice, getattr(params, "root", None))))
+        except SegmenterError as exc:
+            raise ParamsError(f"{getattr(params, 'source', 'params.yaml')}: realvideo.{field}: {exc}") from None
+    return out[0], out[1]
 
 
 def observe_window(video: str | Path, job: JobSettings, fps: float | None = None, start: float | None = None
@@ -191,7 +217,7 @@ def observe_window(video: str | Path, job: JobSettings, fps: float | None = None
                    f"too short for {MIN_WINDOW_FRAMES} frames at {rv.fps} fps")
             print(f"[infer] {video}: {why}: the scene runs at {scene_fps} fps")
     obs = observe(video, fps, start, scene_fps, rv.duration, job.fcfg, rv.mask_method, rv.max_objects, job.segmenter,
-                  fine_scale=rv.fine_scale)
+                  fine_scale=rv.fine_scale, rest_segmenter=job.rest_segmenter)
     W, H = obs.size
     print(f"[infer] {video}: window {obs.start:.3f}-{obs.start + obs.duration:.3f} s"
           f"{' (chosen automatically)' if obs.auto else ''}, {len(obs.frames)} frames at {scene_fps} fps, "

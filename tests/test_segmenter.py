@@ -965,3 +965,52 @@ def test_flow_agreement_distrusts_the_flow_where_it_misses_the_masks_motion():
     fg = seg[:-1] >= 0
     assert flow_epe(true_flow, gated, fg, fg, over="observed") == pytest.approx(0.0)
     assert flow_epe(true_flow, flow, fg, fg, over="observed") > 5.0
+
+
+class _TruthSegmenter:
+    """A stand-in segmenter that marks the true masks of chosen objects (probability 0.99) and
+    no contact: what a network that sees exactly those objects would give."""
+
+    def __init__(self, seg: np.ndarray, ids: tuple[int, ...]) -> None:
+        self.fg = np.isin(seg, ids).astype(np.float32) * 0.99
+
+    def __call__(self, frames, background, batch: int = 16):
+        return self.fg.copy(), np.zeros_like(self.fg)
+
+
+def test_a_second_segmenter_adds_the_object_at_rest_the_first_missed_and_nothing_it_saw():
+    """``hybrid_objects(..., rest_segmenter=)``: a ball rolls past a box that never moves. A first
+    segmenter that sees only the ball gives one object; a second that sees both adds the box at
+    rest (whole, after the mover) and not the ball again (its pixels are explained already)."""
+    from pipeline.metrics import observation_scores
+    from pipeline.observe import hybrid_objects
+
+    fr = _box_at_rest_and_rolling_ball()
+    first, second = _TruthSegmenter(fr.seg, (1,)), _TruthSegmenter(fr.seg, (0, 1))
+    alone = observation_scores(fr.seg, hybrid_objects(fr.rgb, fr.rgb, 4, segmenter=first), [True, False])
+    kinds, cands = [], []
+    seg = hybrid_objects(fr.rgb, fr.rgb, 4, kinds, first, cands, rest_segmenter=second)
+    both = observation_scores(fr.seg, seg, [True, False])
+    assert alone["n_pred"] == 1 and alone["still_found"] == 0.0, alone["per_object"]
+    assert both["n_pred"] == 2 and both["still_iou"] >= 0.95, both["per_object"]
+    assert both["moving_iou"] == pytest.approx(alone["moving_iou"])
+    assert [k["kind"] for k in kinds] == ["mover", "at_rest"]
+    assert [c.get("second", False) for c in cands] == [False, True]     # one second-opinion candidate: the box
+
+
+@pytest.mark.skipif(not DEFAULT_WEIGHTS.exists(), reason="no shipped segmenter weights")
+def test_realvideo_rest_segmenter_weights_load_before_any_video_and_name_the_field(tmp_path):
+    """realvideo.rest_segmenter_weights: null asks no second network; wide loads the wide one;
+    a missing file stops `dynamics infer` in one line naming the field, before any output."""
+    from pipeline import segmenter as S
+    from pipeline.params import ParamsError, load_params
+    from pipeline.reconstruct import observation_segmenters, reconstruct
+    params = load_params(None)
+    params["realvideo"]["rest_segmenter_weights"] = None
+    assert observation_segmenters(params)[1] is None
+    params["realvideo"]["rest_segmenter_weights"] = "wide"
+    assert Path(observation_segmenters(params)[1].path) == S.WIDE_WEIGHTS
+    params["realvideo"]["rest_segmenter_weights"] = str(tmp_path / "missing.pt")
+    with pytest.raises(ParamsError, match=r"realvideo\.rest_segmenter_weights: .*missing\.pt: no segmenter checkpoint"):
+        reconstruct(tmp_path / "no_video.mp4", tmp_path / "out", params)
+    assert not (tmp_path / "out").exists()
