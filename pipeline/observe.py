@@ -429,12 +429,7 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
         else:
             decision = "rejected"
         if candidates is not None:
-            candidates.append({"mask": m, "seen": len(tr.frames) / T, "area": float(np.median(tr.area)),
-                               "travel": tr.travel / max(tr.diameter, 1e-6), "net": net_shift(tr), "flow_moves": moves,
-                               "confidence": confidence, "stability": mask_stability(m, tr.frames),
-                               "fill": float(tr.fill), "aspect": tr.size[0] / max(tr.size[1], 1e-6),
-                               "ellipse": float(tr.ellipse), "polygon": float(tr.polygon),
-                               "elongation": float(tr.elongation), "in_view": _in_view(m), "border": border_fraction(m), "decision": decision})
+            candidates.append(_candidate(tr, m, T, moves, confidence, decision))
     if rest_segmenter is not None:
         seen = np.logical_or.reduce([m for _, m, _ in movers] + [m for _, m in stills] + bs_masks
                                     + [np.zeros((T, H, W), bool)])
@@ -535,14 +530,21 @@ def second_opinion_rests(frames: np.ndarray, background: np.ndarray, segmenter: 
         if ok:
             out.append((tr, m))
         if candidates is not None:
-            candidates.append({"mask": m, "seen": len(tr.frames) / T, "area": float(np.median(tr.area)),
-                               "travel": tr.travel / max(tr.diameter, 1e-6), "net": net_shift(tr), "flow_moves": False,
-                               "confidence": float(fg[m].mean()), "stability": mask_stability(m, tr.frames),
-                               "fill": float(tr.fill), "aspect": tr.size[0] / max(tr.size[1], 1e-6),
-                               "ellipse": float(tr.ellipse), "polygon": float(tr.polygon),
-                               "elongation": float(tr.elongation), "in_view": _in_view(m), "border": border_fraction(m),
-                               "decision": "at_rest" if ok else "rejected", "second": True})
+            candidates.append({**_candidate(tr, m, T, False, float(fg[m].mean()), "at_rest" if ok else "rejected"),
+                               "second": True})
     return out
+
+
+def _candidate(tr, m: np.ndarray, T: int, moves: bool, confidence: float, decision: str) -> dict:
+    """One candidate record of :func:`hybrid_objects` (its ``candidates`` argument: the features
+    the decision reads) for track ``tr`` with ``(T, H, W)`` bool masks ``m``."""
+    return {"mask": m, "seen": len(tr.frames) / T, "area": float(np.median(tr.area)),
+            "travel": tr.travel / max(tr.diameter, 1e-6), "net": net_shift(tr), "flow_moves": moves,
+            "confidence": confidence, "stability": mask_stability(m, tr.frames),
+            "fill": float(tr.fill), "aspect": tr.size[0] / max(tr.size[1], 1e-6),
+            "ellipse": float(tr.ellipse), "polygon": float(tr.polygon),
+            "elongation": float(tr.elongation), "in_view": _in_view(m), "border": border_fraction(m),
+            "decision": decision}
 
 
 def rigid_pair(a: np.ndarray, b: np.ndarray) -> bool:
