@@ -52,7 +52,7 @@ from pipeline.video import read_video  # noqa: E402
 FOUND = 0.5
 """A candidate is a true object when its mean IoU with it reaches this (the benchmark's "found")."""
 DECISIONS = ("mover", "at_rest", "slow", "rejected")
-DROPS = ("part", "rigid_size", "size_class", "max_objects")
+DROPS = ("hand", "part", "rigid_size", "size_class", "max_objects")
 
 
 def best_match(mask: np.ndarray, truth: np.ndarray) -> tuple[int, float]:

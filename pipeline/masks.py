@@ -480,6 +480,31 @@ def shadow_like(frame: np.ndarray, bg: np.ndarray) -> np.ndarray:
     return (ratio > 0.45) & (ratio < 0.97) & (chroma < 0.06)
 
 
+def skin_like(frames: np.ndarray) -> np.ndarray:
+    """Pixels whose colour is a human skin tone by two published rules at once: the YCrCb box
+    Cr 133-173, Cb 77-127 of Chai and Ngan, "Face segmentation using skin-color map in videophone
+    applications", IEEE TCSVT 1999 (OpenCV's 8-bit YCrCb, ``cv2.COLOR_RGB2YCrCb``), and the RGB rule
+    of Kovac, Peer and Solina, "Human skin colour clustering for face detection", EUROCON 2003
+    (uniform daylight: R > 95, G > 40, B > 20, max - min > 15, |R - G| > 15, R > G, R > B). Either
+    alone passes dark reds (a maroon ball of RGB 108, 37, 50 passes the box; the RGB rule alone takes
+    many oranges and pinks); a pixel must pass both. Wood and orange still do: one cue, never the only one.
+
+    Args:
+        frames: ``(..., H, W, 3)`` uint8 RGB.
+    Returns:
+        ``(..., H, W)`` bool.
+    """
+    frames = np.asarray(frames, np.uint8)
+    flat = frames.reshape(-1, frames.shape[-2], 3) if frames.ndim > 2 else frames
+    ycc = cv2.cvtColor(np.ascontiguousarray(flat), cv2.COLOR_RGB2YCrCb).reshape(frames.shape)
+    cr, cb = ycc[..., 1], ycc[..., 2]
+    box = (cr >= 133) & (cr <= 173) & (cb >= 77) & (cb <= 127)
+    r, g, b = (frames[..., k].astype(np.int16) for k in range(3))
+    spread = np.maximum(np.maximum(r, g), b) - np.minimum(np.minimum(r, g), b)
+    rgb = (r > 95) & (g > 40) & (b > 20) & (spread > 15) & (np.abs(r - g) > 15) & (r > g) & (r > b)
+    return box & rgb
+
+
 def _difference(frame: np.ndarray, bg: np.ndarray, gain: bool, shadows: bool,
                 threshold: float) -> np.ndarray:
     """``(H, W)`` float32 largest RGB difference of a smoothed frame from the background.

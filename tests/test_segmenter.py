@@ -12,6 +12,8 @@ import torch
 
 from pipeline.segmenter import DEFAULT_WEIGHTS, UNet, Segmenter, SegmenterError, median_background, network_input, targets
 
+REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
+
 
 def test_targets_mark_foreground_and_contact_only_between_objects():
     seg = np.full((1, 8, 10), -1, np.int8)
@@ -1043,3 +1045,55 @@ def test_the_wide_network_finds_an_object_at_rest_seen_from_above_that_the_shipp
     assert scores[False][1] == 2 and before.get(at_rest, 0.0) == 0.0, scores
     assert scores[True][1] == 3 and after[at_rest] >= 0.85, scores
     assert all(after[k] == pytest.approx(before[k]) for k in before if k != at_rest), scores
+
+
+def test_skin_like_passes_skin_tones_light_to_dark_and_not_other_colours():
+    """Chai & Ngan's YCrCb box: light, medium and dark skin pass; grey, white, green, blue and a
+    saturated red do not (their Cr or Cb falls outside 133-173 / 77-127)."""
+    from pipeline.masks import skin_like
+
+    skin = [(255, 224, 196), (224, 172, 140), (198, 134, 66), (141, 85, 36)]
+    other = [(128, 128, 128), (255, 255, 255), (30, 200, 40), (40, 60, 220), (255, 0, 0)]
+    img = np.asarray([skin + other], np.uint8)             # (1, 9, 3): one row of pixels
+    assert skin_like(img)[0].tolist() == [True] * len(skin) + [False] * len(other)
+    stack = np.repeat(img[None], 3, axis=0)                 # (T, H, W, 3) gives (T, H, W)
+    assert skin_like(stack).shape == (3, 1, len(skin) + len(other))
+
+
+def test_hands_drop_an_arm_reaching_in_and_keep_objects_at_the_border_or_skin_toned():
+    """An arm reaching in from the bottom edge (skin-toned, on the border in every frame) is a hand;
+    a skin-toned ball wholly in view is an object, and so is a blue box that slides in from the
+    left edge and stays cut by it (on the border in every frame, but not skin)."""
+    from pipeline.observe import hands
+
+    T, H, W = 8, 48, 64
+    frames = np.full((T, H, W, 3), 120, np.uint8)
+    arm, ball, box = (np.zeros((T, H, W), bool) for _ in range(3))
+    for t in range(T):
+        arm[t, H - 10 - 2 * t:, 40:48] = True               # rises from the bottom edge
+        ball[t, 10:16, 8 + 3 * t:14 + 3 * t] = True          # crosses the view, never at the border
+        box[t, 30:38, 0:4 + t] = True                        # enters from the left edge
+    frames[arm] = (224, 172, 140)
+    frames[ball] = (198, 134, 66)
+    frames[box] = (40, 60, 220)
+    assert hands([arm, ball, box], frames) == {0}
+    assert hands([ball, box], frames) == set()
+
+
+
+@pytest.mark.skipif(not DEFAULT_WEIGHTS.exists() or not (REAL / "dev" / "08_ball_vertical_toss.mp4").exists(),
+                    reason="no shipped segmenter weights or no shared real clips")
+def test_the_hand_that_tosses_a_ball_is_not_an_object_on_a_real_clip():
+    """dev/08: a hand tosses a ball up from the bottom of the view. The segmenter tracks the hand as
+    a mover (it moves, the network is sure of it); it is dropped as a hand (on the border in every
+    frame where it is seen, skin-toned), and the ball, in flight wholly inside the view, is kept."""
+    from pipeline.observe import observe, scene_rate
+
+    video = REAL / "dev" / "08_ball_vertical_toss.mp4"
+    found: list[dict] = []
+    obs = observe(video, None, None, scene_rate(video, None, 30), 1.0, mask_method="hybrid", candidates=found)
+    dropped = [c for c in found if c.get("dropped") == "hand"]
+    assert dropped and all(c["border"] >= 0.8 for c in dropped)
+    kept_movers = [c for c in found if c.get("kept") and c["decision"] == "mover"]
+    assert len(kept_movers) == 1 and kept_movers[0]["border"] <= 0.2 and kept_movers[0]["travel"] >= 2.0
+    assert obs.moving_flags.count(True) == 1
