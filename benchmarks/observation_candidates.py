@@ -192,8 +192,8 @@ def markdown(report: dict) -> str:
              "segmenter's loss, no rule can repair it). Decisions (`pipeline.observe.hybrid_objects`): mover, "
              "at rest, slow object, rejected; *rejected: object* counts the rules' losses. *Lost later*: true objects "
              "with a matching candidate that is not inside any returned object (rejected, or dropped afterwards as a "
-             "part, for its size or by `max_objects`); *dropped (filter): object*: matching candidates the rules "
-             "accepted and that filter dropped (`attached_parts`, `rigid_size`, the size class of the movers, "
+             "hand, a part, for its size or by `max_objects`); *dropped (filter): object*: matching candidates the rules "
+             "accepted and that filter dropped (`hands`, `attached_parts`, `rigid_size`, the size class of the movers, "
              "`max_objects`); *kept: not*: returned candidates that match no true object. "
              "True objects outside the working crop are not counted here (`observation_truth` counts them as missed).", "",
              "| set | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
