@@ -495,8 +495,8 @@ def skin_like(frames: np.ndarray) -> np.ndarray:
         ``(..., H, W)`` bool.
     """
     frames = np.asarray(frames, np.uint8)
-    flat = frames.reshape(-1, frames.shape[-2], 3) if frames.ndim > 2 else frames
-    ycc = cv2.cvtColor(np.ascontiguousarray(flat), cv2.COLOR_RGB2YCrCb).reshape(frames.shape)
+    ycc = cv2.cvtColor(np.ascontiguousarray(frames.reshape(-1, frames.shape[-2], 3)),
+                       cv2.COLOR_RGB2YCrCb).reshape(frames.shape)
     cr, cb = ycc[..., 1], ycc[..., 2]
     box = (cr >= 133) & (cr <= 173) & (cb >= 77) & (cb <= 127)
     r, g, b = (frames[..., k].astype(np.int16) for k in range(3))

@@ -865,12 +865,12 @@ def hands(masks: list, frames: np.ndarray) -> set[int]:
     A hand that tosses, drops or catches an object reaches into the view from outside it: the arm it
     hangs on runs out of the image, so its mask touches the image border in nearly every frame where
     it is seen (:func:`border_fraction` at least :data:`HAND_BORDER`), and most of its pixels are skin
-    (:func:`pipeline.masks.skin_like` at least :data:`HAND_SKIN`). Each cue alone is common: 17 % of
-    the rendered truth-set objects are skin-toned by that test and red or wooden real objects are too;
+    (:func:`pipeline.masks.skin_like` at least :data:`HAND_SKIN`). Each cue alone is common: 18 of the
+    280 rendered truth-set objects (6 %) are skin-toned by that test and red or wooden real objects are too;
     objects entering or leaving the view touch the border for a while. Together, on the rendered
     truth sets' true masks, they hold for no object (one object of 280 touches the border in 80 % of
     its frames, and it is not skin-toned); on the 19 real clips they hold for the hands of 01, dev/05
-    and dev/08 (border 1.0, skin 0.88-1.0) and no object. A gloved hand or a sleeve is not caught.
+    and dev/08 (border 1.0, skin 0.68-1.0) and no object. A gloved hand or a sleeve is not caught.
 
     Args:
         masks: ``(T, H, W)`` bool masks, one per mover.

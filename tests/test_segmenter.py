@@ -1048,8 +1048,8 @@ def test_the_wide_network_finds_an_object_at_rest_seen_from_above_that_the_shipp
 
 
 def test_skin_like_passes_skin_tones_light_to_dark_and_not_other_colours():
-    """Chai & Ngan's YCrCb box: light, medium and dark skin pass; grey, white, green, blue and a
-    saturated red do not (their Cr or Cb falls outside 133-173 / 77-127)."""
+    """Chai & Ngan's YCrCb box and Kovac's RGB rule together: light, medium and dark skin pass; grey,
+    white, green, blue and a saturated red do not."""
     from pipeline.masks import skin_like
 
     skin = [(255, 224, 196), (224, 172, 140), (198, 134, 66), (141, 85, 36)]
@@ -1078,7 +1078,6 @@ def test_hands_drop_an_arm_reaching_in_and_keep_objects_at_the_border_or_skin_to
     frames[box] = (40, 60, 220)
     assert hands([arm, ball, box], frames) == {0}
     assert hands([ball, box], frames) == set()
-
 
 
 @pytest.mark.skipif(not DEFAULT_WEIGHTS.exists() or not (REAL / "dev" / "08_ball_vertical_toss.mp4").exists(),
