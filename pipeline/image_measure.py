@@ -140,6 +140,66 @@ def fit_gravity(t: np.ndarray, y: np.ndarray, m_per_px: float) -> dict:
     return {"g": float(g), "arcs": arcs}
 
 
+FLIGHT_OUTLIER = 2.5
+"""A sample whose residual exceeds this many tolerances leaves the joint fit of :func:`fit_flight`
+(a ball still in the hand, a blurred or merged silhouette): about 3 sigma of a track's noise, as
+the tolerance (:func:`pipeline.image_tracks.fit_tolerance`) is about 2 sigma where its jitter
+term leads."""
+
+
+def fit_flight(t: np.ndarray, y: np.ndarray, tol: float, min_samples: int = 8) -> dict | None:
+    """One image acceleration for every free-flight arc of a track at once.
+
+    A ball in free flight has the same acceleration in every arc between bounces, so the arcs
+    (:func:`flight_arcs`) are fitted together by least squares with one shared curvature and an
+    intercept and slope per arc: ``y = c_k + b_k t + a t^2 / 2`` for arc ``k`` (the model of
+    :func:`pipeline.image_tracks.first_bounce`, over the whole track). Samples that do not fit
+    are trimmed one at a time, worst first, while a residual exceeds ``FLIGHT_OUTLIER * tol``; an
+    arc left with fewer than 3 samples leaves the fit.
+
+    Args:
+        t: ``(N,)`` s, increasing; y: ``(N,)`` image rows, px (down); tol: residual of a good
+            fit, px; min_samples: fewest samples the fit must keep.
+    Returns:
+        dict: ``a`` (px/s^2, down positive), ``a_sd`` (its standard deviation from the residual,
+        px/s^2), ``n`` (samples kept), ``rms`` (px), ``kept`` (``(n,)`` int64 indices into ``t``),
+        ``v0`` (px) and ``vel0`` (px/s): the first kept arc's row and vertical velocity
+        extrapolated to ``t = 0``; None with fewer than ``min_samples`` kept samples or a
+        singular fit.
+    """
+    t, y = np.asarray(t, float), np.asarray(y, float)
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
+    arcs = flight_arcs(t / dt, y)   # in frame intervals: a gap is counted in frames
+    if not arcs or sum(len(a) for a in arcs) < min_samples:
+        return None
+    idx = np.concatenate(arcs)
+    arc_of = np.concatenate([np.full(len(a), k) for k, a in enumerate(arcs)])
+    keep = np.ones(len(idx), bool)
+    while True:
+        live = np.bincount(arc_of[keep], minlength=len(arcs)) >= 3
+        use = keep & live[arc_of]
+        if int(use.sum()) < min_samples:
+            return None
+        tt = t[idx[use]]
+        cols = [0.5 * tt ** 2]
+        for k in np.flatnonzero(live):
+            on = (arc_of[use] == k).astype(np.float64)
+            cols += [on, on * tt]
+        A = np.stack(cols, axis=1)
+        coef, _, rank, _ = np.linalg.lstsq(A, y[idx[use]], rcond=None)
+        if rank < A.shape[1]:
+            return None
+        res = A @ coef - y[idx[use]]
+        worst = int(np.argmax(np.abs(res)))
+        if abs(res[worst]) <= FLIGHT_OUTLIER * tol:
+            break
+        keep[np.flatnonzero(use)[worst]] = False
+    dof = len(res) - A.shape[1]
+    a_sd = math.inf if dof <= 0 else float(np.sqrt(np.sum(res ** 2) / dof * np.linalg.inv(A.T @ A)[0, 0]))
+    return {"a": float(coef[0]), "a_sd": a_sd, "n": int(len(res)), "rms": float(np.sqrt(np.mean(res ** 2))),
+            "kept": idx[use].astype(np.int64), "v0": float(coef[1]), "vel0": float(coef[2])}
+
+
 def path_angle(x: np.ndarray, y: np.ndarray) -> float:
     """Angle of a centroid path in the image, deg in [0, 90]: the principal direction of the
     points ``(x, y) (N,)`` px (total least squares, the largest singular vector of the centred

@@ -37,7 +37,7 @@ from pipeline.camera import intrinsics, pixel_to_plane, project
 from pipeline.errors import UserError
 from pipeline.geometry import volume
 from pipeline.image_tracks import (BOX_FILL, CIRCLE_FILL, ELONGATED, Motion, Track, View, gravity_vote,
-                                   round_silhouette, bounce_restitution, estimate_view, find_tracks, first_bounce, gravity_motion, initial_motion, initial_state_given, object_tracks,
+                                   round_silhouette, bounce_restitution, estimate_view, find_tracks, first_bounce, flight_gravity, gravity_motion, initial_motion, initial_state_given, object_tracks,
                                    still_tracks, whole_frames)
 from pipeline.rotation import axis_angle_quat
 from pipeline.scene import Camera, Scene
@@ -488,12 +488,16 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
     # that acceleration (initial_state_given); the acceleration's evidence is the gravity
     # window's frames, even when only a few frames precede the first bounce. In a fall the
     # simulator's only acceleration is gravity, straight down: a sideways curvature fitted to a
-    # noisy track would bend the horizontal velocity read at t = 0.
+    # noisy track would bend the horizontal velocity read at t = 0. A fall's curvature is then
+    # read from all its flight arcs at once (flight_gravity: the window is the steepest of many,
+    # biased upward); a track whose arcs together do not curve like a fall is no fall.
     side_motions = []
     for t, m, g, ok in zip(whole, motions, gravity, shows):
         if ok:
-            a = np.array([0.0, g.a[1]]) if _side_motion_kind(t, g) == "fall" else g.a
-            m = replace(initial_state_given(t, fps, a), n=g.n, a_sd=g.a_sd)
+            if _side_motion_kind(t, g) == "fall":
+                flight = flight_gravity(t, fps)
+                g = flight if flight is not None and flight.n > g.n else replace(g, a=np.array([0.0, g.a[1]]))
+            m = replace(initial_state_given(t, fps, g.a), n=g.n, a_sd=g.a_sd)
         side_motions.append(m)
     falls = any(ok and _side_motion_kind(t, m) == "fall" for t, m, ok in zip(tracks, side_motions, shows))
     # a clear fall settles it; a speed-up along a line may also be perspective (an object
