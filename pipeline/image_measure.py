@@ -147,19 +147,24 @@ the tolerance (:func:`pipeline.image_tracks.fit_tolerance`) is about 2 sigma whe
 term leads."""
 
 
-def fit_flight(t: np.ndarray, y: np.ndarray, tol: float, min_samples: int = 8) -> dict | None:
+def fit_flight(t: np.ndarray, y: np.ndarray, tol: float, min_samples: int = 8,
+               x: np.ndarray | None = None) -> dict | None:
     """One image acceleration for every free-flight arc of a track at once.
 
     A ball in free flight has the same acceleration in every arc between bounces, so the arcs
     (:func:`flight_arcs`) are fitted together by least squares with one shared curvature and an
     intercept and slope per arc: ``y = c_k + b_k t + a t^2 / 2`` for arc ``k`` (the model of
-    :func:`pipeline.image_tracks.first_bounce`, over the whole track). Samples that do not fit
-    are trimmed one at a time, worst first, while a residual exceeds ``FLIGHT_OUTLIER * tol``; an
-    arc left with fewer than 3 samples leaves the fit.
+    :func:`pipeline.image_tracks.first_bounce`, over the whole track). With the columns ``x``
+    given, each arc also moves along them at its own constant speed, ``x = d_k + e_k t`` (no
+    force acts sideways in flight; a bounce may change the speed), and a sample's residual is
+    the distance between it and the fit in the image. Samples that do not fit are trimmed one at
+    a time, worst first, while a residual exceeds ``FLIGHT_OUTLIER * tol``; an arc left with
+    fewer than 3 samples leaves the fit.
 
     Args:
         t: ``(N,)`` s, increasing; y: ``(N,)`` image rows, px (down); tol: residual of a good
-            fit, px; min_samples: fewest samples the fit must keep.
+            fit, px; min_samples: fewest samples the fit must keep; x: ``(N,)`` image columns,
+            px, or None (rows only).
     Returns:
         dict: ``a`` (px/s^2, down positive), ``a_sd`` (its standard deviation from the residual,
         px/s^2), ``n`` (samples kept), ``rms`` (px), ``kept`` (``(n,)`` int64 indices into ``t``),
@@ -190,8 +195,12 @@ def fit_flight(t: np.ndarray, y: np.ndarray, tol: float, min_samples: int = 8) -
         if rank < A.shape[1]:
             return None
         res = A @ coef - y[idx[use]]
-        worst = int(np.argmax(np.abs(res)))
-        if abs(res[worst]) <= FLIGHT_OUTLIER * tol:
+        dist = np.abs(res)
+        if x is not None:   # the same arcs, a line each: every column but the curvature's
+            cx, *_ = np.linalg.lstsq(A[:, 1:], np.asarray(x, float)[idx[use]], rcond=None)
+            dist = np.hypot(res, A[:, 1:] @ cx - np.asarray(x, float)[idx[use]])
+        worst = int(np.argmax(dist))
+        if dist[worst] <= FLIGHT_OUTLIER * tol:
             break
         keep[np.flatnonzero(use)[worst]] = False
     dof = len(res) - A.shape[1]

@@ -475,8 +475,9 @@ def flight_gravity(track: Track, fps: float, min_samples: int = FLIGHT_MIN_SAMPL
     on the real clips dev/02-dev/08 its curvature is 4-32 % above that of all arcs together, and
     the scale a side view takes from it (:func:`pipeline.perception.side_scale`) is as far off.
     A ball in free flight has one acceleration in every arc between bounces, so all arcs are
-    fitted at once with one shared curvature (:func:`pipeline.image_measure.fit_flight`, with
-    the track's :func:`fit_tolerance` to trim the samples in a hand or blurred).
+    fitted at once with one shared curvature, each moving sideways at a constant speed
+    (:func:`pipeline.image_measure.fit_flight`, with the track's :func:`fit_tolerance` to trim
+    the samples in a hand or blurred); a track it does not explain is no flight (None).
 
     Args:
         track: a track (whole frames, :func:`whole_frames`); fps: its frame rate, 1/s.
@@ -493,7 +494,7 @@ def flight_gravity(track: Track, fps: float, min_samples: int = FLIGHT_MIN_SAMPL
     from pipeline.image_measure import fit_flight   # measures on arrays; it imports nothing of ours
 
     t = track.frames / fps
-    fit = fit_flight(t, track.centre[:, 1], fit_tolerance(track), min_samples)
+    fit = fit_flight(t, track.centre[:, 1], fit_tolerance(track), min_samples, x=track.centre[:, 0])
     if fit is None:
         return None
     first = int(fit["kept"][0])
@@ -573,7 +574,9 @@ def first_bounce(track: Track, fps: float) -> Bounce | None:
 
     A lowest sample ``b`` is one where the vertical image velocity turns from down (+v) to up;
     bounces are taken in order, and one with too few samples around it (a window that starts
-    just before an impact) is passed over. The impact lies next to ``b``, before or after it
+    just before an impact) is passed over, as is one whose two arcs do not fall into it and rise
+    out of it (a glitch of the track: a hand's blob taken for the ball for a frame or two, dev/02,
+    where such a turn hid the bounces after it). The impact lies next to ``b``, before or after it
     (frames may be missing around it: a ball cut by the image border, :func:`whole_frames`),
     so both splits are tried: up to 6
     samples before the impact and up to 7 after it (until the next bounce) are fitted jointly
@@ -611,11 +614,11 @@ def first_bounce(track: Track, fps: float) -> Bounce | None:
             continue   # too few samples around this bounce: the next one
         acc, b1, c1, b2, c2 = best[1]
         if abs(b1 - b2) < 1e-9:
-            return None
+            continue   # parallel arcs: no impact between them
         tb = (c2 - c1) / (b1 - b2)   # where the two arcs meet: the floor
         before, after = acc * tb + b1, acc * tb + b2
         if before <= 0 or after >= 0:
-            return None
+            continue   # not falling into it and rising out of it: no bounce (a glitch of the track)
         return Bounce(float(np.clip(-after / before, 0.2, 0.95)), float(tb),
                       float(0.5 * acc * tb ** 2 + b1 * tb + c1))
     return None

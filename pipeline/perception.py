@@ -176,8 +176,12 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
         scales.append(ppm)
         kinds.append(kind)
         notes.append(f"object {tr.label}: {kind}, {tr.shape} -> {shape_of[tr.label]}, scale {ppm:.0f} px/m from {src}")
-    # camera height from the floor row of the main (largest) object
-    main = int(np.argmax([np.median(t.area) for t in tracks]))
+    # camera height from the floor row of the main object: the fall read from the most samples
+    # (its bounce shows the floor; an object at rest shows only its own bottom row), else the
+    # largest object
+    falling = [i for i, k in enumerate(kinds) if k == "fall"]
+    main = max(falling, key=lambda i: (motions[i].n, float(np.median(tracks[i].area)))) if falling else \
+        int(np.argmax([np.median(t.area) for t in tracks]))
     D0 = f / scales[main]
     lowest = max(float(t.bottom.max()) for t in tracks)
     if kinds[main] == "fall":
@@ -186,9 +190,12 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
         hit = first_bounce(whole_frames(tracks[main]), fps)
         if hit is not None:
             lowest = max(lowest, hit.v + 0.5 * tracks[main].diameter)
-        # nor can a fall start under the floor: a ball thrown up from below the view and seen
-        # landing further back (dev/06) starts where its first arc, extrapolated to t = 0, is
-        lowest = max(lowest, float(motions[main].p0[1]) + 0.5 * tracks[main].diameter)
+        else:
+            # without one, nor can a fall start under the floor: a ball thrown up from below the
+            # view starts where its first arc, extrapolated to t = 0, is. A measured bounce
+            # outranks that inference: a first arc extrapolated back over frames where a hand
+            # still held the ball (dev/02) lies under the floor the ball then bounces on
+            lowest = max(lowest, float(motions[main].p0[1]) + 0.5 * tracks[main].diameter)
     v_floor = lowest if kinds[main] == "fall" else max(lowest + 1.0, float(height))
     v_floor = max(v_floor, cv + 0.05 * height)
     cam_h = (v_floor - cv) * D0 / f

@@ -237,10 +237,11 @@ def test_round_silhouette_needs_an_ellipse_and_falls_back_to_fill_without_one():
     assert not round_silhouette(replace(tr, fill=0.95, ellipse=math.nan))
 
 
-def _toss(seed: int, n_hand: int = 4, T: int = 30) -> np.ndarray:
+def _toss(seed: int, n_hand: int = 4, T: int = 30, u_speed: float = 15.0) -> np.ndarray:
     """``(T, 2)`` centroid (u, v) px of a ball tossed up at 30 fps: ``n_hand`` frames rising
-    with the hand at a steady 150 px/s, then free flight at :data:`A` px/s^2 from 420 px/s up,
-    an impact on the floor row 110 with restitution 0.6, the next arc; 0.4 px of noise."""
+    with the hand at a steady 150 px/s, then free flight at :data:`A` px/s^2 from 420 px/s up
+    and ``u_speed`` px/s sideways, an impact on the floor row 110 with restitution 0.6, the next
+    arc; 0.4 px of noise."""
     dt, floor = 1.0 / FPS, 110.0
     u, v, vel, rows = 30.0, 100.0, -150.0, []
     for k in range(T):
@@ -251,7 +252,7 @@ def _toss(seed: int, n_hand: int = 4, T: int = 30) -> np.ndarray:
         if k == n_hand:
             vel = -420.0
         rows.append((u, v))
-        u += 15.0 * dt
+        u += u_speed * dt
         v_next, vel_next = v + vel * dt + 0.5 * A * dt ** 2, vel + A * dt
         if v_next > floor:   # the impact inside the step: the exact bounce (Newton's law)
             tc = (-vel + math.sqrt(vel ** 2 + 2 * A * (floor - v))) / A
@@ -280,6 +281,25 @@ def test_flight_gravity_reads_the_true_acceleration_from_every_arc():
     assert np.mean(err_flight) < 0.5 * np.mean(err_window)
 
 
+@pytest.mark.parametrize("glitches,read", [(5, True), (12, False)])
+def test_flight_gravity_trims_glitches_and_reads_no_fall_from_a_track_of_them(glitches, read):
+    """One flight of 30 frames in which ``glitches`` frames show another blob (a hand) 30-60 px
+    away. A glitch below both neighbours also cuts the flight into arcs
+    (:func:`pipeline.image_measure.flight_arcs`). With 5 the fit trims them and reads gravity
+    within 2 % from at least half the frames; with 12 (40 %) the arcs left are too short for
+    ``min_samples``, and no fall is read from them."""
+    rng = np.random.default_rng(7)
+    t = np.arange(30) / FPS
+    c = np.stack([40.0 + 60.0 * t, 200.0 - 700.0 * t + 0.5 * A * t ** 2], axis=1) + rng.normal(0.0, 0.4, (30, 2))
+    bad = rng.choice(np.arange(1, 29), glitches, replace=False)
+    c[bad] += rng.uniform(30.0, 60.0, (glitches, 2)) * rng.choice([-1.0, 1.0], (glitches, 2))
+    f = flight_gravity(_track(c, diameter=10.0), FPS)
+    if read:
+        assert f is not None and abs(f.a[1] - A) < 0.02 * A and f.n >= 15
+    else:
+        assert f is None
+
+
 def test_flight_gravity_of_a_roll_or_of_few_frames_is_none():
     """A ball rolling on a level floor with 0.3 px of noise has no flight arc of 5 samples (every
     noisy lowest point cuts it, :func:`pipeline.image_measure.flight_arcs`), so no curvature is
@@ -289,3 +309,18 @@ def test_flight_gravity_of_a_roll_or_of_few_frames_is_none():
     roll += np.random.default_rng(1).normal(0.0, 0.3, roll.shape)
     assert flight_gravity(_track(roll, diameter=10.0), FPS) is None
     assert flight_gravity(_track(_toss(0)[4:10], diameter=10.0), FPS) is None
+
+
+def test_first_bounce_passes_over_a_glitch_and_reads_the_true_bounce():
+    """dev/02: two frames of a hand's blob at the start make a lowest point that is no bounce (the
+    fitted arcs do not fall into it); the true bounce after it is still read: its restitution
+    and the impact row (the floor) as simulated."""
+    dt, floor = 1.0 / FPS, 110.0
+    tr = _track(_toss(3, n_hand=0), diameter=10.0)
+    clean = first_bounce(tr, FPS)
+    glitch = tr.centre.copy()
+    glitch[1:3, 1] = [60.0, 40.0]          # the hand's blob high up, then the ball again
+    g = first_bounce(replace(tr, centre=glitch), FPS)
+    assert clean is not None and g is not None
+    assert g.e == pytest.approx(0.6, abs=0.08) and g.v == pytest.approx(floor, abs=2.0)
+    assert g.t == pytest.approx(clean.t, abs=dt)
