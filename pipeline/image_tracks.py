@@ -31,6 +31,8 @@ from typing import Literal
 import cv2
 import numpy as np
 
+from pipeline.image_measure import fit_flight
+
 CIRCLE_FILL, BOX_FILL = 0.80, 0.93
 """Fill ratios of the rotated box below which a silhouette is surely a disc, above which surely
 a rectangle; in between (small or blurred silhouettes) both are tried."""
@@ -491,8 +493,6 @@ def flight_gravity(track: Track, fps: float, min_samples: int = FLIGHT_MIN_SAMPL
         :func:`initial_state_given` gives the state); None with fewer than ``min_samples`` kept
         samples or a singular fit.
     """
-    from pipeline.image_measure import fit_flight   # measures on arrays; it imports nothing of ours
-
     t = track.frames / fps
     fit = fit_flight(t, track.centre[:, 1], fit_tolerance(track), min_samples, x=track.centre[:, 0])
     if fit is None:
