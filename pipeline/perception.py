@@ -37,7 +37,7 @@ from pipeline.camera import intrinsics, pixel_to_plane, project
 from pipeline.errors import UserError
 from pipeline.geometry import volume
 from pipeline.image_tracks import (BOX_FILL, CIRCLE_FILL, ELONGATED, Motion, Track, View, gravity_vote,
-                                   round_silhouette, bounce_restitution, estimate_view, find_tracks, first_bounce, flight_gravity, gravity_motion, initial_motion, initial_state_given, object_tracks,
+                                   round_silhouette, bounce_restitution, estimate_view, find_tracks, first_bounce, fit_tolerance, flight_gravity, gravity_motion, initial_motion, initial_state_given, object_tracks,
                                    still_tracks, whole_frames)
 from pipeline.rotation import axis_angle_quat
 from pipeline.scene import Camera, Scene
@@ -110,6 +110,7 @@ class Lifted:
     mass: float
     kind: str = "floor"                       # fall | ramp | floor (side view) or plane (top)
     ramp: dict | None = None                  # static box under the path (side view)
+    bumper: dict | None = None                # static box where the path turns back up the ramp
     restitution: float | None = None
     angular_velocity: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     rolling_friction: float = 0.0             # MuJoCo rolling coefficient, m (a ball that slows as it rolls)
@@ -135,21 +136,23 @@ def _side_body(track: Track, shape: str) -> str:
     return "box" if shape == "cylinder" and not round_silhouette(track) else shape
 
 
-def side_scale(track: Track, m: Motion, kind: str, shape: str) -> tuple[float, str]:
+def side_scale(track: Track, m: Motion, kind: str, shape: str, fps: float) -> tuple[float, str]:
     """Pixels per metre at the object's depth for a side view, and where it came from.
 
-    ``fall``: ``a_v / g``; ``ramp`` with a rolling shape: ``|a| / (k g sin theta)``; else (or
-    when the implied size leaves 1-30 cm) the size prior ``diameter / SIZE_PRIOR``.
+    ``fall``: ``a_v / g``; ``ramp`` with a rolling shape: ``a / (k g sin theta)``, with the slope
+    the path's (:func:`slope_direction`) and ``a`` the acceleration along it over the run down
+    (:func:`slope_acceleration`), as the ramp is built; else (or when the implied size leaves
+    1-30 cm) the size prior ``diameter / SIZE_PRIOR``.
     """
     prior = track.diameter / SIZE_PRIOR if shape != "box" else track.size[0] / SIZE_PRIOR
     ppm, source = prior, "size prior"
-    na = float(np.linalg.norm(m.a))
     if kind == "fall":
         ppm, source = float(m.a[1]) / G, "gravity (parabola)"
     elif kind == "ramp" and shape in ROLL_FACTOR:
-        sin_t = float(m.a[1]) / na
-        if sin_t > 0.05:
-            ppm, source = na / (ROLL_FACTOR[shape] * G * sin_t), "gravity (rolling down a slope)"
+        d = slope_direction(track, m)
+        a = slope_acceleration(whole_frames(track), d, m, fps)[0]
+        if d[1] > 0.05 and a > 0:
+            ppm, source = a / (ROLL_FACTOR[shape] * G * float(d[1])), "gravity (rolling down a slope)"
     extent = (track.diameter if shape != "box" else track.size[0]) / ppm
     if not SIZE_RANGE[0] <= extent <= SIZE_RANGE[1]:
         ppm, source = prior, "size prior (gravity scale implied an object of %.3f m)" % extent
@@ -172,7 +175,7 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
     scales, kinds = [], []
     for tr, m in zip(tracks, motions):
         kind = _side_motion_kind(tr, m)
-        ppm, src = side_scale(tr, m, kind, _side_body(tr, shape_of[tr.label]))
+        ppm, src = side_scale(tr, m, kind, _side_body(tr, shape_of[tr.label]), fps)
         scales.append(ppm)
         kinds.append(kind)
         notes.append(f"object {tr.label}: {kind}, {tr.shape} -> {shape_of[tr.label]}, scale {ppm:.0f} px/m from {src}")
@@ -234,7 +237,12 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
         lifted = Lifted(shape, size, [float(x), float(y), float(z)], quat, vel, friction, _mass(shape, size), kind)
         body = _side_body(tr, shape)
         if kind == "ramp":
-            lifted.ramp, lifted.friction = _ramp_under(tr, m, px, cu, cv, cam.height, y, half_h, body)
+            lifted.ramp, lifted.friction = _ramp_under(tr, m, px, cu, cv, cam.height, y, half_h, body, fps)
+            turn = bumper_on_ramp(whole_frames(tr), m, px, cu, cv, cam.height, y, half_h, fps)
+            if turn is not None:   # its restitution is reported, not written (bumper_on_ramp)
+                lifted.bumper = turn[0]
+                notes.append(f"object {tr.label}: turns back up the slope: a bumper there (restitution "
+                             f"{turn[1]:.2f} seen, not written)")
         if kind in ("ramp", "floor") and body in ROLL_FACTOR:
             # already rolling, not skidding: a ball launched without spin slides until friction
             # has spun it up, losing 2/7 of its speed (sphere; 1/3 for a cylinder)
@@ -286,12 +294,73 @@ def rolling_spin(normal: np.ndarray, velocity: np.ndarray, radius: float) -> np.
     return np.cross(normal, velocity) / radius
 
 
+def slope_direction(tr: Track, m: Motion) -> np.ndarray:
+    """``(2,)`` unit image direction down the slope an object moves on: the principal direction of
+    its centroid path (total least squares, as :func:`pipeline.image_measure.path_angle`), turned
+    to point along its acceleration. An object on a straight ramp moves along it, so its path
+    gives the slope; the acceleration's direction, fitted on a few frames, is noisier (the edges
+    read by hand on a frame, `tests/fixtures/realvideo/physical_truth.yaml`: dev/10's air track
+    9.3 deg, its path 10.1, the gravity window's acceleration 18.6; 07's shelf 4.2, path 4.9,
+    window 10.0; 08's incline 21.8, path 21.3, window 23.3). The acceleration's direction where
+    the path is shorter than one diameter."""
+    a = m.a / max(float(np.linalg.norm(m.a)), 1e-9)
+    pts = tr.centre - tr.centre.mean(axis=0)
+    if len(pts) < 3 or float(np.ptp(pts @ a)) < tr.diameter:
+        return a
+    d = np.linalg.svd(pts, full_matrices=False)[2][0]
+    return d if float(d @ a) >= 0 else -d
+
+
+def _turn_back(tr: Track, s: np.ndarray) -> int | None:
+    """Index of the first sample furthest down a slope (``s (N,)``: px down it) where the object
+    turns back up: at least 2 samples on each side moving :data:`BUMPER_SPEED` diameters per
+    frame or faster, down before and up after; None if it never does."""
+    step = np.diff(s) / np.maximum(np.diff(tr.frames), 1)
+    fast = BUMPER_SPEED * tr.diameter
+    return next((i for i in range(2, len(s) - 2)
+                 if s[i] >= s[i - 1] and s[i] >= s[i + 1] and (step[i - 2:i] > fast).all()
+                 and (step[i:i + 2] < -fast).all()), None)
+
+
+def slope_acceleration(tr: Track, d: np.ndarray, m: Motion, fps: float, min_frames: int = 6
+                       ) -> tuple[float, float, int]:
+    """Acceleration down the slope: a parabola fitted to the path's position along the slope
+    direction ``d (2,)`` over the longest first stretch of consecutive samples it explains (RMS
+    within :func:`pipeline.image_tracks.fit_tolerance`): the whole run down, until the object hits
+    a bumper or the bottom and stops. So a slide is read from all of it, as
+    :func:`pipeline.image_tracks.flight_gravity` reads a fall from all its arcs: the gravity
+    window is the steepest of many, biased high (dev/10's glider: 0.51 px/frame^2 pointing 18.6
+    deg down in the window, 0.42 along its 10.1 deg path over its 16 frames down; 07's cylinder
+    0.27 at 10.0 deg there, 0.23 along 4.9 deg over 26 frames; a synthetic ball rolling down 10
+    deg: the window's acceleration points 28 deg down).
+
+    Returns:
+        ``(a, a_sd, n)``: px/s^2 along ``d``, its standard deviation from the fit (px/s^2) and the
+        samples fitted; ``(m.a @ d, m.a_sd, m.n)`` when fewer than ``min_frames`` samples fit.
+    """
+    s = tr.centre @ d
+    t = tr.frames / fps
+    tol = fit_tolerance(tr)
+    best = None
+    for j in range(min_frames, len(s) + 1):
+        if tr.frames[j - 1] - tr.frames[0] != j - 1:
+            break
+        coef, cov = np.polyfit(t[:j], s[:j], 2, cov="unscaled")
+        res = np.polyval(coef, t[:j]) - s[:j]
+        if float(np.sqrt(np.mean(res ** 2))) > tol:
+            break
+        sd = 2.0 * math.sqrt(max(float(np.sum(res ** 2)) / (j - 3), 0.3 ** 2) * float(cov[0, 0]))
+        best = (2.0 * float(coef[0]), sd, j)
+    return (float(m.a @ d), float(m.a_sd), int(m.n)) if best is None else best
+
+
 def _ramp_under(tr: Track, m: Motion, px: float, cu: float, cv: float, cam_h: float, y: float,
-                half_h: float, shape: str) -> tuple[dict, float]:
+                half_h: float, shape: str, fps: float) -> tuple[dict, float]:
     """A static box whose top face runs under the track (contact line = path offset by the
-    object's half height along the slope normal), and a friction estimate: 0.5 for a rolling
-    shape, ``tan(theta) - a / (g cos(theta))`` for a sliding box."""
-    d = m.a / max(float(np.linalg.norm(m.a)), 1e-9)            # image direction of the slope (down it)
+    object's half height along the slope normal, slope along :func:`slope_direction`), and a
+    friction estimate: 0.5 for a rolling shape, ``tan(theta) - a / (g cos(theta))`` for a sliding
+    box, ``a`` the acceleration along the slope."""
+    d = slope_direction(tr, m)                                 # image direction of the slope (down it)
     theta = math.asin(min(max(float(d[1]), 0.0), 0.99))       # inclination, rad
     sgn = 1.0 if d[0] >= 0 else -1.0                           # descends towards +x or -x
     # world points of the path (first and last visible centres)
@@ -308,10 +377,73 @@ def _ramp_under(tr: Track, m: Motion, px: float, cu: float, cv: float, cam_h: fl
     ramp = {"shape": "box", "size": {"width": round(length, 4), "depth": 0.3, "height": thickness},
             "position": [float(mid[0]), float(y), float(mid[1])], "orientation": quat}
     if shape == "box":
-        a_m = float(np.linalg.norm(m.a)) * px
+        a_m = max(slope_acceleration(whole_frames(tr), d, m, fps)[0], 0.0) * px
         mu = math.tan(theta) - a_m / (G * math.cos(theta))
         return ramp, float(np.clip(mu, 0.0, 1.5))
     return ramp, ROLLING_GRIP
+
+
+BUMPER_SPEED = 0.1
+"""Fewest diameters per frame an object must move along a slope, down it before a turn and up it
+after, for :func:`bumper_on_ramp` to read the turn as a hit (slower, it is noise or a stop)."""
+
+
+def bumper_on_ramp(tr: Track, m: Motion, px: float, cu: float, cv: float, cam_h: float, y: float,
+                   half_h: float, fps: float) -> tuple[dict, float] | None:
+    """A static bumper where an object sliding or rolling down a slope turns back up it, and the
+    coefficient of restitution of that hit; None if it never does.
+
+    On an incline gravity can turn an object only at the top of its path (it slows going up and
+    comes back down): a turn at the *bottom*, from moving down the slope to moving up it, needs
+    something there to push it back (dev/10: an air-track glider rebounds off a spring bumper at
+    the low end, again and again). The track's centres are projected on the slope's image
+    direction (:func:`slope_direction`, down the slope); the turn is :func:`_turn_back`'s. The
+    bumper is a box standing on the ramp across the path (2 cm thick along the slope, 0.3 m deep,
+    four half heights of the object tall), its face one half length of the object (the
+    silhouette's long side) beyond the centre at the turn; ``e`` is the speed along the slope
+    after the turn over the speed before it (lines through the 2-3 samples on each side), clamped
+    to [0.2, 0.95] as :func:`pipeline.image_tracks.first_bounce` does.
+
+    :func:`lift_side` places the bumper and only reports ``e``: the scene language's
+    ``restitution`` is the object's, on every contact (:mod:`pipeline.effects`), and a contact that
+    springy slid dev/10's box down its ramp at 2.5 times the acceleration its friction gives
+    (about 1 m/s^2 against 0.41; without it the simulated slide matches the analytic
+    ``g (sin theta - mu cos theta)`` to 3 %). Without it the object stops at the bumper.
+
+    Args:
+        tr: the track (whole frames); m: its motion (``a``: px/s^2, towards down the slope);
+        px: m per px at its depth; cu, cv: principal point, px; cam_h: camera height, m;
+        y: the object's depth coordinate, m; half_h: its half height over the ramp, m;
+        fps: frames per second.
+    Returns:
+        ``(static_box, e)``: a scene-language static box (dict) and the restitution, or None.
+    """
+    if not np.any(m.a) or len(tr.frames) < 5:
+        return None
+    d = slope_direction(tr, m)
+    s = (tr.centre - tr.centre[0]) @ d                                   # px down the slope
+    step = np.diff(s) / np.maximum(np.diff(tr.frames), 1)
+    k = _turn_back(tr, s)
+    if k is None:
+        return None
+    t = tr.frames / fps
+    before = np.arange(max(0, k - 3), k)
+    after = np.arange(k + 1, min(len(s), k + 4))
+    v_in = float(np.polyfit(t[before], s[before], 1)[0]) if len(before) >= 2 else float(step[k - 1] * fps)
+    v_out = float(np.polyfit(t[after], s[after], 1)[0]) if len(after) >= 2 else float(step[k] * fps)
+    if v_in <= 0 or v_out >= 0:
+        return None
+    e = float(np.clip(-v_out / v_in, 0.2, 0.95))
+    theta = math.asin(min(max(float(d[1]), 0.0), 0.99))
+    sgn = 1.0 if d[0] >= 0 else -1.0
+    along = np.array([sgn * math.cos(theta), -math.sin(theta)])         # down the slope, (x, z)
+    centre = np.array([(tr.centre[k, 0] - cu) * px, cam_h - (tr.centre[k, 1] - cv) * px])
+    thickness = 0.02
+    mid = centre + along * (0.5 * tr.size[0] * px + 0.5 * thickness)
+    quat = axis_angle_quat((0.0, 1.0, 0.0), sgn * theta).tolist()
+    box = {"shape": "box", "size": {"width": thickness, "depth": 0.3, "height": round(4.0 * half_h, 4)},
+           "position": [float(mid[0]), float(y), float(mid[1])], "orientation": quat}
+    return box, e
 
 
 def lift_top(tracks: list[Track], motions: list[Motion], width: int, height: int,
@@ -497,13 +629,19 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
     # simulator's only acceleration is gravity, straight down: a sideways curvature fitted to a
     # noisy track would bend the horizontal velocity read at t = 0. A fall's curvature is then
     # read from all its flight arcs at once (flight_gravity: the window is the steepest of many,
-    # biased upward); a track whose arcs together do not curve like a fall is no fall.
+    # biased upward); a track whose arcs together do not curve like a fall is no fall. Any other
+    # gravity is a slope's: along the path, from the whole run down (slope_acceleration).
     side_motions = []
     for t, m, g, ok in zip(whole, motions, gravity, shows):
         if ok:
             if _side_motion_kind(t, g) == "fall":
                 flight = flight_gravity(t, fps)
                 g = flight if flight is not None and flight.n > g.n else replace(g, a=np.array([0.0, g.a[1]]))
+            else:   # on a straight slope the acceleration is along the path, over the whole run down
+                d = slope_direction(t, g)
+                along, sd, n = slope_acceleration(t, d, g, fps)
+                if along > 0:
+                    g = replace(g, a=along * d, a_sd=sd * float(abs(d[1])), n=n)
             m = replace(initial_state_given(t, fps, g.a), n=g.n, a_sd=g.a_sd)
         side_motions.append(m)
     falls = any(ok and _side_motion_kind(t, m) == "fall" for t, m, ok in zip(tracks, side_motions, shows))
@@ -640,6 +778,8 @@ def _to_scene(cam: Camera, objs: list[Lifted], fps: float, duration: float) -> S
                         "material": {"sliding_friction": o.friction, "rolling_friction": o.rolling_friction}})
         if o.ramp is not None:
             static.append(o.ramp)
+        if o.bumper is not None:
+            static.append(o.bumper)
     es = [o.restitution for o in objs if o.restitution is not None]
     if es:
         effects.append({"effect": "restitution", "parameters": {"e": float(np.median(es))}})

@@ -522,3 +522,95 @@ def test_side_view_floor_comes_from_the_falling_balls_bounce_not_from_scenery_or
     assert first.camera.height == pytest.approx((200.0 - H / 2) / ppm, rel=0.1)
     (e,) = [fx.parameters["e"] for fx in first.effects if fx.effect == "restitution"]
     assert e == pytest.approx(0.7, abs=0.1)
+
+
+def _slide_with_bumper(T: int = 30, turn: int = 15, a: float = 300.0, v0: float = 60.0, e: float = 0.8
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A 30 x 12 px box sliding down a 10 deg slope in a side view (30 fps, from (250, 100) down to
+    the left at ``v0`` px/s, ``a`` px/s^2 along it), turned back up at frame ``turn`` by a bumper
+    with restitution ``e``. Returns ``(seg (T, H, W) int8, centres (T, 2) px, d (2,))``."""
+    th = math.radians(10.0)
+    d = np.array([-math.cos(th), math.sin(th)])
+    t_turn = turn / 30.0
+    s_turn, v_turn = v0 * t_turn + 0.5 * a * t_turn ** 2, v0 + a * t_turn
+    seg = np.full((T, H, W), -1, np.int8)
+    centres = []
+    for k in range(T):
+        t = k / 30.0
+        s = v0 * t + 0.5 * a * t * t if k <= turn else \
+            s_turn - e * v_turn * (t - t_turn) + 0.5 * a * (t - t_turn) ** 2
+        c = np.array([250.0, 100.0]) + s * d
+        centres.append(c)
+        pts = cv2.boxPoints(((float(c[0]), float(c[1])), (30.0, 12.0), -10.0)).astype(np.int32)
+        cv2.fillPoly(seg[k], [pts], 0)
+    return seg, np.asarray(centres), d
+
+
+def test_slope_direction_is_the_path_not_a_noisy_acceleration():
+    """dev/10: an object on a straight ramp moves along it; the ramp follows its path (10 deg),
+    not the direction of an acceleration fitted on a few frames (here 18 deg)."""
+    seg, centres, d = _slide_with_bumper()
+    tr = perception.still_tracks(seg, 4)[0]
+    th = math.radians(18.0)
+    m = perception.Motion(centres[0], np.zeros(2), 300.0 * np.array([-math.cos(th), math.sin(th)]), 10, 0.3, 0.1)
+    got = perception.slope_direction(tr, m)
+    assert math.degrees(math.acos(min(1.0, float(got @ d)))) < 1.0
+
+
+def test_a_turn_at_the_bottom_of_a_slope_is_a_bumper_and_the_slide_reaches_it_on_time():
+    """A box sliding down a ramp that turns back up at its bottom was pushed back by something:
+    the side view's ramp proposal gets a bumper there (a turn at the top of a path is gravity's,
+    and gets none), and the slide, with the friction read from the acceleration over the whole
+    run down (:func:`perception.slope_acceleration`), reaches the bumper when the clip's box
+    does: re-simulated, the box's image position at the turn is within 4 px of the clip's."""
+    from pipeline.simulate import simulate
+
+    seg, centres, d = _slide_with_bumper()
+    props = perception.propose(seg, None, 30.0, 1.0, still=True)
+    assert props.view == "side"
+    ramps = [sc for sc, label in zip(props.scenes, props.labels) if label == "side: box on a ramp"]
+    assert ramps, props.labels
+    scene = ramps[0]
+    assert len(scene.static) == 2 and not scene.effects         # the ramp and the bumper; e only noted
+    assert any("bumper" in n for n in props.notes)
+    _, trace = simulate(scene)
+    uv, _ = project(np.asarray(trace.position)[:, 0], scene.camera, W, H)
+    assert np.linalg.norm(uv[15] - centres[15]) < 4.0, (uv[15], centres[15])
+    # the bumper stands just beyond the box at the turn (its face half a box length further down)
+    bump, _ = project(np.array([scene.static[1].position]), scene.camera, W, H)
+    assert float((bump[0] - centres[15]) @ d) == pytest.approx(15.0 + 0.5 * 0.02 * 30.0 / scene.objects[0].size.width, abs=3.0)
+    # a box pushed up the slope that slows, turns at the top and slides back: gravity, no bumper
+    up = np.full_like(seg, -1)
+    for k in range(30):
+        t = k / 30.0
+        c = np.array([150.0, 120.0]) + (-150.0 * t + 0.5 * 300.0 * t * t) * d
+        cv2.fillPoly(up[k], [cv2.boxPoints(((float(c[0]), float(c[1])), (30.0, 12.0), -10.0)).astype(np.int32)], 0)
+    m = perception.Motion(centres[0], np.zeros(2), 300.0 * d, 10, 0.3, 0.1)
+    args = (1e-3, W / 2, H / 2, 0.5, -1.0, 0.006, 30.0)
+    box, e = perception.bumper_on_ramp(perception.still_tracks(seg, 4)[0], m, *args)
+    assert e == pytest.approx(0.8, abs=0.1)
+    assert perception.bumper_on_ramp(perception.still_tracks(up, 4)[0], m, *args) is None
+
+
+def test_ball_rolling_down_a_ramp_gives_its_size_and_the_ramp_its_slope():
+    """A ball of 2 cm radius rolling down a 10 deg ramp seen from the side at 400 px/m (an image
+    acceleration of (5/7) g sin 10 deg along the path, 487 px/s^2). The slope is the path's and the
+    acceleration the one over the whole run (:func:`perception.slope_direction`,
+    :func:`perception.slope_acceleration`), so the scale ``a / ((5/7) g sin theta)`` gives the
+    ball's size, and the ramp under it is tilted as the path is (07: the ramp was 10.0 deg in the
+    re-simulation, from the steepest window's acceleration, where the shelf's edge is 4.2)."""
+    th = math.radians(10.0)
+    d = np.array([math.cos(th), math.sin(th)])
+    a = 5.0 / 7.0 * 9.81 * math.sin(th) * 400.0
+    seg = np.full((30, H, W), -1, np.int8)
+    for k in range(30):
+        t = k / 30.0
+        c = np.array([60.0, 60.0]) + (30.0 * t + 0.5 * a * t * t) * d
+        cv2.circle(seg[k], (int(round(c[0])), int(round(c[1]))), 8, 0, -1)
+    props = perception.propose(seg, None, 30.0, 1.0, still=True)
+    ramp = [sc for sc, label in zip(props.scenes, props.labels) if label == "side: sphere on a ramp"]
+    assert ramp, props.labels
+    ball = ramp[0].objects[0]
+    assert ball.size.radius == pytest.approx(8.5 / 400.0, rel=0.15)
+    w, x, y, z = ramp[0].static[0].orientation
+    assert math.degrees(2.0 * math.asin(abs(y))) == pytest.approx(10.0, abs=1.0)
