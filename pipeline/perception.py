@@ -422,15 +422,14 @@ def bumper_on_ramp(tr: Track, m: Motion, px: float, cu: float, cv: float, cam_h:
         return None
     d = slope_direction(tr, m)
     s = (tr.centre - tr.centre[0]) @ d                                   # px down the slope
-    step = np.diff(s) / np.maximum(np.diff(tr.frames), 1)
-    k = _turn_back(tr, s)
+    k = _turn_back(tr, s)           # 2 <= k <= N - 3: at least 2 samples on each side
     if k is None:
         return None
     t = tr.frames / fps
     before = np.arange(max(0, k - 3), k)
     after = np.arange(k + 1, min(len(s), k + 4))
-    v_in = float(np.polyfit(t[before], s[before], 1)[0]) if len(before) >= 2 else float(step[k - 1] * fps)
-    v_out = float(np.polyfit(t[after], s[after], 1)[0]) if len(after) >= 2 else float(step[k] * fps)
+    v_in = float(np.polyfit(t[before], s[before], 1)[0])
+    v_out = float(np.polyfit(t[after], s[after], 1)[0])
     if v_in <= 0 or v_out >= 0:
         return None
     e = float(np.clip(-v_out / v_in, 0.2, 0.95))
