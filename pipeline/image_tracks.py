@@ -82,6 +82,9 @@ class Track:
             sphere's outline is an ellipse, whatever the view.
         polygon: the same for its convex polygon of few corners (:func:`silhouette_fit`):
             higher than ``ellipse`` for the corners of a box.
+        tall: median over the frames not touching the border of the mask's vertical extent
+            (rows spanned), px (the median, like ``size``: background subtraction cuts a slowing
+            object into crescents, which a lower quartile would read); NaN where there are none.
     """
 
     label: int
@@ -100,6 +103,7 @@ class Track:
     elongation: float = 1.0
     ellipse: float = math.nan
     polygon: float = math.nan
+    tall: float = math.nan
 
 
 def whole_frames(track: Track, min_frames: int = 3) -> Track:
@@ -231,7 +235,7 @@ def find_tracks(seg: np.ndarray, flow: np.ndarray | None = None, min_frames: int
             clipped.append(bool(touches))
             box = None if touches else _box_stats(m)
             if box is not None:
-                boxes.append((*box, n))
+                boxes.append((*box, n, float(vs.max() - vs.min() + 1)))
                 fit = silhouette_fit(m)
                 if fit is not None:
                     fits.append(fit)
@@ -244,20 +248,22 @@ def find_tracks(seg: np.ndarray, flow: np.ndarray | None = None, min_frames: int
             b = np.asarray(boxes)
             long_, short = float(np.median(b[:, 0])), float(np.median(b[:, 1]))
             fill = float(np.median(b[:, 3] / (b[:, 0] * b[:, 1])))
+            tall = float(np.median(b[:, 4]))
             elongation = float(np.percentile(b[:, 0] / b[:, 1], 25))
             # angle: circular median over the frames with the largest area (least blur)
             ang = float(np.median(b[:, 2]))
         else:
             a = float(np.median(area))
             long_ = short = 2.0 * math.sqrt(a / math.pi)
-            fill, ang, elongation = math.pi / 4, 0.0, 1.0
+            fill, ang, elongation, tall = math.pi / 4, 0.0, 1.0, math.nan
         shape = "circle" if fill < 0.5 * (CIRCLE_FILL + BOX_FILL) and elongation < ELONGATED else "rectangle"
         tracks.append(Track(label, np.asarray(frames), np.asarray(centre, dtype=np.float64),
                             np.asarray(area), np.asarray(bottom), short, (long_, short), ang, fill,
                             shape, moving,
                             float(np.linalg.norm(np.asarray(centre) - centre[0], axis=1).max()),
                             np.asarray(clipped, dtype=bool), elongation,
-                            *(np.percentile(np.asarray(fits), 75, axis=0).tolist() if fits else (math.nan, math.nan))))
+                            *(np.percentile(np.asarray(fits), 75, axis=0).tolist() if fits else (math.nan, math.nan)),
+                            tall))
     return tracks
 
 

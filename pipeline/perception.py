@@ -92,6 +92,51 @@ Wikipedia "Rolling resistance"). A disc that decelerates faster than ``ROLL_FACT
 sliding, and the sphere hypothesis of it keeps the excess."""
 
 
+PUCK_HEIGHT = 0.3
+"""Height / diameter of a cylinder seen straight from above (a puck): the top-down silhouette of an
+upright cylinder is its disc and says nothing of its height."""
+UPRIGHT_HEIGHT = (0.2, 3.0)
+"""Range of height / diameter an upright cylinder seen obliquely is given (:func:`upright_height`):
+a coin-like puck to a tall can; outside it the silhouette is more likely blurred or merged."""
+
+
+def upright_height(track: Track, pitch: float) -> float:
+    """Height / diameter of an upright cylinder (axis vertical) whose silhouette is ``track``,
+    seen from a camera pitched ``pitch`` deg below the horizon.
+
+    Orthographic projection of an upright cylinder of diameter ``d`` and height ``h``: its image is
+    ``d`` wide and ``d sin(pitch) + h cos(pitch)`` tall (the top disc foreshortened to an ellipse of
+    minor axis ``d sin(pitch)``, plus the side). So ``h / d = (tall / d - sin(pitch)) / cos(pitch)``,
+    with ``d`` the silhouette's short side (:attr:`Track.diameter`, unstretched by motion blur) and
+    ``tall`` its vertical extent (:attr:`Track.tall`; a rotated box's angle is arbitrary for a
+    near-round silhouette). A round silhouette gives ``(1 - sin p) / cos p`` (0.41 at 45 deg): a
+    puck; an upright can's tall silhouette gives its height. Clipped to :data:`UPRIGHT_HEIGHT`;
+    straight from above (``cos(pitch)`` below 0.1) or without a vertical extent
+    :data:`PUCK_HEIGHT`.
+
+    Returns:
+        height / diameter, dimensionless.
+    """
+    c, s = math.cos(math.radians(pitch)), math.sin(math.radians(pitch))
+    if c < 0.1 or not math.isfinite(track.tall):
+        return PUCK_HEIGHT
+    ratio = (track.tall / max(track.diameter, 1e-6) - s) / c
+    return float(np.clip(ratio, *UPRIGHT_HEIGHT))
+
+
+STANDING_TALL = 0.9
+"""A silhouette seen obliquely whose vertical extent (:attr:`Track.tall`) is at least this share of its
+rotated box's long side is an object standing on its footprint, its side in view (:func:`standing`)."""
+
+
+def standing(track: Track) -> bool:
+    """Whether an obliquely seen silhouette is as tall as it is long (its long side within ~25 deg
+    of the image vertical, or round: :data:`STANDING_TALL`): an upright cylinder, a cube, a can,
+    whose height adds to the foreshortened footprint (:func:`upright_height`), rather than a bar
+    lying across the view, whose silhouette is mostly its footprint."""
+    return math.isfinite(track.tall) and track.tall >= STANDING_TALL * track.size[0]
+
+
 class PerceptionError(UserError, ValueError):
     """Nothing usable was found in the user's video (no moving object)."""
 
@@ -453,7 +498,11 @@ def lift_top(tracks: list[Track], motions: list[Motion], width: int, height: int
     an oblique view of the objects on the floor at another ``pitch`` (deg): the camera then sits at
     the size prior's distance from the objects' plane along its optical axis.
 
-    The scale is the size prior (median object diameter = :data:`SIZE_PRIOR`); positions are
+    The scale is the size prior (median object diameter = :data:`SIZE_PRIOR`); a cylinder stands
+    upright, as tall as its silhouette says (:func:`upright_height`: a puck from above, a can
+    obliquely); so does a box seen obliquely whose silhouette stands (:func:`standing`: a square
+    footprint as wide as the silhouette, yaw 0), else its footprint is the silhouette's rotated box
+    (yaw its angle); positions are
     the rays through the centroids met with the plane of the object centres; friction from the
     deceleration along the velocity, ``mu = -a.v_hat / g``, for a sliding shape (cylinder, box); a
     sphere rolls (:func:`rolling_spin`) and its deceleration is rolling resistance
@@ -471,11 +520,15 @@ def lift_top(tracks: list[Track], motions: list[Motion], width: int, height: int
     def spec(tr: Track, shape: str, px: float) -> tuple[dict, float]:
         if shape == "sphere":
             return {"radius": tr.diameter / 2 * px}, tr.diameter / 2 * px
-        if shape == "cylinder":  # a puck: axis vertical
-            size = {"radius": tr.diameter / 2 * px, "height": 0.3 * tr.diameter * px}
+        if shape == "cylinder":  # axis vertical: a puck from above, its height from the silhouette obliquely
+            size = {"radius": tr.diameter / 2 * px, "height": upright_height(tr, pitch) * tr.diameter * px}
             return size, size["height"] / 2
         long_, short = tr.size
-        size = {"width": long_ * px, "depth": short * px, "height": 0.5 * short * px}
+        if oblique and standing(tr):   # its height shows: a square footprint as wide as the silhouette
+            d = tr.diameter * px
+            size = {"width": d, "depth": d, "height": upright_height(tr, pitch) * d}
+        else:                          # its footprint shows: the silhouette's rotated box
+            size = {"width": long_ * px, "depth": short * px, "height": 0.5 * short * px}
         return size, size["height"] / 2
 
     specs = [(shape_of[tr.label],) + spec(tr, shape_of[tr.label], 1.0 / ppm) for tr in tracks]
@@ -504,7 +557,7 @@ def lift_top(tracks: list[Track], motions: list[Motion], width: int, height: int
         p = pixel_to_plane(np.stack([m.p0, m.p0 + m.v0 * dt]), half_h, cam, width, height)
         vel = (p[1] - p[0]) / dt
         quat = [1.0, 0.0, 0.0, 0.0]
-        if shape == "box":  # silhouette angle is counter-clockwise as seen from above = yaw
+        if shape == "box" and not (oblique and standing(tr)):  # silhouette angle ccw from above = yaw
             quat = axis_angle_quat((0.0, 0.0, 1.0), math.radians(tr.angle)).tolist()
         nv = float(np.linalg.norm(m.v0))
         decel = -float(m.a @ m.v0) / nv if nv > 1e-6 else 0.0
@@ -553,10 +606,16 @@ def shape_candidates(track: Track, view: View) -> list[str]:
         else ["box"] + round_
 
 
-def _hypotheses(tracks: list[Track], view: View) -> list[dict[int, str]]:
+def _hypotheses(tracks: list[Track], view: View, oblique: bool = False) -> list[dict[int, str]]:
     """Shape assignments to try: the j-th proposal gives every track its j-th candidate (or its
-    last one), so a clip yields at most 3 proposals whatever the number of objects."""
+    last one), so a clip yields at most 3 proposals whatever the number of objects. Seen
+    obliquely (``view`` top), a silhouette too elongated for a puck that stands
+    (:func:`standing`) may be an upright cylinder as tall as it (:func:`upright_height`): a tall
+    can's silhouette is as elongated as a bar's."""
     cands = {t.label: shape_candidates(t, view) for t in tracks}
+    if oblique:
+        cands = {t.label: c + ["cylinder"] if "cylinder" not in c and standing(t) else c
+                 for t, c in zip(tracks, cands.values())}
     n = max(len(c) for c in cands.values())
     out = []
     for j in range(n):
@@ -652,7 +711,7 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
              + ("" if len(views) == 1 else "; top-down proposals tried too")]
     for v in views:
         first = True
-        for shape_of in _hypotheses(tracks, "side" if v == "side" else "top"):
+        for shape_of in _hypotheses(tracks, "side" if v == "side" else "top", oblique=v == "oblique"):
             if v == "side":
                 cam, objs, n = lift_side(tracks, side_motions, W, H, fps, shape_of, fov)
             else:

@@ -182,6 +182,60 @@ def test_oblique_view_sliding_box(tmp_path):
     assert _match_positions(truth, props.scenes[0], obs).max() < 0.5 * max(diameter_px, 20)
 
 
+def _first_frame_iou(scene: Scene, obs) -> float:
+    """Foreground IoU of a proposal's first rendered frame against the observation's first masks."""
+    _, f = render_scene(scene, *obs.size)
+    a, b = f.seg[0] >= 0, obs.seg[0] >= 0
+    return float((a & b).sum() / (a | b).sum())
+
+
+@pytest.mark.parametrize("height", [0.25, 0.16, 0.03])
+def test_oblique_upright_cylinder_is_as_tall_as_its_silhouette(tmp_path, height):
+    """Issue 29 item 4 (real clip dev/12, an upright can seen from 35-45 deg): seen obliquely, an
+    upright cylinder's silhouette is its top ellipse plus its side, ``d sin(pitch) + h cos(pitch)``
+    tall (perception.upright_height). A can (h/d 1.6, and 2.5, whose silhouette is as elongated as
+    a bar's: the oblique proposals try a standing cylinder for it too) is proposed as tall as it is,
+    within 20 % at the oblique proposal's 45 deg (the truth is filmed at 35), and its first
+    re-simulated frame covers the can better than the box proposal's does; a puck (h/d 0.3) stays
+    flat, under 0.6. Before, every cylinder of a top or oblique proposal was a puck of h/d 0.3."""
+    r = 0.05
+    can = {"shape": "cylinder", "size": {"radius": r, "height": height}, "mass": 0.3,
+           "position": [-0.25, -0.85, height / 2], "linear_velocity": [0.8, 0.0, 0.0],
+           "material": {"sliding_friction": 0.1}}
+    truth = _scene({"height": 0.8, "pitch": 35.0, "fov": 45.0}, [can])
+    obs, props = _recover(tmp_path, truth, f"can{height}")
+    labels = list(props.labels)
+    cyl = props.scenes[labels.index("oblique: cylinder")].objects[0].size
+    ratio = cyl.height / (2 * cyl.radius)
+    if height > 2 * r:
+        assert ratio == pytest.approx(height / (2 * r), rel=0.2)
+        box = props.scenes[labels.index("oblique: box")]
+        assert _first_frame_iou(props.scenes[labels.index("oblique: cylinder")], obs) > _first_frame_iou(box, obs) + 0.05
+    else:
+        assert ratio < 0.6
+
+
+def test_oblique_standing_cube_is_a_box_as_tall_as_its_silhouette(tmp_path):
+    """Issue 29 item 4 (real clip dev/13, a cube sliding on a table seen from 35-45 deg): seen
+    obliquely, a cube's silhouette stands (perception.standing: as tall as it is long), so the
+    oblique box proposal is a square footprint as wide as the silhouette, as tall as upright_height
+    reads it, not the silhouette taken for the footprint (height 0.5 of its short side); its first
+    re-simulated frame covers the cube better than the cylinder's. The height is read 36 % high
+    here: upright_height's projection is orthographic and the proposal's pitch 45 deg, while the
+    cube is 1 m from a camera pitched 35 deg, whose perspective shows its near face taller."""
+    cube = {"shape": "box", "size": {"width": 0.1, "depth": 0.1, "height": 0.1}, "mass": 0.3,
+            "position": [-0.25, -0.85, 0.05], "linear_velocity": [0.8, 0.0, 0.0],
+            "material": {"sliding_friction": 0.1}}
+    truth = _scene({"height": 0.8, "pitch": 35.0, "fov": 45.0}, [cube])
+    obs, props = _recover(tmp_path, truth, "cube")
+    labels = list(props.labels)
+    box = props.scenes[labels.index("oblique: box")]
+    size = box.objects[0].size
+    assert perception.standing(props.tracks[0])
+    assert size.width == pytest.approx(size.depth) and size.height / size.width == pytest.approx(1.0, rel=0.4)
+    assert _first_frame_iou(box, obs) > _first_frame_iou(props.scenes[labels.index("oblique: cylinder")], obs) + 0.05
+
+
 def test_side_view_sliding_bar_is_proposed_as_a_box_of_its_silhouette(tmp_path):
     """Issue 29 (shapes; dev/10, a glider on an air track, came back as a ball): a bar sliding
     along its length, seen from the side, has a silhouette about five times longer than high.
