@@ -217,19 +217,22 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
     K = intrinsics(fov, width, height)
     f, cu, cv = K[0, 0], K[0, 2], K[1, 2]
     notes: list[str] = []
-    scales, kinds = [], []
+    scales, kinds, by_gravity = [], [], []
     for tr, m in zip(tracks, motions):
         kind = _side_motion_kind(tr, m)
         ppm, src = side_scale(tr, m, kind, _side_body(tr, shape_of[tr.label]), fps)
         scales.append(ppm)
         kinds.append(kind)
+        by_gravity.append(src.startswith("gravity"))
         notes.append(f"object {tr.label}: {kind}, {tr.shape} -> {shape_of[tr.label]}, scale {ppm:.0f} px/m from {src}")
     # camera height from the floor row of the main object: the fall read from the most samples
     # (its bounce shows the floor; an object at rest shows only its own bottom row), else the
-    # largest object
+    # largest object. A fall whose gravity gives a plausible size (side_scale) outranks one whose
+    # curvature would make it an object of metres (a flickering piece of scenery, dev/02's ruler):
+    # the floor row holds at the main object's depth only
     falling = [i for i, k in enumerate(kinds) if k == "fall"]
-    main = max(falling, key=lambda i: (motions[i].n, float(np.median(tracks[i].area)))) if falling else \
-        int(np.argmax([np.median(t.area) for t in tracks]))
+    main = max(falling, key=lambda i: (by_gravity[i], motions[i].n, float(np.median(tracks[i].area)))) \
+        if falling else int(np.argmax([np.median(t.area) for t in tracks]))
     D0 = f / scales[main]
     lowest = max(float(t.bottom.max()) for t in tracks)
     if kinds[main] == "fall":
@@ -248,8 +251,17 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
     v_floor = max(v_floor, cv + 0.05 * height)
     cam_h = (v_floor - cv) * D0 / f
     cam = Camera(height=round(max(cam_h, 0.01), 4), pitch=0.0, fov=fov)
+    if kinds[main] == "fall":   # a start under the floor: the window opens just before a bounce
+        e = bounce_restitution(whole_frames(tracks[main]), fps)
+        undone = before_bounce(motions[main], v_floor - 0.5 * tracks[main].diameter, e or BOUNCE_PRIOR)
+        if undone is not None:
+            motions = list(motions)
+            motions[main] = undone[0]
+            notes.append(f"object {tracks[main].label}: its first arc, extrapolated to t = 0, starts under the "
+                         f"floor: it bounced at t = {undone[1]:.3f} s (e {e or BOUNCE_PRIOR:.2f}), its state at "
+                         "t = 0 is on the arc before")
     objects = []
-    for tr, m, ppm, kind in zip(tracks, motions, scales, kinds):
+    for tr, m, ppm, kind, fell in zip(tracks, motions, scales, kinds, by_gravity):
         shape = shape_of[tr.label]
         D = f / ppm
         px = 1.0 / ppm  # m per px at this depth
@@ -300,11 +312,52 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
             if kind == "floor" and m.n >= 5:   # slowing as it rolls along the floor: rolling resistance
                 lifted.rolling_friction = rolling_resistance(-float(m.a[0]) * math.copysign(px, m.v0[0]),
                                                              size["radius"], shape)
-        elif kind == "fall":
+        elif kind == "fall" and fell:   # not a "fall" whose curvature gives an object of metres
             e = bounce_restitution(whole_frames(tr), fps)
             lifted.restitution = e
         objects.append(lifted)
     return cam, objects, notes
+
+
+BOUNCE_PRIOR = 0.8
+"""Restitution assumed by :func:`before_bounce` where the track gives none (a ball on a hard floor)."""
+
+
+def before_bounce(m: Motion, contact: float, e: float) -> tuple[Motion, float] | None:
+    """The state at ``t = 0`` of a fall whose first fitted arc, extrapolated back to ``t = 0``,
+    starts under the floor: the window opened just before a bounce (real clip dev/02, a ping-pong
+    ball bouncing every 7 frames), and the arc before it holds the start.
+
+    The arc ``v(t) = p0 + v0 t + a t^2 / 2`` (image rows, down positive) meets the contact row
+    (the centroid's row when the object touches the floor) going up at ``t_b``, the earlier root
+    of ``a/2 t^2 + v0 t + (p0 - contact) = 0``. Undone through an impulse bounce of restitution
+    ``e`` (Newton's law of restitution: the normal speed before is the speed after over ``e``;
+    the sideways velocity is kept), the arc before reaches ``t = 0`` at
+    ``contact - w t_b + a t_b^2 / 2`` with row speed ``w - a t_b``, ``w = -(v0 + a t_b) / e``.
+
+    Args:
+        m: the fall's motion at ``t = 0`` (:class:`pipeline.image_tracks.Motion`, px, px/s).
+        contact: image row of the centroid at contact with the floor, px.
+        e: restitution of the bounce, in (0, 1].
+    Returns:
+        ``(motion, t_b)``: the motion with ``p0`` and ``v0`` of the arc before the bounce, and the
+        bounce time (s); None when the start is not under the contact row, the acceleration is
+        not downward, or the arc never rises through the row after ``t = 0``.
+    """
+    a, v0, p0 = float(m.a[1]), float(m.v0[1]), float(m.p0[1])
+    if p0 <= contact or a <= 0 or not 0 < e <= 1:
+        return None
+    disc = v0 * v0 - 2.0 * a * (p0 - contact)
+    if disc < 0:
+        return None
+    t_b = (-v0 - math.sqrt(disc)) / a
+    if t_b <= 0:
+        return None
+    w = -(v0 + a * t_b) / e
+    p0_y = contact - w * t_b + 0.5 * a * t_b * t_b
+    if p0_y > contact:
+        return None
+    return replace(m, p0=np.array([float(m.p0[0]), p0_y]), v0=np.array([float(m.v0[0]), w - a * t_b])), t_b
 
 
 def rolling_resistance(decel: float, radius: float, shape: str = "sphere") -> float:
