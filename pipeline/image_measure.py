@@ -169,8 +169,9 @@ def fit_flight(t: np.ndarray, y: np.ndarray, tol: float, min_samples: int = 8,
         dict: ``a`` (px/s^2, down positive), ``a_sd`` (its standard deviation from the residual,
         px/s^2), ``n`` (samples kept), ``rms`` (px), ``kept`` (``(n,)`` int64 indices into ``t``),
         ``v0`` (px) and ``vel0`` (px/s): the first kept arc's row and vertical velocity
-        extrapolated to ``t = 0``; None with fewer than ``min_samples`` kept samples or a
-        singular fit.
+        extrapolated to ``t = 0``, ``arcs``: per arc kept, in time order, ``t0``, ``t1`` (s, its
+        first and last kept sample), ``n`` (samples) and ``x_speed`` (px/s along ``x``; None
+        without ``x``); None with fewer than ``min_samples`` kept samples or a singular fit.
     """
     t, y = np.asarray(t, float), np.asarray(y, float)
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0
@@ -196,6 +197,7 @@ def fit_flight(t: np.ndarray, y: np.ndarray, tol: float, min_samples: int = 8,
             return None
         res = A @ coef - y[idx[use]]
         dist = np.abs(res)
+        cx = None
         if x is not None:   # the same arcs, a line each: every column but the curvature's
             cx, *_ = np.linalg.lstsq(A[:, 1:], np.asarray(x, float)[idx[use]], rcond=None)
             dist = np.hypot(res, A[:, 1:] @ cx - np.asarray(x, float)[idx[use]])
@@ -205,8 +207,12 @@ def fit_flight(t: np.ndarray, y: np.ndarray, tol: float, min_samples: int = 8,
         keep[np.flatnonzero(use)[worst]] = False
     dof = len(res) - A.shape[1]
     a_sd = math.inf if dof <= 0 else float(np.sqrt(np.sum(res ** 2) / dof * np.linalg.inv(A.T @ A)[0, 0]))
+    live_arcs = np.flatnonzero(live)
+    arcs_out = [{"t0": float(t[idx[use & (arc_of == k)]][0]), "t1": float(t[idx[use & (arc_of == k)]][-1]),
+                 "n": int((use & (arc_of == k)).sum()),
+                 "x_speed": None if cx is None else float(cx[2 * j + 1])} for j, k in enumerate(live_arcs)]
     return {"a": float(coef[0]), "a_sd": a_sd, "n": int(len(res)), "rms": float(np.sqrt(np.mean(res ** 2))),
-            "kept": idx[use].astype(np.int64), "v0": float(coef[1]), "vel0": float(coef[2])}
+            "kept": idx[use].astype(np.int64), "v0": float(coef[1]), "vel0": float(coef[2]), "arcs": arcs_out}
 
 
 def path_angle(x: np.ndarray, y: np.ndarray) -> float:

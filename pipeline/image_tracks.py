@@ -575,6 +575,39 @@ def bounce_restitution(track: Track, fps: float) -> float | None:
     return None if b is None else b.e
 
 
+def speed_after_bounce(track: Track, fps: float, min_samples: int = FLIGHT_MIN_SAMPLES) -> float | None:
+    """Sideways image speed of a falling track after its first bounce, when the bounce changed it.
+
+    No force acts sideways in flight, so a ball's sideways speed is constant within an arc; a
+    bounce changes it only through friction at the contact, which a ball's spin drives (a
+    backspinning ball comes back: dev/04's red ball, -35 px/s before its first bounce and +30
+    after). The arcs are fitted together (:func:`pipeline.image_measure.fit_flight`, each moving
+    sideways at its own speed); the change between the first two is kept when it exceeds twice
+    its standard error (a line's slope over an arc of ``n`` samples spanning ``T`` s with the
+    fit's residual ``s`` has standard error ``s sqrt(12 / n) / T``).
+
+    Args:
+        track: a track (whole frames, :func:`whole_frames`); fps: its frame rate, 1/s.
+        min_samples: fewest samples the flight fit must keep.
+    Returns:
+        the sideways speed (px/s, image ``u``) of the second arc, or None: no flight fit, fewer
+        than two arcs, or a change within the noise.
+    """
+    fit = fit_flight(track.frames / fps, track.centre[:, 1], fit_tolerance(track), min_samples,
+                     x=track.centre[:, 0])
+    if fit is None or len(fit["arcs"]) < 2:
+        return None
+    a0, a1 = fit["arcs"][0], fit["arcs"][1]
+    noise = max(fit["rms"], 0.5)    # px: a centroid is not better than half a pixel
+
+    def sd(arc: dict) -> float:
+        return noise * math.sqrt(12.0 / arc["n"]) / max(arc["t1"] - arc["t0"], 1.0 / fps)
+
+    if abs(a1["x_speed"] - a0["x_speed"]) <= 2.0 * math.hypot(sd(a0), sd(a1)):
+        return None
+    return float(a1["x_speed"])
+
+
 def first_bounce(track: Track, fps: float) -> Bounce | None:
     """The first bounce of a falling track that can be measured, or None.
 

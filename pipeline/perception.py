@@ -38,9 +38,11 @@ from pipeline.errors import UserError
 from pipeline.geometry import volume
 from pipeline.image_tracks import (BOX_FILL, CIRCLE_FILL, ELONGATED, Motion, Track, View, gravity_vote,
                                    round_silhouette, bounce_restitution, estimate_view, find_tracks, first_bounce, fit_tolerance, flight_gravity, gravity_motion, initial_motion, initial_state_given, object_tracks,
-                                   still_tracks, whole_frames)
+                                   speed_after_bounce, still_tracks, whole_frames)
+from pipeline.mjcf import compile_model
 from pipeline.rotation import axis_angle_quat
 from pipeline.scene import Camera, Scene
+from pipeline.simulate import rollout
 
 G = 9.81
 """Standard gravity, m/s^2 (the scene language's default ``gravity``)."""
@@ -159,6 +161,7 @@ class Lifted:
     restitution: float | None = None
     angular_velocity: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.0])
     rolling_friction: float = 0.0             # MuJoCo rolling coefficient, m (a ball that slows as it rolls)
+    after_bounce: float | None = None         # m/s along x after the first bounce, where it changed (bounce_spin)
     notes: list[str] = field(default_factory=list)
 
 
@@ -315,8 +318,75 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
         elif kind == "fall" and fell:   # not a "fall" whose curvature gives an object of metres
             e = bounce_restitution(whole_frames(tr), fps)
             lifted.restitution = e
+            after = speed_after_bounce(whole_frames(tr), fps)
+            if after is not None and (shape == "sphere" or (shape == "cylinder" and round_silhouette(tr))):
+                lifted.after_bounce = after * px
         objects.append(lifted)
     return cam, objects, notes
+
+
+SPIN_MAX = 300.0
+"""rad/s, the largest spin :func:`bounce_spin` gives (a table-tennis serve spins at 100-150 rad/s)."""
+
+
+def _speed_after_first_bounce(scene: Scene, index: int, spin: float) -> float | None:
+    """x velocity (m/s) of object ``index`` simulated alone in ``scene`` (its static geometry and
+    effects kept) with angular velocity ``(0, spin, 0)`` rad/s, two frames after its first bounce
+    (the first frame whose vertical velocity turns from down to up); None without a bounce."""
+    obj = scene.objects[index].model_dump()
+    obj["angular_velocity"] = [0.0, float(spin), 0.0]
+    alone = scene.replace(objects=[obj])
+    tr = rollout(compile_model(alone), 1, alone.n_frames, alone.fps, record_contacts=False)
+    vz = tr.qvel[:, 0, 2]
+    up = np.flatnonzero((vz[1:] > 0) & (vz[:-1] < 0))
+    if not len(up) or up[0] + 3 >= len(vz):
+        return None
+    return float(tr.qvel[up[0] + 3, 0, 0])
+
+
+def bounce_spin(scene: Scene, index: int, speed_after: float, iterations: int = 12
+                ) -> tuple[Scene, float] | None:
+    """The spin about the line of sight (world y in a side view) that makes object ``index``
+    leave its first bounce at the observed sideways speed ``speed_after`` (m/s).
+
+    A spinning ball's contact point slides on impact, and friction trades spin for sideways
+    speed: leaving the floor rolling, a sphere's speed becomes ``(5 v + 2 r w) / 7`` (angular
+    momentum about the contact point conserved; any mechanics text, e.g. Cross, "The bounce of a
+    ball", Am. J. Phys. 67, 1999). MuJoCo's soft contact stops short of rolling (a ball dropped
+    from 0.3 m keeps 44-69 % of the change), so the spin is found in the simulator itself: the
+    sideways speed after the bounce grows with the spin (topspin carries it forward), and a
+    bisection over ``[-SPIN_MAX, SPIN_MAX]`` (:data:`SPIN_MAX`) matches it. The spin at ``t = 0``
+    is the spin before the bounce: nothing changes it in flight.
+
+    Given to a sphere and to a disc seen end-on (a side view's round cylinder, its axis on the
+    line of sight), whose first two flight arcs move sideways at speeds apart by more than their
+    noise (:func:`pipeline.image_tracks.speed_after_bounce`).
+
+    Args:
+        scene: a side-view proposal; index: the object; speed_after: m/s along world x.
+        iterations: bisection steps.
+    Returns:
+        ``(scene with that spin, spin in rad/s)``, or None when the simulated object does not
+        bounce, or no spin within the range reaches the speed.
+    """
+    def miss(w: float) -> float | None:
+        v = _speed_after_first_bounce(scene, index, w)
+        return None if v is None else v - speed_after
+
+    lo, hi = -SPIN_MAX, SPIN_MAX
+    f_lo, f_hi = miss(lo), miss(hi)
+    if f_lo is None or f_hi is None or f_lo > 0 or f_hi < 0:
+        return None
+    for _ in range(iterations):
+        mid = 0.5 * (lo + hi)
+        f = miss(mid)
+        if f is None:
+            return None
+        lo, hi = (mid, hi) if f < 0 else (lo, mid)
+    w = 0.5 * (lo + hi)
+    objects = [o.model_dump() for o in scene.objects]
+    objects[index]["angular_velocity"] = [0.0, w, 0.0]
+    return scene.replace(objects=objects), w
 
 
 BOUNCE_PRIOR = 0.8
@@ -762,6 +832,7 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
     scenes, labels = [], []
     notes = [f"view: {view} (gravity {'seen' if view == 'side' else 'not seen'} in the tracks)"
              + ("" if len(views) == 1 else "; top-down proposals tried too")]
+    first_spin = True
     for v in views:
         first = True
         for shape_of in _hypotheses(tracks, "side" if v == "side" else "top", oblique=v == "oblique"):
@@ -774,6 +845,15 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
                 notes += n
                 first = False
             scene = _to_scene(cam, objs, fps, duration)
+            for i, o in enumerate(objs):
+                if o.after_bounce is not None:
+                    spun = bounce_spin(scene, i, o.after_bounce)
+                    if spun is not None:
+                        scene = spun[0]
+                        if first_spin:
+                            notes.append(f"object {tracks[i].label}: its sideways speed changes at its first "
+                                         f"bounce: spin {spun[1]:.1f} rad/s about the line of sight")
+                            first_spin = False
             label = f"{v}: " + ", ".join(o.shape + (" on a ramp" if o.ramp else "") for o in objs)
             scenes.append(scene)
             labels.append(label)

@@ -18,7 +18,7 @@ import pytest
 
 from pipeline.image_tracks import (BOX_FILL, CIRCLE_FILL, ELLIPSE_FIT, ELONGATED, Track, find_tracks, first_bounce,
                                    flight_gravity, gravity_motion, initial_motion, initial_state_given, jitter, net_shift, object_tracks,
-                                   round_silhouette, silhouette_fit, whole_frames)
+                                   round_silhouette, silhouette_fit, speed_after_bounce, whole_frames)
 
 W, H, FPS = 80, 120, 30.0
 R = 6.0                        # disc radius, px
@@ -260,6 +260,21 @@ def _toss(seed: int, n_hand: int = 4, T: int = 30, u_speed: float = 15.0) -> np.
             v_next, vel_next = floor + up * (dt - tc) + 0.5 * A * (dt - tc) ** 2, up + A * (dt - tc)
         v, vel = v_next, vel_next
     return np.asarray(rows) + np.random.default_rng(seed).normal(0.0, 0.4, (T, 2))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_speed_after_bounce_is_read_only_where_the_bounce_changed_it(seed):
+    """A ball's sideways speed is constant in flight; a bounce changes it only when the ball
+    spins (perception.bounce_spin). The toss (15 px/s sideways, 0.4 px of noise) keeps it through
+    its bounce: no change is read. The same toss turned back at the bounce (-25 px/s after it)
+    gives the new speed within 15 %."""
+    rows = _toss(seed, T=40)                              # the bounce at frame 25, 15 frames after it
+    same = _track(rows, diameter=12.0)
+    assert speed_after_bounce(same, FPS) is None
+    hit = int(np.argmax(rows[:30, 1]))                    # the frame nearest the impact
+    turned = rows.copy()
+    turned[hit:, 0] -= 40.0 * (np.arange(len(rows) - hit)) / FPS
+    assert speed_after_bounce(_track(turned, diameter=12.0), FPS) == pytest.approx(-25.0, rel=0.15)
 
 
 def test_flight_gravity_reads_the_true_acceleration_from_every_arc():
