@@ -729,13 +729,20 @@ def shape_candidates(track: Track, view: View) -> list[str]:
         else ["box"] + round_
 
 
-def _hypotheses(tracks: list[Track], view: View, oblique: bool = False) -> list[dict[int, str]]:
+def _hypotheses(tracks: list[Track], view: View, oblique: bool = False,
+                falling: frozenset[int] = frozenset()) -> list[dict[int, str]]:
     """Shape assignments to try: the j-th proposal gives every track its j-th candidate (or its
     last one), so a clip yields at most 3 proposals whatever the number of objects. Seen
     obliquely (``view`` top), a silhouette too elongated for a puck that stands
     (:func:`standing`) may be an upright cylinder as tall as it (:func:`upright_height`): a tall
-    can's silhouette is as elongated as a bar's."""
+    can's silhouette is as elongated as a bar's. Seen from the side, a round silhouette of a
+    track in ``falling`` (labels whose motion is a fall) is a sphere only: a disc is round from the
+    side only while its axis stays on the line of sight, which nothing holds in flight (the
+    generic-viewpoint assumption); a disc end-on is kept for a round object that rolls."""
     cands = {t.label: shape_candidates(t, view) for t in tracks}
+    if view == "side":
+        cands = {t.label: [x for x in c if x != "cylinder"] if t.label in falling and "sphere" in c else c
+                 for t, c in zip(tracks, cands.values())}
     if oblique:
         cands = {t.label: c + ["cylinder"] if "cylinder" not in c and standing(t) else c
                  for t, c in zip(tracks, cands.values())}
@@ -825,7 +832,8 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
                     g = replace(g, a=along * d, a_sd=sd * float(abs(d[1])), n=n)
             m = replace(initial_state_given(t, fps, g.a), n=g.n, a_sd=g.a_sd)
         side_motions.append(m)
-    falls = any(ok and _side_motion_kind(t, m) == "fall" for t, m, ok in zip(tracks, side_motions, shows))
+    falling = frozenset(t.label for t, m, ok in zip(tracks, side_motions, shows) if ok and _side_motion_kind(t, m) == "fall")
+    falls = bool(falling)
     # a clear fall settles it; a speed-up along a line may also be perspective (an object
     # rolling towards an oblique camera), so the top-down reading is tried as well
     views: list[str] = ["side"] if falls else (["side", "top", "oblique"] if view == "side" else ["top", "oblique"])
@@ -835,7 +843,7 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
     first_spin = True
     for v in views:
         first = True
-        for shape_of in _hypotheses(tracks, "side" if v == "side" else "top", oblique=v == "oblique"):
+        for shape_of in _hypotheses(tracks, "side" if v == "side" else "top", oblique=v == "oblique", falling=falling):
             if v == "side":
                 cam, objs, n = lift_side(tracks, side_motions, W, H, fps, shape_of, fov)
             else:

@@ -271,7 +271,7 @@ def test_side_view_rectangle_is_a_standing_cylinder_or_a_box_never_a_sphere():
     as balls): a silhouette 16 px wide and 28 px tall thrown across a side view. A sphere's
     outline is an ellipse from every view, so no proposal writes a sphere; the cylinder
     proposal stands on its end (axis vertical) with the silhouette's proportions. A disc thrown
-    the same way is a sphere first and a disc seen end-on (axis along the line of sight)."""
+    the same way is a sphere (a disc would not stay end-on in flight)."""
     rect = _falling_silhouettes(lambda f, u, v: cv2.rectangle(f, (int(u - 8), int(v - 14)), (int(u + 8), int(v + 14)), 0, -1))
     props = perception.propose(rect, None, 30.0, 1.0)
     side = [sc.objects[0] for sc, label in zip(props.scenes, props.labels) if label.startswith("side")]
@@ -285,9 +285,7 @@ def test_side_view_rectangle_is_a_standing_cylinder_or_a_box_never_a_sphere():
     disc = _falling_silhouettes(lambda f, u, v: cv2.circle(f, (int(u), int(v)), 10, 0, -1))
     props = perception.propose(disc, None, 30.0, 1.0)
     side = [sc.objects[0] for sc, label in zip(props.scenes, props.labels) if label.startswith("side")]
-    assert [o.shape for o in side] == ["sphere", "cylinder"], props.labels
-    w, x, y, z = side[1].orientation
-    assert abs(2 * (y * z - w * x)) > math.cos(math.radians(5.0))       # local +z along the line of sight (y)
+    assert [o.shape for o in side] == ["sphere"], props.labels      # thrown: no disc end-on (generic viewpoint)
 
 
 def _puck_clip_without_model(tmp_path, monkeypatch, iterations: int) -> tuple[Path, dict]:
@@ -578,6 +576,20 @@ def test_side_view_floor_comes_from_the_falling_balls_bounce_not_from_scenery_or
     assert e == pytest.approx(0.7, abs=0.1)
 
 
+def test_a_round_silhouette_that_falls_is_a_sphere_not_a_disc_end_on():
+    """Issue 29 item 4 (dev/03, dev/04: bouncing balls written as discs seen end-on, whose
+    perspective silhouette mimics a ball's motion blur and fitted 0.02-0.03 better): a disc is round
+    from the side only while its axis stays on the line of sight, which nothing holds in flight,
+    so a round track that falls gets the sphere hypothesis only (rolling, it keeps the disc:
+    the ramp test below)."""
+    rows = _bounce_rows()
+    seg = np.full((30, H, W), -1, np.int8)
+    for t in range(30):
+        cv2.circle(seg[t], (int(round(40.0 + 100.0 * t / 30.0)), int(round(rows[t]))), 10, 0, -1)
+    props = perception.propose(seg, None, 30.0, 1.0, still=True)
+    assert props.labels == ["side: sphere"]
+
+
 def test_window_opening_just_before_a_bounce_starts_the_ball_on_the_arc_before_it():
     """dev/02 (a ping-pong ball bouncing every 7 frames): a window that opens just before a bounce
     has its first fitted arc after it, and that arc extrapolated back to t = 0 starts the ball under
@@ -716,6 +728,10 @@ def test_ball_rolling_down_a_ramp_gives_its_size_and_the_ramp_its_slope():
     props = perception.propose(seg, None, 30.0, 1.0, still=True)
     ramp = [sc for sc, label in zip(props.scenes, props.labels) if label == "side: sphere on a ramp"]
     assert ramp, props.labels
+    disc = [sc for sc, label in zip(props.scenes, props.labels) if label == "side: cylinder on a ramp"]
+    assert disc, props.labels                             # rolling, it may be a disc end-on (07)
+    w, x, y, z = disc[0].objects[0].orientation
+    assert abs(2 * (y * z - w * x)) > math.cos(math.radians(5.0))       # local +z along the line of sight (y)
     ball = ramp[0].objects[0]
     assert ball.size.radius == pytest.approx(8.5 / 400.0, rel=0.15)
     w, x, y, z = ramp[0].static[0].orientation
