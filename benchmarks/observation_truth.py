@@ -56,7 +56,7 @@ from provenance import tree_id  # noqa: E402
 from pipeline.atomic import write_json, write_text  # noqa: E402
 from pipeline.flow import flow_config  # noqa: E402
 from pipeline.metrics import observation_scores  # noqa: E402
-from pipeline.observe import observe, truth_in_window  # noqa: E402
+from pipeline.observe import observe, truth_in_window, without_scenery  # noqa: E402
 from pipeline.params import load_params  # noqa: E402
 from pipeline.reconstruct import observation_segmenters, realvideo_config  # noqa: E402
 from pipeline.segmenter import shipped  # noqa: E402
@@ -93,6 +93,8 @@ def rendered_clip(folder: Path, params: dict, segmenter=None) -> dict:
     obs = observe(folder / "video.mp4", float(truth["fps"]), None, rv.fps, rv.duration, fcfg,
                   rv.mask_method, rv.max_objects, segmenter, fine_scale=rv.fine_scale,
                   rest_segmenter=observation_segmenters(params)[1])
+    if rv.scenery == "drop":   # as the main job does with realvideo.scenery: drop
+        obs = without_scenery(obs)[0]
     seconds = time.perf_counter() - t0
     seg, frames = truth_in_window(truth["seg"], obs)
     pos = truth["pos"][frames]                                              # (T, n, 3) m
@@ -219,6 +221,9 @@ def main(argv: list[str] | None = None) -> int:
                          "pass's where finer (default: the params' value)")
     ap.add_argument("--segmenter-weights", type=Path, default=None,
                     help="segmenter checkpoint to score (default: the shipped pipeline/weights/segmenter.pt)")
+    ap.add_argument("--scenery", choices=("keep", "drop"), default=None,
+                    help="realvideo.scenery for the rendered clips: drop leaves out the objects at rest no mover "
+                         "touches, as the main job then does (default: the params' value)")
     ap.add_argument("--update", action="store_true",
                     help="replace only this run's rows in the existing report (REPORT.json), keep the others with "
                          "the command and tree that made them")
@@ -227,6 +232,8 @@ def main(argv: list[str] | None = None) -> int:
     params = load_params(args.params)
     if args.fine_scale is not None:
         params.setdefault("realvideo", {})["fine_scale"] = args.fine_scale
+    if args.scenery is not None:
+        params.setdefault("realvideo", {})["scenery"] = args.scenery
     default = realvideo_config(params).mask_method
     methods = args.mask_method.split(",") if args.mask_method else [default]
     only = set(args.only.split(","))
@@ -261,7 +268,8 @@ def main(argv: list[str] | None = None) -> int:
     commit = tree_id()
     report = {"command": "python benchmarks/observation_truth.py " + " ".join(argv if argv is not None else sys.argv[1:]),
               "commit": commit, "method": f"mask methods {', '.join(methods)}; default realvideo.mask_method={default}; "
-                        f"realvideo.fine_scale={realvideo_config(params).fine_scale}",
+                        f"realvideo.fine_scale={realvideo_config(params).fine_scale}, "
+                        f"realvideo.scenery={realvideo_config(params).scenery}",
               "summary": {k: summarize(v) for k, v in sets.items()}, "sets": sets}
     report["runs"] = [{"command": report["command"], "commit": commit, "sets": list(sets)}]
     if args.update:

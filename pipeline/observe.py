@@ -1517,6 +1517,86 @@ def fine_probabilities(p: np.ndarray, det_size: tuple[int, int], orig_size: tupl
     return np.stack([cv2.resize(q[y0:y1, x0:x1], size, interpolation=cv2.INTER_AREA) for q in p]).astype(np.float32)
 
 
+TOUCH_PX = 2.0
+""":func:`untouched_at_rest`: px, the masks' boundary error added to the mover's step when asking
+whether it came close enough to touch an object at rest (the 2 px of :func:`grown_by_2px`)."""
+
+
+def untouched_at_rest(seg: np.ndarray, moving: tuple[bool, ...]) -> list[int]:
+    """Objects at rest that no mover touches in the window: scenery, which plays no part in the
+    window's dynamics (a still object that is hit moves, and is a mover).
+
+    Two objects can only touch in 3-D where their images touch, so an object at rest is touched
+    when, in some frame where both are seen, a mover's mask comes within ``TOUCH_PX`` plus the
+    mover's own step to a neighbouring frame (a contact between two frames happens within the
+    travel between them) of its mask. Image contact is necessary, not sufficient (a ball can pass
+    in front of a ruler): an object kept here may still be scenery; one dropped cannot be touched.
+
+    Args:
+        seg: ``(T, H, W)`` int object ids, -1 background.
+        moving: per object id, whether it moves (:attr:`Observation.moving`).
+    Returns:
+        ids of the objects at rest no mover touches, ascending; empty when no object moves (then
+        every object is what there is to explain).
+    """
+    movers = [k for k, m in enumerate(moving) if m]
+    if not movers:
+        return []
+    tracks = {m: seg == m for m in movers}
+    steps = {}
+    for m, mask in tracks.items():
+        c = _centroids(mask)
+        d = np.linalg.norm(np.diff(c, axis=0), axis=1)            # (T-1,), NaN where either frame is unseen
+        prev = np.concatenate([[np.nan], d])
+        nxt = np.concatenate([d, [np.nan]])
+        steps[m] = np.nan_to_num(np.fmax(prev, nxt), nan=0.0)     # NaN only where no neighbour is seen
+    out = []
+    for s, m_s in enumerate(moving):
+        if m_s:
+            continue
+        still = seg == s
+        touched = False
+        for t in range(len(seg)):
+            if not still[t].any():
+                continue
+            dist = cv2.distanceTransform((~still[t]).astype(np.uint8), cv2.DIST_L2, 3)
+            if any(tracks[m][t].any() and dist[tracks[m][t]].min() <= TOUCH_PX + steps[m][t] for m in movers):
+                touched = True
+                break
+        if not touched:
+            out.append(s)
+    return out
+
+
+def without_objects(seg: np.ndarray, drop: list[int]) -> np.ndarray:
+    """``seg`` with the objects ``drop`` made background and the others renumbered 0..n-1 in order."""
+    n = int(seg.max()) + 1
+    lut = np.full(n + 1, -1, dtype=np.int8)                      # index -1 (background) -> -1
+    keep = [k for k in range(n) if k not in set(drop)]
+    lut[keep] = np.arange(len(keep), dtype=np.int8)
+    return lut[seg.astype(np.int64)]
+
+
+def without_scenery(obs: Observation) -> tuple[Observation, list[int]]:
+    """The observation of what the window's dynamics involve: ``obs`` without the objects at rest
+    no mover touches (:func:`untouched_at_rest`), the others renumbered in order. The main job
+    uses it with ``realvideo.scenery: drop`` (not the default: on the rendered truth sets an object
+    at rest is an object of the scene whether or not it is hit, ``docs/observation.md``);
+    :func:`observe` keeps every object.
+
+    Returns:
+        ``(observation, dropped)``: ``dropped`` the ids of ``obs.seg`` left out (``obs`` itself
+        when none is).
+    """
+    if obs.moving is None:
+        return obs, []
+    drop = untouched_at_rest(obs.seg, obs.moving)
+    if not drop:
+        return obs, []
+    return replace(obs, seg=without_objects(obs.seg, drop),
+                   moving=tuple(m for k, m in enumerate(obs.moving) if k not in drop)), drop
+
+
 def observe(video, fps: float | None, start: float | None, scene_fps: int, duration: float,
             flow: FlowConfig | None = None, mask_method: str = "median",
             max_objects: int = 4, segmenter: Segmenter | None = None,

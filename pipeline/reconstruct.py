@@ -56,7 +56,8 @@ from pipeline import infer_report, perception
 from pipeline.flow import FlowConfig, flow_config, flow_of
 from pipeline.labels import load_labels
 from pipeline.mjcf import SimOptions
-from pipeline.observe import LEARNED, MASK_METHODS, MIN_WINDOW_FRAMES, Observation, observe, scene_rate
+from pipeline.observe import (LEARNED, MASK_METHODS, MIN_WINDOW_FRAMES, Observation, observe, scene_rate,
+                              without_scenery)
 from pipeline.params import ParamsError, load_params, path_of, section, typed_section
 from pipeline.sanity import PhysicsError, SanityConfig, check_simulation, resolve_overlaps
 from pipeline.scene import Scene, SceneError
@@ -83,7 +84,9 @@ class RealVideoConfig(BaseModel):
     ``rest_segmenter_weights``: a second checkpoint, read the same way, that ``hybrid`` asks for
     objects at rest where the first found nothing (None: none,
     :func:`pipeline.observe.second_opinion_rests`); ``fine_scale``: its
-    probabilities fused with the detection pass's where those are finer, :data:`pipeline.observe.FINE_SCALE`), the
+    probabilities fused with the detection pass's where those are finer, :data:`pipeline.observe.FINE_SCALE`;
+    ``scenery``: ``keep`` places every object at rest, ``drop`` leaves out those no mover touches,
+    :func:`pipeline.observe.without_scenery`), the
     scene writer without ``--model`` (``model``: ``wide``, ``trained`` or a folder,
     :func:`default_model_dir`), the
     staged CMA-ES (``popsize`` and ``iterations`` per stage, ``restarts`` of the first stage,
@@ -105,6 +108,7 @@ class RealVideoConfig(BaseModel):
     fine_scale: bool = False
     model: str = "trained"
     max_objects: int = Field(4, ge=1)
+    scenery: Literal["keep", "drop"] = "keep"
     popsize: int = Field(10, ge=2)
     iterations: int = Field(8, ge=1)
     restarts: int = Field(2, ge=1)
@@ -218,6 +222,11 @@ def observe_window(video: str | Path, job: JobSettings, fps: float | None = None
             print(f"[infer] {video}: {why}: the scene runs at {scene_fps} fps")
     obs = observe(video, fps, start, scene_fps, rv.duration, job.fcfg, rv.mask_method, rv.max_objects, job.segmenter,
                   fine_scale=rv.fine_scale, rest_segmenter=job.rest_segmenter)
+    if rv.scenery == "drop":
+        obs, dropped = without_scenery(obs)
+        if dropped:
+            print(f"[infer] {len(dropped)} object(s) at rest that no mover touches left out as scenery "
+                  f"(realvideo.scenery: drop)")
     W, H = obs.size
     print(f"[infer] {video}: window {obs.start:.3f}-{obs.start + obs.duration:.3f} s"
           f"{' (chosen automatically)' if obs.auto else ''}, {len(obs.frames)} frames at {scene_fps} fps, "
@@ -607,6 +616,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--raft-weights", default=None, metavar="PTH",
                    help="RAFT checkpoint for --flow-method raft: the authors' raft-small.pth / raft-things.pth "
                         "or one trained here (default params flow.raft_weights, else the shipped weights)")
+    p.add_argument("--scenery", default=None, choices=("keep", "drop"),
+                   help="objects at rest that no mover touches: keep (placed in the scene) or drop (left out as "
+                        "scenery; default params realvideo.scenery)")
     p.add_argument("--params", default=None, help="params.yaml (default ./params.yaml)")
 
 
@@ -619,6 +631,8 @@ def main_cli(args: argparse.Namespace) -> int:
         params.setdefault("realvideo", {})["segmenter_weights"] = w if w in ("wide", "shipped") else str(Path(w).resolve())
     if args.flow_method is not None:
         params.setdefault("flow", {})["method"] = args.flow_method
+    if args.scenery is not None:
+        params.setdefault("realvideo", {})["scenery"] = args.scenery
     if args.raft_weights is not None:   # a command-line path is relative to the working folder
         params.setdefault("flow", {})["raft_weights"] = str(Path(args.raft_weights).resolve())
     metrics = reconstruct(args.video, args.out, params, fps=args.fps, start=args.start,

@@ -122,15 +122,16 @@ def content_columns(name: str, clip_out: Path) -> dict:
 
 
 def run_clip(name: str, rel: str, fps: int | None, out: Path, mask_method: str | None = None,
-             model: str | None = None) -> dict:
+             model: str | None = None, scenery: str | None = None) -> dict:
     """Run ``dynamics infer`` then ``dynamics simulate`` on one clip; one summary row
     (``mask_method``: the observation, default params ``realvideo.mask_method``; ``model``: a
-    checkpoint folder instead of the shipped one)."""
+    checkpoint folder instead of the shipped one; ``scenery``: ``dynamics infer --scenery``)."""
     clip_out = out / name
     row: dict = {"clip": name, "file": rel, "fps": fps}
     cmd = ["dynamics", "infer", str(REAL / rel), "--out", str(clip_out)] + (["--fps", str(fps)] if fps else [])
     cmd += ["--mask-method", mask_method] if mask_method else []
     cmd += ["--model", model] if model else []
+    cmd += ["--scenery", scenery] if scenery else []
     labels = LABELS / name.split("_")[0]          # hand labels (issue 36): scored against, never fitted
     if labels.is_dir():
         cmd += ["--labels", str(labels)]
@@ -293,6 +294,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="observation for every clip (dynamics infer --mask-method; default params realvideo.mask_method)")
     ap.add_argument("--model", default=None, help="checkpoint folder for every clip (dynamics infer --model; "
                                                    "default the shipped one)")
+    ap.add_argument("--scenery", default=None, choices=("keep", "drop"),
+                    help="objects at rest no mover touches, for every clip (dynamics infer --scenery; default params "
+                         "realvideo.scenery)")
     ap.add_argument("--table-only", action="store_true",
                     help="rebuild table.md from OUT/summary.json and the clips' folders; run nothing")
     args = ap.parse_args(argv)
@@ -310,7 +314,7 @@ def main(argv: list[str] | None = None) -> int:
     for name, rel, fps in ([] if args.table_only else CLIPS):
         if args.only and name not in args.only:
             continue
-        row = run_clip(name, rel, fps, args.out, args.mask_method, args.model)
+        row = run_clip(name, rel, fps, args.out, args.mask_method, args.model, args.scenery)
         print(json.dumps(row), flush=True, file=sys.stderr)
         rows.append(row)
     write_text(args.out / "summary.json", json.dumps(rows, indent=1) + "\n")
@@ -318,7 +322,8 @@ def main(argv: list[str] | None = None) -> int:
     text = (f"# Main job then dynamics simulate on all {len(CLIPS)} real clips\n\n"
             f"Command: `python scripts/realvideo_all.py --out {args.out}"
             f"{' --mask-method ' + args.mask_method if args.mask_method else ''}"
-            f"{' --model ' + args.model if args.model else ''}` (IoU against pseudo ground truth: "
+            f"{' --model ' + args.model if args.model else ''}"
+            f"{' --scenery ' + args.scenery if args.scenery else ''}` (IoU against pseudo ground truth: "
             "full-sequence IoU as the search reports it, and strict, over the frames where an object or its match "
             "is visible; \"re-sim vs scored masks\": foreground IoU of `dynamics simulate`'s masks against the masks "
             "the main job scored; labels: the hand labels on the window's labelled frames).\n\n" + table(rows)

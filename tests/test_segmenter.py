@@ -1096,3 +1096,34 @@ def test_the_hand_that_tosses_a_ball_is_not_an_object_on_a_real_clip():
     kept_movers = [c for c in found if c.get("kept") and c["decision"] == "mover"]
     assert len(kept_movers) == 1 and kept_movers[0]["border"] <= 0.2 and kept_movers[0]["travel"] >= 2.0
     assert obs.moving_flags.count(True) == 1
+
+
+def test_objects_at_rest_no_mover_touches_are_scenery_and_a_struck_or_touched_one_stays():
+    """A ball rolls along a row of objects at rest: the one it stops against (its mask reaches
+    the ball's) stays, the one it passes within its own step of between two frames stays (the
+    contact may fall between them), the one far above its path is scenery. With no mover every
+    object stays. ``without_scenery`` renumbers what is left and keeps the moving flags."""
+    from pipeline.observe import Observation, untouched_at_rest, without_scenery
+
+    T, H, W = 12, 60, 120
+    seg = np.full((T, H, W), -1, np.int8)
+    seg[:, 2:10, 100:110] = 0                            # far above the path: scenery
+    for t in range(T):                                    # ball 10 px wide, 6 px / frame, stops at x = 70
+        x = min(4 + 6 * t, 60)
+        seg[t, 40:50, x:x + 10] = 1
+    seg[:, 38:52, 70:80] = 2                             # the wall it stops against (touching)
+    seg[:, 30:36, 30:40] = 3                             # 4 px above its path: within one step of 6 px
+    moving = (False, True, False, False)
+    assert untouched_at_rest(seg, moving) == [0]
+    assert untouched_at_rest(seg, (False, False, False, False)) == []
+
+    obs = Observation(frames=None, seg=seg, flow=None, clip=None, start=0.0, auto=True, crop=(0, 0, W, H),
+                      size=(W, H), scene_fps=30, flow_method="dis", mask_method="hybrid", moving=moving)
+    kept, dropped = without_scenery(obs)
+    assert dropped == [0] and kept.moving == (True, False, False)
+    assert kept.seg.max() == 2 and (kept.seg[0, 2:10, 100:110] == -1).all()
+    assert np.array_equal(kept.seg == 0, seg == 1) and np.array_equal(kept.seg == 1, seg == 2)
+    same, none = without_scenery(Observation(frames=None, seg=seg, flow=None, clip=None, start=0.0, auto=True,
+                                             crop=(0, 0, W, H), size=(W, H), scene_fps=30, flow_method="dis",
+                                             mask_method="median", moving=None))
+    assert none == [] and same.seg is seg
