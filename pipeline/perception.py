@@ -221,6 +221,7 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
     f, cu, cv = K[0, 0], K[0, 2], K[1, 2]
     notes: list[str] = []
     scales, kinds, by_gravity = [], [], []
+    whole = [whole_frames(t) for t in tracks]   # the frames with the whole silhouette in view
     for tr, m in zip(tracks, motions):
         kind = _side_motion_kind(tr, m)
         ppm, src = side_scale(tr, m, kind, _side_body(tr, shape_of[tr.label]), fps)
@@ -241,7 +242,7 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
     if kinds[main] == "fall":
         # a bounce seen puts the floor one radius under the impact, also when the impact
         # itself is cut off by the image border (the bottom row seen is then only the border)
-        hit = first_bounce(whole_frames(tracks[main]), fps)
+        hit = first_bounce(whole[main], fps)
         if hit is not None:
             lowest = max(lowest, hit.v + 0.5 * tracks[main].diameter)
         else:
@@ -254,8 +255,10 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
     v_floor = max(v_floor, cv + 0.05 * height)
     cam_h = (v_floor - cv) * D0 / f
     cam = Camera(height=round(max(cam_h, 0.01), 4), pitch=0.0, fov=fov)
+    # restitution of every fall from its bounces, read once (the main one also undoes a bounce)
+    restitution = [bounce_restitution(w, fps) if k == "fall" else None for w, k in zip(whole, kinds)]
     if kinds[main] == "fall":   # a start under the floor: the window opens just before a bounce
-        e = bounce_restitution(whole_frames(tracks[main]), fps)
+        e = restitution[main]
         undone = before_bounce(motions[main], v_floor - 0.5 * tracks[main].diameter, e or BOUNCE_PRIOR)
         if undone is not None:
             motions = list(motions)
@@ -264,7 +267,7 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
                          f"floor: it bounced at t = {undone[1]:.3f} s (e {e or BOUNCE_PRIOR:.2f}), its state at "
                          "t = 0 is on the arc before")
     objects = []
-    for tr, m, ppm, kind, fell in zip(tracks, motions, scales, kinds, by_gravity):
+    for tr, w, m, ppm, kind, fell, e in zip(tracks, whole, motions, scales, kinds, by_gravity, restitution):
         shape = shape_of[tr.label]
         D = f / ppm
         px = 1.0 / ppm  # m per px at this depth
@@ -298,7 +301,7 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
         body = _side_body(tr, shape)
         if kind == "ramp":
             lifted.ramp, lifted.friction = _ramp_under(tr, m, px, cu, cv, cam.height, y, half_h, body, fps)
-            turn = bumper_on_ramp(whole_frames(tr), m, px, cu, cv, cam.height, y, half_h, fps)
+            turn = bumper_on_ramp(w, m, px, cu, cv, cam.height, y, half_h, fps)
             if turn is not None:   # its restitution is reported, not written (bumper_on_ramp)
                 lifted.bumper = turn[0]
                 notes.append(f"object {tr.label}: turns back up the slope: a bumper there (restitution "
@@ -316,9 +319,8 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
                 lifted.rolling_friction = rolling_resistance(-float(m.a[0]) * math.copysign(px, m.v0[0]),
                                                              size["radius"], shape)
         elif kind == "fall" and fell:   # not a "fall" whose curvature gives an object of metres
-            e = bounce_restitution(whole_frames(tr), fps)
             lifted.restitution = e
-            after = speed_after_bounce(whole_frames(tr), fps)
+            after = speed_after_bounce(w, fps)
             if after is not None and (shape == "sphere" or (shape == "cylinder" and round_silhouette(tr))):
                 lifted.after_bounce = after * px
         objects.append(lifted)
@@ -840,7 +842,7 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
     scenes, labels = [], []
     notes = [f"view: {view} (gravity {'seen' if view == 'side' else 'not seen'} in the tracks)"
              + ("" if len(views) == 1 else "; top-down proposals tried too")]
-    first_spin = True
+    spin_noted: set[int] = set()   # one note per spinning object (from the first proposal that spins it)
     for v in views:
         first = True
         for shape_of in _hypotheses(tracks, "side" if v == "side" else "top", oblique=v == "oblique", falling=falling):
@@ -858,10 +860,10 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
                     spun = bounce_spin(scene, i, o.after_bounce)
                     if spun is not None:
                         scene = spun[0]
-                        if first_spin:
+                        if tracks[i].label not in spin_noted:
                             notes.append(f"object {tracks[i].label}: its sideways speed changes at its first "
                                          f"bounce: spin {spun[1]:.1f} rad/s about the line of sight")
-                            first_spin = False
+                            spin_noted.add(tracks[i].label)
             label = f"{v}: " + ", ".join(o.shape + (" on a ramp" if o.ramp else "") for o in objs)
             scenes.append(scene)
             labels.append(label)
