@@ -71,3 +71,23 @@ def test_infer_mask_method_is_one_of_the_observation_methods(capsys):
     with pytest.raises(SystemExit):
         p.parse_args(["v.mp4", "--out", "o", "--mask-method", "grabcut"])
     assert "invalid choice: 'grabcut'" in capsys.readouterr().err
+
+
+def test_infer_scenery_is_keep_or_drop_and_a_bad_param_names_the_field(capsys):
+    """``dynamics infer --scenery`` takes keep or drop (default: params ``realvideo.scenery``,
+    ``keep``); a bad value in params is one error naming ``realvideo.scenery``."""
+    import argparse
+
+    from pipeline.params import ParamsError
+    from pipeline.reconstruct import add_arguments, realvideo_config
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    assert p.parse_args(["v.mp4", "--out", "o"]).scenery is None
+    assert p.parse_args(["v.mp4", "--out", "o", "--scenery", "drop"]).scenery == "drop"
+    with pytest.raises(SystemExit):
+        p.parse_args(["v.mp4", "--out", "o", "--scenery", "hide"])
+    assert "invalid choice: 'hide'" in capsys.readouterr().err
+    assert realvideo_config({}).scenery == "keep"
+    assert realvideo_config({"realvideo": {"scenery": "drop"}}).scenery == "drop"
+    with pytest.raises(ParamsError, match="scenery"):
+        realvideo_config({"realvideo": {"scenery": "hide"}})
