@@ -125,9 +125,7 @@ class Observation:
         flags = self.moving_flags
         if all(flags) or not any(flags):
             return self.seg
-        lut = np.full(len(flags) + 1, -1, dtype=np.int8)   # index -1 (background) -> -1
-        lut[[k for k, m in enumerate(flags) if m]] = np.arange(sum(flags), dtype=np.int8)
-        return lut[self.seg.astype(np.int64)]
+        return without_objects(self.seg, [k for k, m in enumerate(flags) if not m])
 
 
 FLOW_AGREE_PX, FLOW_AGREE_DIAMETER = 2.0, 0.25
@@ -1572,7 +1570,8 @@ def without_objects(seg: np.ndarray, drop: list[int]) -> np.ndarray:
     """``seg`` with the objects ``drop`` made background and the others renumbered 0..n-1 in order."""
     n = int(seg.max()) + 1
     lut = np.full(n + 1, -1, dtype=np.int8)                      # index -1 (background) -> -1
-    keep = [k for k in range(n) if k not in set(drop)]
+    dropped = set(drop)
+    keep = [k for k in range(n) if k not in dropped]
     lut[keep] = np.arange(len(keep), dtype=np.int8)
     return lut[seg.astype(np.int64)]
 
