@@ -37,7 +37,7 @@ from pipeline.camera import intrinsics, pixel_to_plane, project
 from pipeline.errors import UserError
 from pipeline.geometry import volume
 from pipeline.image_tracks import (BOX_FILL, CIRCLE_FILL, ELONGATED, Motion, Track, View, gravity_vote,
-                                   round_silhouette, bounce_restitution, estimate_view, find_tracks, first_bounce, fit_tolerance, flight_gravity, gravity_motion, initial_motion, initial_state_given, object_tracks,
+                                   round_silhouette, bounce_restitution, estimate_view, find_tracks, first_bounce, fit_tolerance, flight_gravity, gravity_evidence, initial_motion, initial_state_given, object_tracks,
                                    speed_after_bounce, still_tracks, whole_frames)
 from pipeline.mjcf import compile_model
 from pipeline.rotation import axis_angle_quat
@@ -810,7 +810,7 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
     # part cut by the border biases the centroid
     whole = [whole_frames(t) for t in tracks]
     motions = [initial_motion(t, fps) for t in whole]
-    gravity = [gravity_motion(t, fps) for t in whole]
+    gravity = [gravity_evidence(t, fps) for t in whole]
     view, shows = estimate_view(tracks, gravity)
     # a track that shows gravity somewhere takes its acceleration from there (the start of the
     # window may be a release by hand), and its state at t = 0 from its first stretch with

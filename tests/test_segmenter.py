@@ -729,6 +729,36 @@ def test_a_crescent_of_a_slow_object_does_not_set_the_movers_size_class():
     assert movers_and_stills_of_one_scene([], [], [box], [800.0]) == ([], [True], None)
 
 
+def test_a_small_ball_thrown_across_a_large_object_at_rest_is_a_mover_not_its_crescent():
+    """Real clip dev/07: a tennis ball a few px wide flies across a picture on the wall that the
+    segmenter holds as an object at rest. Most of the ball's background-subtraction track lies on the
+    picture, but it travels farther than the picture is large, which a crescent of a slow object
+    (on its outline, moving less than its size) cannot: it stays a mover, sets the movers' size, and
+    the picture, 180 times the ball, is scenery-sized and goes. The same track kept within the
+    picture's size is still a crescent."""
+    from pipeline.observe import REST_SIZE_CLASS, movers_and_stills_of_one_scene, outruns
+
+    T, H, W = 8, 90, 160
+    picture = np.zeros((T, H, W), bool)
+    picture[:, 20:60, 40:80] = True                      # 1600 px: a disc of that area is 45 px wide
+    ball = np.zeros((T, H, W), bool)
+    for t in range(T):
+        ball[t, 39:42, 35 + 8 * t:38 + 8 * t] = True     # 9 px, 56 px of travel, 5 of 8 frames on the picture
+    assert (ball & picture).sum() > 0.5 * ball.sum()
+    assert 1600 / 9 > REST_SIZE_CLASS
+    assert outruns(ball, [picture], [1600.0])
+    keep_unseen, keep_still, ref = movers_and_stills_of_one_scene([], [ball], [picture], [1600.0])
+    assert keep_unseen == [True] and ref == pytest.approx(9.0) and keep_still == [False]
+
+    near = np.zeros((T, H, W), bool)
+    for t in range(T):
+        near[t, 39:42, 50 + 4 * t:53 + 4 * t] = True     # 28 px of travel, all on the picture
+    assert not outruns(near, [picture], [1600.0])
+    keep_unseen, keep_still, ref = movers_and_stills_of_one_scene([], [near], [picture], [1600.0])
+    assert keep_unseen == [False] and keep_still == [True] and ref is None
+    assert not outruns(np.zeros((T, H, W), bool), [picture], [1600.0])
+
+
 def test_left_behind_flags_the_place_a_resting_object_left_and_keeps_a_ball_crossing_its_path():
     """A box rests at A for 12 of 20 frames, then slides to B: the median background holds it at A,
     so differencing marks A from frame 12 on (a ghost) while the box is elsewhere. That track lies
