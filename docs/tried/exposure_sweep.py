@@ -4,8 +4,8 @@ A camera integrates over its exposure, so a fast ball's silhouette is the region
 ``dynamics infer`` renders the simulated ball at one instant per frame. This script sweeps each written scene's
 re-simulated masks (``masks.npz`` of a ``scripts/realvideo_all.py`` run) along the mask centroid's velocity over a
 fraction ``e`` of a frame interval (9 shifted copies, nearest pixel), without refitting anything, and prints the strict
-IoU against the observation (``observation.npz``) for e = 0, 0.5 and 1. Object ids of the two files are taken to match,
-which holds where the observation has no object at rest placed after the fit.
+IoU (:func:`pipeline.metrics.sequence_iou`, objects matched) against the observation (``observation.npz``, every
+object it holds, at rest too) for e = 0, 0.5 and 1.
 
 Usage: ``python docs/tried/exposure_sweep.py outputs/realvideo_all [clip ...]``
 """
@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
+
+from pipeline.metrics import sequence_iou
 
 
 def swept(sim: np.ndarray, k: int, e: float) -> np.ndarray:
@@ -42,17 +44,12 @@ def swept(sim: np.ndarray, k: int, e: float) -> np.ndarray:
     return out
 
 
-def strict_iou(obs: np.ndarray, pred: list) -> float:
-    """Mean over observed objects of the IoU over the frames where the object or its prediction is visible."""
-    vals = []
-    for k in range(int(obs.max()) + 1):
-        o = obs == k
-        p = pred[k] if k < len(pred) else np.zeros_like(o)
-        seen = o.any(axis=(1, 2)) | p.any(axis=(1, 2))
-        if seen.any():
-            inter, union = (o & p).sum(axis=(1, 2))[seen], (o | p).sum(axis=(1, 2))[seen]
-            vals.append(float(np.mean(inter / np.maximum(union, 1))))
-    return float(np.mean(vals)) if vals else float("nan")
+def swept_labels(sim: np.ndarray, e: float) -> np.ndarray:
+    """``(T, H, W)`` int8 ids, -1 background: every object of ``sim`` swept over ``e`` frame intervals."""
+    out = np.full(sim.shape, -1, np.int8)
+    for k in range(int(sim.max()) + 1):
+        out[swept(sim, k, e) & (out < 0)] = k
+    return out
 
 
 def main() -> None:
@@ -62,7 +59,7 @@ def main() -> None:
     for c in clips:
         obs = np.load(root / c / "observation.npz")["seg"]
         sim = np.load(root / c / "masks.npz")["seg"]
-        row = [strict_iou(obs, [swept(sim, k, e) for k in range(int(sim.max()) + 1)]) for e in (0.0, 0.5, 1.0)]
+        row = [sequence_iou(obs, swept_labels(sim, e))["strict_iou"] for e in (0.0, 0.5, 1.0)]
         print(c.ljust(30), " ".join(f"{x:.3f}" for x in row))
 
 
