@@ -153,7 +153,8 @@ def write_outputs(out: str | Path, video: str | Path, fps: float | None, obs: Ob
             "sources": {name: source_summary(candidates, scores, name) for name in ("model", "perception")},
             "proposals": [{"source": c.source, "label": c.label, "valid": s["valid"],
                            "full_iou": None if not s["valid"] else round(s["full_iou"], 4),
-                           "fitness": None if not s["valid"] else round(s["fitness"], 4)}
+                           "fitness": None if not s["valid"] else round(s["fitness"], 4),
+                           "silhouette_rank": c.silhouette_rank}
                           for c, s in zip(candidates, scores)],
             "sample_errors": [c.error for c in candidates if c.error][:5],
             "first_sample_source": candidates[first_i].source, "first_sample": m_first,

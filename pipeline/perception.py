@@ -731,6 +731,18 @@ def shape_candidates(track: Track, view: View) -> list[str]:
         else ["box"] + round_
 
 
+def silhouette_rank(track: Track, shape: str, view: View) -> int:
+    """How far down the silhouette's list of shapes (:func:`shape_candidates`) ``shape`` is: 0 for
+    its first choice. A round silhouette is a ball's or a disc's seen along its axis, which no
+    outline tells apart, so there sphere and cylinder both rank 0; a shape not on the list (an
+    upright cylinder tried for a standing silhouette, :func:`_hypotheses`) ranks after it.
+    Used to break ties the re-simulation cannot (:func:`pipeline.search.simplest_within`)."""
+    cands = shape_candidates(track, view)
+    if shape in ("sphere", "cylinder") and round_silhouette(track):
+        return 0
+    return cands.index(shape) if shape in cands else len(cands)
+
+
 def _hypotheses(tracks: list[Track], view: View, oblique: bool = False,
                 falling: frozenset[int] = frozenset()) -> list[dict[int, str]]:
     """Shape assignments to try: the j-th proposal gives every track its j-th candidate (or its
@@ -767,6 +779,8 @@ class Proposals:
         view: ``"side"`` or ``"top"``.
         tracks, motions: per object.
         notes: how each quantity was obtained (for metrics.json).
+        silhouette_ranks: per scene, :func:`silhouette_rank` summed over its objects (0: every
+            shape is its silhouette's first choice).
     """
 
     scenes: list[Scene]
@@ -775,6 +789,7 @@ class Proposals:
     tracks: list[Track]
     motions: list[Motion]
     notes: list[str]
+    silhouette_ranks: list[int] = field(default_factory=list)
 
 
 def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: float,
@@ -839,7 +854,7 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
     # a clear fall settles it; a speed-up along a line may also be perspective (an object
     # rolling towards an oblique camera), so the top-down reading is tried as well
     views: list[str] = ["side"] if falls else (["side", "top", "oblique"] if view == "side" else ["top", "oblique"])
-    scenes, labels = [], []
+    scenes, labels, ranks = [], [], []
     notes = [f"view: {view} (gravity {'seen' if view == 'side' else 'not seen'} in the tracks)"
              + ("" if len(views) == 1 else "; top-down proposals tried too")]
     spin_noted: set[int] = set()   # one note per spinning object (from the first proposal that spins it)
@@ -865,16 +880,19 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
                                          f"bounce: spin {spun[1]:.1f} rad/s about the line of sight")
                             spin_noted.add(tracks[i].label)
             label = f"{v}: " + ", ".join(o.shape + (" on a ramp" if o.ramp else "") for o in objs)
+            rank = sum(silhouette_rank(t, shape_of[t.label], "side" if v == "side" else "top") for t in tracks)
             scenes.append(scene)
             labels.append(label)
+            ranks.append(rank)
             if v != "side" and len(objs) > 1 and not scene.effects:
                 # objects that may collide: also try elastic-ish contacts (MuJoCo's default
                 # contact is critically damped, e ~ 0; air-table pucks, billiard balls ~ 0.9)
                 scenes.append(scene.replace(effects=[{"effect": "restitution",
                                                       "parameters": {"e": COLLISION_RESTITUTION}}]))
                 labels.append(label + f", restitution {COLLISION_RESTITUTION}")
+                ranks.append(rank)
     motions = side_motions if view == "side" else motions
-    return Proposals(scenes, labels, view, tracks, motions, notes)
+    return Proposals(scenes, labels, view, tracks, motions, notes, ranks)
 
 
 AT_REST_PITCH = 45.0

@@ -93,8 +93,9 @@ class RealVideoConfig(BaseModel):
     ``workers`` scoring processes, fitness ``IoU - lambda_epe * EPE`` with EPE per px at 96 px
     wide, averaged over ``epe_pixels``: ``observed`` foreground pixels by default, so that a
     predicted object away from the motion cannot lower it, :class:`pipeline.search.SearchConfig`;
-    ``shape_margin``: Best@K takes the proposal with the fewest shape parameters among those
-    of the best one's structure within this fitness of it, :func:`pipeline.search.simplest_within`) and the figures (``panel_height``, ``sheet_height`` in px). The defaults are the
+    ``shape_margin``: among the proposals of the best one's structure within this fitness of it,
+    Best@K takes the one whose shapes the silhouettes favour, then the fewest shape parameters,
+    :func:`pipeline.search.simplest_within`) and the figures (``panel_height``, ``sheet_height`` in px). The defaults are the
     default profile's (a test checks that params.yaml agrees).
     """
 
@@ -389,12 +390,16 @@ class Candidate:
         source: ``"model"`` or ``"perception"``.
         label: a short name for people (``model sample 2``, ``perception: side: sphere``).
         error: why ``scene`` is None (the sample's parse error), else None.
+        silhouette_rank: for a perception proposal, how far its shapes are from the
+            silhouettes' first choices (:attr:`pipeline.perception.Proposals.silhouette_ranks`);
+            None for a model sample.
     """
 
     scene: Scene | None
     source: str
     label: str
     error: str | None = None
+    silhouette_rank: int | None = None
 
 
 def propose_candidates(obs: Observation, mdir: Path | None, params: dict, rv: RealVideoConfig, k: int | None,
@@ -417,8 +422,8 @@ def propose_candidates(obs: Observation, mdir: Path | None, params: dict, rv: Re
         fov = perception.crop_fov(obs.crop[3], obs.clip.original_size[1])   # the working image is a crop
         proposals = perception.propose(obs.fit_seg, obs.flow, obs.scene_fps, obs.duration, rv.max_objects,
                                        still=obs.mask_method in LEARNED, fov=fov)
-        candidates += [Candidate(sc, "perception", f"perception: {lab}") for sc, lab in zip(proposals.scenes,
-                                                                                           proposals.labels)]
+        candidates += [Candidate(sc, "perception", f"perception: {lab}", silhouette_rank=r)
+                       for sc, lab, r in zip(proposals.scenes, proposals.labels, proposals.silhouette_ranks)]
         notes = proposals.notes
     except perception.PerceptionError as exc:
         notes = [f"perception: {exc}"]
@@ -437,7 +442,8 @@ class SearchOutcome:
         scores: Best@K's score dict per candidate (:func:`pipeline.search.best_of_k`).
         fittest: index of the fittest candidate (the paper's Best@K).
         best: index of the candidate the search started from (the fittest, or the one with the
-            fewest shape parameters within ``realvideo.shape_margin`` of it).
+            one whose shapes the silhouettes favour, then the fewest shape parameters, within
+            ``realvideo.shape_margin`` of it).
         written: the scene written to ``scene.yaml``: the better of the staged CMA-ES result and
             its start, made writable (:func:`choose_output`).
         history: the staged CMA-ES history (:func:`pipeline.search.staged.staged_refine`).
@@ -454,8 +460,8 @@ class SearchOutcome:
 
 def search_scene(candidates: list[Candidate], obs: Observation, scfg: SearchConfig, rv: RealVideoConfig,
                  sim: SimOptions, sanity: SanityConfig, seed: int) -> SearchOutcome:
-    """Step 3 of the main job: Best@K over all candidates, the parsimony rule
-    (:func:`pipeline.search.simplest_within`), staged CMA-ES from the pick, and the choice of
+    """Step 3 of the main job: Best@K over all candidates, the tie-break of shapes the fit cannot
+    tell apart (silhouettes, then parsimony: :func:`pipeline.search.simplest_within`), staged CMA-ES from the pick, and the choice of
     what is written (:func:`choose_output`), all with the fitness of ``scfg`` at the
     observation's width (:func:`pipeline.search.staged.at_width`).
 
@@ -470,10 +476,12 @@ def search_scene(candidates: list[Candidate], obs: Observation, scfg: SearchConf
         if best is None:
             raise VideoError(f"{obs.clip.source}: no proposal could be simulated ({scores[0].get('error')})")
         fittest = best   # the paper's Best@K; then the simplest shapes the re-simulation cannot tell apart
-        best = simplest_within(scenes, scores, fittest, rv.shape_margin)
+        best = simplest_within(scenes, scores, fittest, rv.shape_margin, [c.silhouette_rank for c in candidates])
         if best != fittest:
+            why = ("shapes the silhouettes favour" if (candidates[best].silhouette_rank or 0)
+                   < (candidates[fittest].silhouette_rank or 0) else "fewer shape parameters")
             print(f"[infer] Best@K: {candidates[best].label} (fitness {scores[best]['fitness']:.4f}) over "
-                  f"{candidates[fittest].label} ({scores[fittest]['fitness']:.4f}): fewer shape parameters within "
+                  f"{candidates[fittest].label} ({scores[fittest]['fitness']:.4f}): {why} within "
                   f"{rv.shape_margin:g}")
         refined, history = staged_refine(scenes[best], target, obs.fit_flow, scfg, sim, seed=seed,
                                          restarts=rv.restarts, pool=pool, workers=rv.workers)

@@ -212,14 +212,20 @@ def table(rows: list[dict]) -> str:
 
 def shape_choice(metrics: dict) -> dict:
     """Why a clip's shapes are what they are (issue 29 item 4), from its ``metrics.json``: the
-    perception hypotheses' Best@K fitness, the fittest proposal, the one refined (the parsimony
-    rule, ``realvideo.shape_margin``, may take fewer shape parameters within the margin) and the
+    perception hypotheses' Best@K fitness, the fittest proposal, the one refined (within
+    ``realvideo.shape_margin`` of the fittest, the shapes the silhouettes favour, then the fewest
+    shape parameters, :func:`pipeline.search.simplest_within`) and the
     source of the written scene."""
-    hyps = [(p["label"].removeprefix("perception: "), p.get("fitness")) for p in metrics.get("proposals", [])
+    props = metrics.get("proposals", [])
+    hyps = [(p["label"].removeprefix("perception: "), p.get("fitness")) for p in props
             if p.get("source") == "perception" and p.get("valid")]
     picked, fittest = metrics.get("best_of_k_label"), metrics.get("best_of_k_fittest_label")
+    rank = {p["label"]: p.get("silhouette_rank") or 0 for p in props}
     why = ("a model sample was fittest" if metrics.get("best_of_k_source") == "model" else
-           "fittest" if picked == fittest else f"parsimony: fewer shape parameters within the margin of {fittest!r}")
+           "fittest" if picked == fittest else
+           f"silhouettes: shapes their outlines favour, within the margin of {fittest!r}"
+           if rank.get(picked, 0) < rank.get(fittest, 0) else
+           f"parsimony: fewer shape parameters within the margin of {fittest!r}")
     return {"hypotheses": hyps, "picked": picked, "fittest": fittest, "why": why}
 
 

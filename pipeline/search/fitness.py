@@ -150,20 +150,28 @@ that matters up to the shape's symmetry (a cylinder's axis: 2; a box: 3; a spher
 
 
 def simplest_within(candidates: Sequence[Scene | None], scores: Sequence[dict[str, Any]], best: int,
-                    margin: float) -> int:
+                    margin: float, silhouette_ranks: Sequence[int | None] | None = None) -> int:
     """The Best@K pick with a parsimony rule for shapes: among the valid candidates of the same
     structure as the best one (as many objects and static geoms) whose fitness is within
-    ``margin`` of the best, the one with the fewest shape parameters (:data:`SHAPE_DOF` summed
-    over the objects), then the highest fitness. When the re-simulation cannot tell two shapes
-    apart (a ball and a disc seen along its axis give the same silhouette and motion), the one
-    with fewer parameters is taken (Occam's razor; the generic-viewpoint assumption, Freeman,
-    Nature 1994: a disc whose axis points at the camera is an accidental view).
+    ``margin`` of the best, the one whose shapes the silhouettes favour most (lowest
+    ``silhouette_ranks``, :func:`pipeline.perception.silhouette_rank` summed over the objects),
+    then the one with the fewest shape parameters (:data:`SHAPE_DOF` summed over the objects),
+    then the highest fitness. When the re-simulation cannot tell two shapes apart, the image
+    evidence it did not use decides first (a hexagonal outline is a box's corners, not a
+    cylinder's), and where that cannot tell either (a ball and a disc seen along its axis give
+    the same round silhouette) the one with fewer parameters is taken (Occam's razor; the
+    generic-viewpoint assumption, Freeman, Nature 1994: a disc whose axis points at the camera
+    is an accidental view).
 
     Args:
         candidates: the scenes scored (None = invalid); scores: :func:`best_of_k`'s dicts;
         best: index of the highest fitness; margin: fitness (dimensionless, as the fitness).
+        silhouette_ranks: per candidate, how far its shapes are from the silhouettes' first
+            choices (0 = all agree), or None for a candidate whose shapes were not read from the
+            silhouettes (a model sample): it counts as disagreeing on every object. None for
+            the whole argument: no silhouette evidence, parameters decide.
     Returns:
-        the index picked (``best`` when ``margin`` is 0 or no simpler candidate is that close).
+        the index picked (``best`` when ``margin`` is 0 or no other candidate is that close).
     """
     if margin <= 0 or candidates[best] is None:
         return best
@@ -175,6 +183,12 @@ def simplest_within(candidates: Sequence[Scene | None], scores: Sequence[dict[st
     def dof(c: Scene) -> int:
         return sum(SHAPE_DOF[o.shape] for o in c.objects)
 
+    def rank(i: int) -> int:
+        if silhouette_ranks is None:
+            return 0
+        r = silhouette_ranks[i]
+        return len(candidates[i].objects) if r is None else int(r)
+
     close = [i for i, (c, s) in enumerate(zip(candidates, scores))
              if c is not None and s["valid"] and s["fitness"] >= scores[best]["fitness"] - margin and same_structure(c)]
-    return min(close, key=lambda i: (dof(candidates[i]), -scores[i]["fitness"], i))
+    return min(close, key=lambda i: (rank(i), dof(candidates[i]), -scores[i]["fitness"], i))
