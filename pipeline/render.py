@@ -25,6 +25,7 @@ import numpy as np
 
 import pipeline  # noqa: F401  (MUJOCO_GL)
 from pipeline.camera import intrinsics
+from pipeline.exposure import expose
 from pipeline.mjcf import compile_model
 from pipeline.rotation import quat_to_mat
 from pipeline.simulate import Trace, check_rollout, rollout, simulate
@@ -561,11 +562,16 @@ def render_scene(scene, width: int, height: int, options=None, **kwargs) -> tupl
     """Simulate and render a scene in one call (convenience for tests and the CLI).
 
     Returns:
-        (trace, frames): the :class:`pipeline.simulate.Trace` and rendered :class:`Frames`.
+        (trace, frames): the :class:`pipeline.simulate.Trace` and rendered :class:`Frames`;
+        ``frames.seg`` swept over the scene's ``camera.exposure`` as the search scores it
+        (:func:`pipeline.exposure.expose`; RGB, depth and flow stay instantaneous).
     """
     model, trace = simulate(scene, options)
     with FrameRenderer(model, width, height) as r:
-        return trace, r.render(trace.qpos, **kwargs)
+        frames = r.render(trace.qpos, **kwargs)
+    if frames.seg is not None:
+        frames.seg = expose(frames.seg, scene.exposure_frames)
+    return trace, frames
 
 
 def reference_frames(model: mujoco.MjModel, qpos: np.ndarray, width: int, height: int

@@ -107,7 +107,10 @@ class Camera(_Strict):
     +y, pitched ``pitch`` degrees below the horizon, no yaw or roll. 6-DoF form (beyond the
     paper): ``{position, yaw, pitch, roll, fov}``. ``fov`` is the vertical field of view in
     degrees. Angles in degrees; ``yaw`` is measured from +y towards -x (counter-clockwise seen
-    from above), ``roll`` about the optical axis.
+    from above), ``roll`` about the optical axis. ``exposure`` (either form, beyond the paper):
+    the time the shutter is open per frame, s, at most the frame interval ``1 / fps``; 0 (the
+    default, not written) renders one instant per frame. Masks of moving objects are swept over
+    it (motion blur, :mod:`pipeline.exposure`).
     """
 
     height: PositiveFloat | None = None
@@ -116,6 +119,7 @@ class Camera(_Strict):
     pitch: Annotated[float, Field(ge=-89.0, le=89.0)] = 35.0
     roll: FiniteFloat | None = None
     fov: Annotated[float, Field(ge=1.0, le=179.0)] = 45.0  # closed: a value rounds onto a bound
+    exposure: Annotated[float, Field(ge=0.0, le=1.0, allow_inf_nan=False)] = 0.0
 
     @model_validator(mode="after")
     def _one_form(self) -> "Camera":
@@ -285,7 +289,15 @@ class Scene(_Strict):
         n = int(round(self.duration * self.fps))
         if n > MAX_FRAMES:
             raise ValueError(f"duration * fps: must be at most {MAX_FRAMES} frames, got {n}")
+        if self.camera.exposure * self.fps > 1.0 + 1e-9:
+            raise ValueError(f"camera.exposure: must be at most one frame interval (1 / fps = {1.0 / self.fps:.6g} s), "
+                             f"got {self.camera.exposure:g}")
         return self
+
+    @property
+    def exposure_frames(self) -> float:
+        """``camera.exposure`` as a fraction of the frame interval (``exposure * fps``, in [0, 1])."""
+        return min(1.0, self.camera.exposure * self.fps)
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -538,6 +550,8 @@ def _dump(scene: Scene, decimals: "Decimals | None") -> str:
     else:
         lines += [f"  height: {_num(cam.height, d.position, positive=True)}", f"  pitch: {_num(cam.pitch, d.camera)}"]
     lines.append(f"  fov: {_num(cam.fov, d.camera)}")
+    if cam.exposure > 0:
+        lines.append(f"  exposure: {_num(cam.exposure)}")
     lines.append("objects:")
     for o in scene.objects:
         size = ", ".join(f"{k}: {_num(v, d.size, positive=True)}" for k, v in o.size.model_dump().items())

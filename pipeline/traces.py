@@ -33,9 +33,10 @@ import pyarrow as pa
 from pipeline import sanity as checks, shards
 from pipeline.atomic import publish_dir, remove_stale_temps, temp_dir_for
 from pipeline.events import EventConfig, events_to_json, events_to_text, extract_events
+from pipeline.exposure import expose
 from pipeline.mjcf import SimOptions
 from pipeline.npz import NpzWriter
-from pipeline.render import FrameRenderer
+from pipeline.render import FrameRenderer, Frames
 from pipeline.sanity import SanityConfig
 from pipeline.scene import Scene
 from pipeline.simulate import Contact, Trace
@@ -187,7 +188,7 @@ def write_simulation(scene: Scene, out_dir: str | Path, width: int = 480, height
                            metadata={"units": UNITS, "scene": scene.to_yaml(), "sim": options.model_dump(),
                                      "timestep": float(model.opt.timestep)})
         visible = render_streamed(model, trace.qpos, width, height, scene.fps, scene.object_names,
-                                  paths["rgb"], paths["masks"], paths["masks_preview"])
+                                  paths["rgb"], paths["masks"], paths["masks_preview"], scene.exposure_frames)
         cfg = events or EventConfig()
         found = extract_events(trace, visible, cfg)
         shards.write_json(paths["events"], {
@@ -203,9 +204,13 @@ def write_simulation(scene: Scene, out_dir: str | Path, width: int = 480, height
 
 
 def render_streamed(model: mujoco.MjModel, qpos: np.ndarray, width: int, height: int, fps: float,
-                    names: list[str], rgb_path: Path, masks_path: Path, preview_path: Path) -> np.ndarray:
+                    names: list[str], rgb_path: Path, masks_path: Path, preview_path: Path,
+                    exposure_frames: float = 0.0) -> np.ndarray:
     """Render ``qpos`` :func:`chunk_frames` frames at a time into ``rgb.mp4``, ``masks.npz`` and
-    the ``masks.mp4`` preview (object colours on black), each written atomically.
+    the ``masks.mp4`` preview (object colours on black), each written atomically. The masks are
+    swept over the camera's exposure (``exposure_frames``: ``camera.exposure * fps``,
+    :func:`pipeline.exposure.expose`) as the search scores them: each chunk is rendered with one
+    frame of its neighbours on either side, whose centroids the sweep needs.
 
     Args:
         model: compiled scene (camera ``main``).
@@ -224,10 +229,13 @@ def render_streamed(model: mujoco.MjModel, qpos: np.ndarray, width: int, height:
           Mp4Writer(preview_path, [""], fps) as preview_video, NpzWriter(masks_path) as npz):
         with npz.stream("seg", (T, height, width), np.int8) as seg:
             for a in range(0, T, step):
-                frames = renderer.render(qpos[a:a + step], rgb=True, seg=True, depth=False, flow=False)
-                visible[a:a + step] = frames.visible_pixels(n)
-                rgb_video.write([frames.rgb])
-                seg.write(frames.seg)
-                preview_video.write([mask_colours(frames.seg)])
+                lo, hi = (max(a - 1, 0), min(a + step + 1, T)) if exposure_frames > 0 else (a, min(a + step, T))
+                frames = renderer.render(qpos[lo:hi], rgb=True, seg=True, depth=False, flow=False)
+                keep = slice(a - lo, a - lo + min(step, T - a))
+                masks = expose(frames.seg, exposure_frames)[keep]
+                visible[a:a + step] = Frames(seg=masks).visible_pixels(n)
+                rgb_video.write([frames.rgb[keep]])
+                seg.write(masks)
+                preview_video.write([mask_colours(masks)])
         npz.write("names", np.asarray(names))
     return visible

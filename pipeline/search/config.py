@@ -11,7 +11,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from pipeline.sample_config import TEST_SPLITS
 
 FreeField = Literal["position", "linear_velocity", "angular_velocity", "yaw", "size", "camera",
-                    "mass", "friction", "damping", "restitution"]
+                    "mass", "friction", "damping", "restitution", "exposure"]
 FREE_FIELDS: tuple[str, ...] = get_args(FreeField)
 """Field groups CMA-ES may search (``search.free``)."""
 

@@ -16,6 +16,7 @@ import mujoco
 import numpy as np
 
 from pipeline.effects import REGISTRY, resolve_params
+from pipeline.exposure import expose
 from pipeline.engine import (EDITED_IN_PLACE, object_bodies, refresh_constants, set_camera, set_object_mass,
                              set_object_size, structure_key)
 from pipeline.mjcf import SimOptions, compile_model, initial_state
@@ -114,14 +115,15 @@ class SceneEvaluator:
                 clip's T), at ``scene.fps``.
             flow: also render depth and compute the exact flow (skip when it is not scored).
         Returns:
-            ``seg (T, H, W) int8`` (object index, -1 background) and ``flow (T-1, H, W, 2)
-            float32`` px (None when ``flow`` is False).
+            ``seg (T, H, W) int8`` (object index, -1 background; swept over the camera's
+            exposure, :func:`pipeline.exposure.expose`) and ``flow (T-1, H, W, 2) float32`` px
+            (None when ``flow`` is False).
         """
         self.set_scene(scene)
         T = scene.n_frames if n_frames is None else int(n_frames)
         trace = rollout(self.model, self.n, T, scene.fps, data=self._sim_data, record_contacts=False)
         frames = self.renderer.render(trace.qpos, rgb=False, seg=True, depth=False, flow=flow)
-        return frames.seg, frames.flow
+        return expose(frames.seg, scene.exposure_frames), frames.flow
 
 
 def evaluate_scene(scene: Scene, width: int, height: int, n_frames: int | None = None,

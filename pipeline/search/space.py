@@ -20,7 +20,8 @@ class SearchSpace:
 
     Parameter ``p`` with bounds ``[lo, hi]`` around the start value is ``x = (p − lo) / (hi −
     lo)``; sizes and masses are searched in log space; yaw is a rotation of the starting
-    orientation about world z (deg). Bounds are clipped to what the scene language accepts
+    orientation about world z (deg); the camera's exposure over its whole range, 0 to one frame
+    interval (s). Bounds are clipped to what the scene language accepts
     (pitch in [-89, 89], fov in (1, 179), friction/damping >= 0) and z to at least the
     object's floor contact height (:func:`floor_height`; no start inside the floor), so every
     vector decodes to a valid scene. :meth:`decode` also lifts an object whose decoded size or
@@ -111,6 +112,8 @@ class SearchSpace:
             add("camera.pitch", ("camera", "pitch"), v, max(-89.0, v - r.camera_angle), min(89.0, v + r.camera_angle))
             v = cam.fov
             add("camera.fov", ("camera", "fov"), v, max(1.5, v - r.fov), min(178.5, v + r.fov))
+        if "exposure" in free:   # the shutter time, s: from instantaneous to one frame interval (pipeline.exposure)
+            add("camera.exposure", ("camera", "exposure"), scene.camera.exposure, 0.0, 1.0 / scene.fps)
         if "restitution" in free:   # written into the compiled model per candidate (SceneEvaluator)
             spec = REGISTRY["restitution"].parameters["e"]
             for j, fx in enumerate(scene.effects):
