@@ -986,6 +986,60 @@ def texture_kept(mask: np.ndarray, frames: np.ndarray, background: np.ndarray) -
     return float(np.median(out)) if out else 0.0
 
 
+ATTACHED_MIN_REST = 0.5
+""":func:`attached_shadows`: a frame's shadow candidate is left alone where removing it would leave
+less than this share of the object's mask (a shadow beside an object is not most of it; a mask
+mostly shadow-coloured is a grey object's, or a dark one's)."""
+
+
+def attached_shadows(seg: np.ndarray, frames: np.ndarray, background: np.ndarray) -> tuple[np.ndarray, list[int]]:
+    """Object masks without the cast shadow attached to them (learned masks).
+
+    The segmenter, trained on renders without cast shadows, marks an object lit from above
+    together with the shadow it casts on the floor beside it (real clip dev/11: a tennis ball
+    rolling on a table, its mask the ball plus a dark crescent below it, 1.3 times taller than
+    wide, fitted as an upright cylinder). Per object and frame, the candidate is the pixels of its
+    mask that look like the background darkened (:func:`pipeline.masks.shadow_like`, after a 3x3
+    opening: no one-pixel rims) and connect to the mask's outline, unless removing them would
+    leave less than :data:`ATTACHED_MIN_REST` of the mask. Over the whole track at once, they are
+    removed only if the background's texture shows through them (:func:`texture_kept` at least
+    :data:`SHADOW_TEXTURE`, the test :func:`cast_shadow_pairs` uses for detached shadows): a grey
+    object, or a polished one that mirrors the wall behind it (dev/10's glider: 0.57), passes the
+    photometric test and hides that texture; a dark object alone is never a shadow (issue 29).
+
+    Args:
+        seg: ``(T, H, W)`` int8 object ids, -1 background; frames: ``(T, H, W, 3)`` uint8 RGB;
+        background: ``(H, W, 3)`` uint8 RGB (:func:`pipeline.segmenter.median_background`).
+    Returns:
+        ``(seg, trimmed)``: a copy of ``seg`` with the attached shadows set to -1, and the ids of
+        the objects trimmed.
+    """
+    seg = np.asarray(seg)
+    out = seg.copy()
+    shade = shadow_like(frames, background)
+    k3 = np.ones((3, 3), np.uint8)
+    trimmed = []
+    for k in range(int(seg.max()) + 1 if seg.size else 0):
+        attached = np.zeros(seg.shape, bool)
+        for t in range(len(seg)):
+            m = seg[t] == k
+            if m.sum() < TEXTURE_MIN_PX:
+                continue
+            cand = cv2.morphologyEx((shade[t] & m).astype(np.uint8), cv2.MORPH_OPEN, k3)
+            if not cand.any():
+                continue
+            outline = m & (cv2.dilate((~m).astype(np.uint8), k3) > 0)
+            _, comp = cv2.connectedComponents(cand, connectivity=8)
+            touching = np.unique(comp[outline & (cand > 0)])
+            a = np.isin(comp, touching[touching > 0])
+            if (m & ~a).sum() >= ATTACHED_MIN_REST * m.sum():
+                attached[t] = a
+        if attached.any() and texture_kept(attached, frames, background) >= SHADOW_TEXTURE:
+            out[attached] = -1
+            trimmed.append(k)
+    return out, trimmed
+
+
 def cast_shadows(masks: list, frames: np.ndarray, background: np.ndarray) -> set[int]:
     """Movers that are the cast shadow of another mover, not objects (``hybrid``): the keys of
     :func:`cast_shadow_pairs`.
@@ -1721,6 +1775,8 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
         moving = tuple(k["kind"] != "at_rest" for k in kinds)
     elif kinds:   # hybrid: kept tracks carry its ids
         moving = tuple(kinds[t.label]["kind"] != "at_rest" for t in kept)
+    if learned or anchored:   # the segmenter marks an object's cast shadow beside it as the object
+        seg, _ = attached_shadows(seg, frames, median_background(ctx))
     return Observation(frames, seg, flow_px, clip, float(start), auto, clip.crop, size, scene_fps, flow.estimator,
                        mask_method, duration, moving)
 
@@ -1791,6 +1847,7 @@ def observe_frames(video, fps: float | None, frame_indices, size: tuple[int, int
         seg = segment_objects(clip.frames[tracked], clip.frames[fit], mask_method, max_objects, segmenter=segmenter,
                               rest_segmenter=rest_segmenter)
         seg, _ = keep_objects(seg, None, max_objects, still=True)
+    seg, _ = attached_shadows(seg, clip.frames[tracked], median_background(clip.frames[fit]))
     where = {t: k for k, t in enumerate(tracked)}
     out = seg[[where[i] for i in wanted]]
     return upscale(out, (W, H)) if (W, H) != work else out

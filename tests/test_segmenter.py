@@ -1157,3 +1157,40 @@ def test_objects_at_rest_no_mover_touches_are_scenery_and_a_struck_or_touched_on
                                              crop=(0, 0, W, H), size=(W, H), scene_fps=30, flow_method="dis",
                                              mask_method="median", moving=None))
     assert none == [] and same.seg is seg
+
+
+def test_an_attached_cast_shadow_is_cut_from_the_mask_a_grey_or_dark_object_is_not():
+    """dev/11: a ball rolling on a textured table, lit from above, casts a shadow that touches it;
+    the segmenter marks ball and shadow as one mask. The shadow (the table darkened, its texture
+    still there) is cut, leaving the ball's disc (all of it, and under 15 % of the crescent); kept whole: the same mask where that part is a
+    flat grey piece of the object (it hides the texture), and a dark object's mask (no part of it
+    looks like the table in shade)."""
+    from pipeline.observe import attached_shadows
+
+    T, H, W = 10, 80, 100
+    rng = np.random.default_rng(1)
+    texture = rng.normal(0.0, 12.0, (H, W, 1)) + np.linspace(-10.0, 10.0, W)[None, :, None]
+    table = np.clip(np.array([170.0, 170.0, 165.0]) + texture, 0, 255)
+    background = table.astype(np.uint8)
+    centres = [(20.0 + 5 * t, 35.0) for t in range(T)]
+    ball = _disc_track(T, H, W, centres, 8.0)
+    shade = _disc_track(T, H, W, [(x + 3.0, y + 7.0) for x, y in centres], 8.0) & ~ball
+
+    def clip(shade_px, ball_rgb=(200.0, 210.0, 40.0)):
+        frames = np.tile(table, (T, 1, 1, 1))
+        frames[shade] = shade_px(frames[shade])
+        frames[ball] = ball_rgb
+        return frames.astype(np.uint8)
+
+    seg = np.where(ball | shade, 0, -1).astype(np.int8)
+    out, trimmed = attached_shadows(seg, clip(lambda px: 0.55 * px), background)
+    assert trimmed == [0]
+    iou = ((out == 0) & ball).sum() / ((out == 0) | ball).sum()
+    assert iou > 0.93 and (out[shade] == 0).mean() < 0.15   # the crescent's thin tips may stay (3x3 opening)
+    assert (out[ball] == 0).all()
+    grey = clip(lambda px: np.full_like(px, 0.55) * table.mean(axis=(0, 1)))
+    assert attached_shadows(seg, grey, background)[1] == []
+    dark = clip(lambda px: 0.55 * px, ball_rgb=(25.0, 25.0, 25.0))
+    only_dark = np.where(ball, 0, -1).astype(np.int8)
+    out, trimmed = attached_shadows(only_dark, dark, background)
+    assert trimmed == [] and np.array_equal(out, only_dark)
