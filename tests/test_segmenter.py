@@ -1194,3 +1194,28 @@ def test_an_attached_cast_shadow_is_cut_from_the_mask_a_grey_or_dark_object_is_n
     only_dark = np.where(ball, 0, -1).astype(np.int8)
     out, trimmed = attached_shadows(only_dark, dark, background)
     assert trimmed == [] and np.array_equal(out, only_dark)
+
+
+def test_a_shadow_whose_caster_is_out_of_view_is_not_an_object():
+    """dev/02: a patch of the table darkened for 9 frames (the shadow of something out of the
+    view) was tracked as a mover and fitted as a second object. Through a shadow the surface's
+    texture shows, which no object does: a darkened patch on its own path is dropped with no
+    caster in view; a flat grey object on the same path, a red ball, and a shadow's caster are not."""
+    from pipeline.observe import lone_shadows
+
+    T, H, W = 12, 80, 80
+    rng = np.random.default_rng(2)
+    texture = rng.normal(0.0, 12.0, (H, W, 1)) + np.linspace(-10.0, 10.0, W)[None, :, None]
+    wall = np.clip(np.array([200.0, 190.0, 180.0]) + texture, 0, 255)
+    background = wall.astype(np.uint8)
+    ball = _disc_track(T, H, W, [(20.0, 5.0 + 5 * t) for t in range(T)], 4.0)
+    own = _disc_track(T, H, W, [(60.0, 70.0 - 4.0 * t) for t in range(T)], 5.0)
+    frames = np.tile(wall, (T, 1, 1, 1))
+    frames[own] *= 0.6
+    frames[ball] = (200.0, 30.0, 40.0)
+    assert lone_shadows([ball, own], frames.astype(np.uint8), background) == {1}
+    assert lone_shadows([ball, own], frames.astype(np.uint8), background, casters={1}) == set()
+    grey = np.tile(wall, (T, 1, 1, 1))
+    grey[own] = 0.6 * wall.mean(axis=(0, 1))
+    grey[ball] = (200.0, 30.0, 40.0)
+    assert lone_shadows([ball, own], grey.astype(np.uint8), background) == set()
