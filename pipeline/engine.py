@@ -148,14 +148,16 @@ def structure_key(scene: Scene) -> tuple:
     """What a compiled model fixes: the shapes in order, the effects with their parameters (of
     those in :data:`EDITED_IN_PLACE` only the name) and the static geometry (``Scene.static``:
     fixed boxes / planes such as ramps and walls, compiled into the worldbody; absent in scenes
-    without it).
+    without it), of whose ``restitution`` only whether it is set (its value is edited in place).
 
     Scenes with equal keys can share one compiled model (e.g. one
     :class:`pipeline.search.SceneEvaluator`).
     """
     effects = tuple((e.effect, () if e.effect in EDITED_IN_PLACE else tuple(sorted(e.parameters.items())))
                     for e in scene.effects)
-    static = tuple(g.model_dump_json() if hasattr(g, "model_dump_json") else repr(g)
+    # a static geom's restitution is edited in place too (its solref): only whether it has one counts
+    static = tuple((g.model_copy(update={"restitution": 0.5}) if getattr(g, "restitution", None) is not None else g
+                    ).model_dump_json() if hasattr(g, "model_dump_json") else repr(g)
                    for g in (getattr(scene, "static", None) or ()))
     return tuple(o.shape for o in scene.objects), effects, static
 

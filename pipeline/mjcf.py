@@ -23,7 +23,10 @@ benchmark clips (``pipeline.truthsets``): floor texture and colours, object colo
 the headlight. Without it the MJCF text is exactly what it was before it existed.
 Static geoms get the floor's contact parameters (``priority=0``, ``condim=3``,
 ``floor_friction``, ``floor_solref``), so an object on a ramp slides with its own
-``sliding_friction`` exactly as on the floor.
+``sliding_friction`` exactly as on the floor. A static geom with a ``restitution`` (a springy
+stop, an air track's bumper) takes over its contacts instead (``priority=2``): frictionless
+(``condim=1``), its ``solref`` that of the ``restitution`` effect for its ``e``
+(:func:`pipeline.effects.restitution_solref`).
 """
 
 from __future__ import annotations
@@ -39,7 +42,7 @@ from dm_control import mjcf
 import mujoco
 
 from pipeline.camera import camera_pose
-from pipeline.effects import apply_effects
+from pipeline.effects import apply_effects, restitution_solref
 from pipeline.geometry import geom_size
 from pipeline.scene import Scene
 
@@ -237,10 +240,12 @@ def build_mjcf(scene: Scene, options: SimOptions | None = None,
                        priority=0, condim=3)
     for g, name in zip(scene.static, scene.static_names):
         q = np.asarray(g.orientation, dtype=np.float64)
+        contact = dict(friction=[opt.floor_friction, 0.0, 0.0], solref=list(opt.floor_solref), priority=0, condim=3)
+        if g.restitution is not None:   # a springy stop: its own bounce, frictionless, over the object's material
+            contact = dict(friction=[0.0, 0.0, 0.0], priority=2, condim=1,
+                           solref=list(restitution_solref(g.restitution, float(root.option.timestep))))
         root.worldbody.add("geom", name=name, type=g.shape, size=static_geom_size(g), pos=list(g.position),
-                           quat=(q / np.linalg.norm(q)).tolist(), rgba=list(STATIC_COLOUR),
-                           friction=[opt.floor_friction, 0.0, 0.0], solref=list(opt.floor_solref),
-                           priority=0, condim=3)
+                           quat=(q / np.linalg.norm(q)).tolist(), rgba=list(STATIC_COLOUR), **contact)
 
     pose = camera_pose(scene.camera)
     root.worldbody.add("camera", name="main", pos=pose.eye.tolist(),

@@ -302,10 +302,10 @@ def lift_side(tracks: list[Track], motions: list[Motion], width: int, height: in
         if kind == "ramp":
             lifted.ramp, lifted.friction = _ramp_under(tr, m, px, cu, cv, cam.height, y, half_h, body, fps)
             turn = bumper_on_ramp(w, m, px, cu, cv, cam.height, y, half_h, fps)
-            if turn is not None:   # its restitution is reported, not written (bumper_on_ramp)
+            if turn is not None:   # a springy stop with the restitution seen (bumper_on_ramp)
                 lifted.bumper = turn[0]
                 notes.append(f"object {tr.label}: turns back up the slope: a bumper there (restitution "
-                             f"{turn[1]:.2f} seen, not written)")
+                             f"{turn[1]:.2f})")
         if kind in ("ramp", "floor") and body in ROLL_FACTOR:
             # already rolling, not skidding: a ball launched without spin slides until friction
             # has spun it up, losing 2/7 of its speed (sphere; 1/3 for a cylinder)
@@ -574,11 +574,11 @@ def bumper_on_ramp(tr: Track, m: Motion, px: float, cu: float, cv: float, cam_h:
     after the turn over the speed before it (lines through the 2-3 samples on each side), clamped
     to [0.2, 0.95] as :func:`pipeline.image_tracks.first_bounce` does.
 
-    :func:`lift_side` places the bumper and only reports ``e``: the scene language's
-    ``restitution`` is the object's, on every contact (:mod:`pipeline.effects`), and a contact that
-    springy slid dev/10's box down its ramp at 2.5 times the acceleration its friction gives
-    (about 1 m/s^2 against 0.41; without it the simulated slide matches the analytic
-    ``g (sin theta - mu cos theta)`` to 3 %). Without it the object stops at the bumper.
+    The bumper carries ``e`` as its own ``restitution`` (a static geom's springy stop,
+    :class:`pipeline.scene.StaticBox`): the ``restitution`` effect is the object's, on every
+    contact (:mod:`pipeline.effects`), and a contact that springy slid dev/10's box down its ramp
+    at 2.5 times the acceleration its friction gives (about 1 m/s^2 against 0.41); the bumper's
+    own leaves the ramp's contact as it is (``tests/test_static.py``).
 
     Args:
         tr: the track (whole frames); m: its motion (``a``: px/s^2, towards down the slope);
@@ -611,7 +611,7 @@ def bumper_on_ramp(tr: Track, m: Motion, px: float, cu: float, cv: float, cam_h:
     mid = centre + along * (0.5 * tr.size[0] * px + 0.5 * thickness)
     quat = axis_angle_quat((0.0, 1.0, 0.0), sgn * theta).tolist()
     box = {"shape": "box", "size": {"width": thickness, "depth": 0.3, "height": round(4.0 * half_h, 4)},
-           "position": [float(mid[0]), float(y), float(mid[1])], "orientation": quat}
+           "position": [float(mid[0]), float(y), float(mid[1])], "orientation": quat, "restitution": e}
     return box, e
 
 

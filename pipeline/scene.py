@@ -227,9 +227,21 @@ class PlaneSize(_Strict):
     depth: PositiveFloat
 
 
+STATIC_RESTITUTION = (0.14, 0.95)
+"""Range of a static geom's ``restitution``: that of the ``restitution`` effect's ``e``
+(:mod:`pipeline.effects`; 0.14 is MuJoCo's critically damped contact, the base model's)."""
+
+
 class _StaticBase(_Strict):
+    """``restitution`` (beyond the paper; None, the default and not written: contacts use the
+    object's material, as the floor's do): a springy stop such as an air track's bumper, whose
+    contacts bounce with this coefficient of restitution and no friction, whatever the object's
+    material (:func:`pipeline.mjcf.build_mjcf` gives the geom contact priority)."""
+
     position: Vec3
     orientation: tuple[FiniteFloat, FiniteFloat, FiniteFloat, FiniteFloat] = (1.0, 0.0, 0.0, 0.0)
+    restitution: Annotated[float, Field(ge=STATIC_RESTITUTION[0], le=STATIC_RESTITUTION[1],
+                                        allow_inf_nan=False)] | None = None
 
     @field_validator("orientation")
     @classmethod
@@ -578,6 +590,8 @@ def _dump(scene: Scene, decimals: "Decimals | None") -> str:
                 f"    position: {_vec(g.position, d.position)}",
                 f"    orientation: {_vec(g.orientation, d.orientation)}",
             ]
+            if g.restitution is not None:
+                lines.append(f"    restitution: {_num(g.restitution, d.effect)}")
     if scene.effects:
         lines.append("effects:")
         for e in scene.effects:

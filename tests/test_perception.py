@@ -681,7 +681,8 @@ def test_a_turn_at_the_bottom_of_a_slope_is_a_bumper_and_the_slide_reaches_it_on
     the side view's ramp proposal gets a bumper there (a turn at the top of a path is gravity's,
     and gets none), and the slide, with the friction read from the acceleration over the whole
     run down (:func:`perception.slope_acceleration`), reaches the bumper when the clip's box
-    does: re-simulated, the box's image position at the turn is within 4 px of the clip's."""
+    does: re-simulated, the box's image position at the turn is within 4 px of the clip's, and
+    the bumper's own restitution (the turn's, 0.8) sends it back up the slope."""
     from pipeline.simulate import simulate
 
     seg, centres, d = _slide_with_bumper()
@@ -690,11 +691,20 @@ def test_a_turn_at_the_bottom_of_a_slope_is_a_bumper_and_the_slide_reaches_it_on
     ramps = [sc for sc, label in zip(props.scenes, props.labels) if label == "side: box on a ramp"]
     assert ramps, props.labels
     scene = ramps[0]
-    assert len(scene.static) == 2 and not scene.effects         # the ramp and the bumper; e only noted
+    assert len(scene.static) == 2 and not scene.effects         # the ramp and the bumper, springy itself
+    assert scene.static[0].restitution is None and scene.static[1].restitution == pytest.approx(0.8, abs=0.1)
     assert any("bumper" in n for n in props.notes)
     _, trace = simulate(scene)
     uv, _ = project(np.asarray(trace.position)[:, 0], scene.camera, W, H)
     assert np.linalg.norm(uv[15] - centres[15]) < 4.0, (uv[15], centres[15])
+    # and it comes back up the slope after the hit (friction, read from the run down, then stops
+    # it sooner than the clip's frictionless box), where a bumper without restitution holds it
+    dead = scene.replace(static=[scene.static[0].model_dump(), {**scene.static[1].model_dump(), "restitution": None}])
+    _, still = simulate(dead)
+    uv0, _ = project(np.asarray(still.position)[:, 0], dead.camera, W, H)
+    back = float(np.max((uv[15] - uv[16:20]) @ d))
+    back0 = float(np.max((uv0[15] - uv0[16:20]) @ d))
+    assert back > 2.0 and back0 < 1.0, (back, back0)
     # the bumper stands just beyond the box at the turn (its face half a box length further down)
     bump, _ = project(np.array([scene.static[1].position]), scene.camera, W, H)
     assert float((bump[0] - centres[15]) @ d) == pytest.approx(15.0 + 0.5 * 0.02 * 30.0 / scene.objects[0].size.width, abs=3.0)

@@ -123,6 +123,28 @@ def test_fast_evaluator_edits_restitution_in_place():
     assert sequence_iou(seg_low, seg_high)["full_iou"] < 0.99
 
 
+def test_fast_evaluator_edits_a_bumpers_restitution_in_place():
+    """A static geom's ``restitution`` (a springy stop) is edited per candidate like the effect's:
+    one compiled model serves every value, each equal to a model compiled for it, and the search
+    space frees it with ``restitution``."""
+    def wall(e: float) -> Scene:
+        return _edit(_scene(duration=0.6, static=[{"shape": "box", "size": {"width": 0.05, "depth": 0.6, "height": 0.3},
+                                                   "position": [0.45, -0.7, 0.15], "restitution": e}]),
+                     1, position=[0.2, -0.7, 0.1], linear_velocity=[1.5, 0.0, 0.0])
+
+    low, high = wall(0.3), wall(0.9)
+    assert structure_key(low) == structure_key(high) != structure_key(low.replace(static=[
+        {**low.static[0].model_dump(), "restitution": None}]))
+    with SceneEvaluator(low, W, H) as ev:
+        for cand in (high, low):
+            seg, _ = ev.evaluate(cand, flow=False)
+            naive = compile_model(cand)
+            np.testing.assert_allclose(ev.model.geom_solref, naive.geom_solref, rtol=1e-12)
+            _, frames = render_scene(cand, W, H, rgb=False, depth=False, flow=False)
+            np.testing.assert_array_equal(seg, frames.seg)
+    assert "static[0].restitution" in SearchSpace(low, ("restitution",), SearchConfig().ranges).names
+
+
 def test_candidates_really_differ():
     """Guard for the test above: each candidate changes the rendered clip."""
     base_seg, _ = evaluate_scene(_scene(), W, H)

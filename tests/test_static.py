@@ -18,11 +18,12 @@ import numpy as np
 import pytest
 
 from pipeline.codec import CodecError, SceneCodec
+from pipeline.effects import REGISTRY
 from pipeline.mjcf import STATIC_COLOUR, SimOptions, compile_model, to_xml
 from pipeline.render import render_scene
 from pipeline.sample_config import SampleConfig, scene_seed
 from pipeline.sampler import SceneFilter, iter_dataset, sample_scene
-from pipeline.scene import Decimals, Scene, SceneError, StaticBox, StaticPlane, json_schema_text
+from pipeline.scene import STATIC_RESTITUTION, Decimals, Scene, SceneError, StaticBox, StaticPlane, json_schema_text
 from pipeline.simulate import simulate
 from pipeline.rotation import quat_to_mat as rotation_matrix
 from pipeline.static import ramp, support_height, support_normal
@@ -299,3 +300,43 @@ def test_ramp_parameters_invert_ramp():
         got = ramp_parameters(ramp(**args))
         for k, v in args.items():
             assert got[k] == pytest.approx(v, abs=1e-9), k
+
+
+@pytest.mark.parametrize("e", [0.5, 0.85])
+def test_a_springy_stop_at_the_foot_of_a_ramp_bounces_the_box_back_and_leaves_the_slide_alone(e):
+    """dev/10: an air-track glider slides down and rebounds off a spring bumper. A static box with
+    ``restitution: e`` across the ramp's foot sends the sliding box back up at e times its
+    impact speed (Newton's law of restitution, within 0.06: MuJoCo's soft contact), while the
+    slide down keeps ``g (sin theta - mu cos theta)`` (3 %): the ramp's contact is not springy. A
+    stop without restitution (the object's material, critically damped) keeps under 0.2 of it."""
+    theta, mu = 20.0, 0.1
+    r = ramp(theta, length=3.0, width=0.6, thickness=0.05, x=0.0, y=0.0)
+    obj, d = _on_ramp(r, {**BOX, "material": {"sliding_friction": mu}}, s_up=0.5)
+    R = rotation_matrix(r.orientation)
+    n = R[:, 2]
+    foot = np.asarray(r.position) + r.size.height / 2 * n + 1.2 * d + 0.15 * n   # 1.2 m down the slope
+    stop = {"shape": "box", "size": {"width": 0.02, "depth": 0.5, "height": 0.3}, "position": foot.tolist(),
+            "orientation": list(r.orientation)}
+
+    def run(restitution):
+        st = {**stop, "restitution": restitution} if restitution is not None else stop
+        scene = scene_with([r.model_dump(), st], [obj], fps=200, duration=1.5)
+        _, trace = simulate(scene, SimOptions(timestep=0.0005))
+        v = trace.qvel[:, 0, :3] @ d                                     # down-slope speed, m/s
+        k = int(np.argmax(v))                                           # just before the impact
+        return v, k, trace
+
+    v, k, trace = run(e)
+    th = math.radians(theta)
+    early = trace.t < trace.t[k] - 0.05
+    a = np.polyfit(trace.t[early], v[early], 1)[0]
+    assert a == pytest.approx(G * (math.sin(th) - mu * math.cos(th)), rel=0.03)
+    after = v[k:k + 40]
+    assert -after.min() / v[k] == pytest.approx(e, abs=0.06)
+    v0, k0, _ = run(None)
+    assert -v0[k0:k0 + 40].min() / v0[k0] < 0.2
+    assert Scene.from_yaml(scene_with([r.model_dump(), {**stop, "restitution": e}], [obj]).to_yaml()).static[1].restitution == e
+    with pytest.raises(SceneError, match=r"static\[0\]\.restitution"):
+        scene_with([{**stop, "restitution": 1.5}])
+    spec = REGISTRY["restitution"].parameters["e"]
+    assert STATIC_RESTITUTION == (spec.low, spec.high)   # the restitution effect's range

@@ -33,8 +33,9 @@ class SearchRanges(BaseModel):
         camera_position: m per coordinate (6-DoF camera form).
         camera_angle: deg, pitch (and yaw/roll of a 6-DoF camera).
         fov: deg, vertical field of view.
-        restitution: coefficient of restitution ``e`` of a ``restitution`` effect (within the
-            effect's bounds, :data:`pipeline.effects.REGISTRY`).
+        restitution: coefficient of restitution ``e`` of a ``restitution`` effect, and a static
+            geom's ``restitution`` (a bumper), within the effect's bounds
+            (:data:`pipeline.effects.REGISTRY`).
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)

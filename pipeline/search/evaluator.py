@@ -5,7 +5,8 @@
 static geometry) and, for each candidate, edits the ``mjModel`` in place with the engine's
 functions (:mod:`pipeline.engine`: masses, inertias, sizes, bounding volumes, camera, then the
 derived constants and ``mjModel.stat``; here also friction, damping, gravity, the contact
-``solref`` of a ``restitution`` effect and the ``init`` keyframe), then rolls out and renders segmentation and exact flow with one reused
+``solref`` of a ``restitution`` effect and of a static geom's ``restitution``, and the ``init``
+keyframe), then rolls out and renders segmentation and exact flow with one reused
 :class:`pipeline.render.FrameRenderer`. ``tests/test_search.py`` checks fast == naive (rebuild
 the XML per candidate).
 """
@@ -15,7 +16,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from pipeline.effects import REGISTRY, resolve_params
+from pipeline.effects import REGISTRY, resolve_params, restitution_solref
 from pipeline.exposure import expose
 from pipeline.engine import (EDITED_IN_PLACE, object_bodies, refresh_constants, set_camera, set_object_mass,
                              set_object_size, structure_key)
@@ -45,6 +46,8 @@ class SceneEvaluator:
         self.model = compile_model(structure_scene, options)
         self.n = len(structure_scene.objects)
         self.bodies, self.geoms = object_bodies(self.model, structure_scene)
+        self._static_geoms = [mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_GEOM, name)
+                              for name in structure_scene.static_names]
         # The floor plane is drawn as a grid of size[2]-spaced quads (MuJoCo docs, "geom/size":
         # plane), 200 x 200 = 40,000 quads for the 10 m floor at 0.1 m: ~70 % of a segmentation
         # pass at 192x144. A plane's third size is only that rendering spacing (planes are
@@ -95,6 +98,9 @@ class SceneEvaluator:
             m.geom_friction[g, 2] = obj.material.rolling_friction
             dof = m.body_dofadr[b]
             m.dof_damping[dof: dof + 6] = obj.material.damping
+        for g, geom in zip(scene.static, self._static_geoms):   # a springy stop's bounce (pipeline.mjcf)
+            if g.restitution is not None:
+                m.geom_solref[geom] = restitution_solref(g.restitution, float(m.opt.timestep))
         for fx in scene.effects:   # the effects structure_key leaves out of the structure
             if fx.effect in EDITED_IN_PLACE:
                 REGISTRY[fx.effect].set_model(m, resolve_params(fx.effect, fx.parameters, "<search>"), self.geoms, None)

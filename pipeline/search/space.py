@@ -121,6 +121,10 @@ class SearchSpace:
                     v = float(fx.parameters.get("e", spec.default))
                     add(f"effects[{j}].e", ("effects", j, "parameters", "e"), v,
                         max(spec.low, v - r.restitution), min(spec.high, v + r.restitution))
+            for j, g in enumerate(scene.static):   # a springy stop's own bounce (a bumper)
+                if g.restitution is not None:
+                    add(f"static[{j}].restitution", ("static", j, "restitution"), g.restitution,
+                        max(spec.low, g.restitution - r.restitution), min(spec.high, g.restitution + r.restitution))
         self.lo, self.hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
         self.x0 = np.clip(np.asarray(x0, dtype=np.float64), 0.0, 1.0)
 
