@@ -1001,7 +1001,9 @@ def attached_shadows(seg: np.ndarray, frames: np.ndarray, background: np.ndarray
     wide, fitted as an upright cylinder). Per object and frame, the candidate is the pixels of its
     mask that look like the background darkened (:func:`pipeline.masks.shadow_like`, after a 3x3
     opening: no one-pixel rims) and connect to the mask's outline, unless removing them would
-    leave less than :data:`ATTACHED_MIN_REST` of the mask. Over the whole track at once, they are
+    leave less than :data:`ATTACHED_MIN_REST` of the mask; of them, those inside the convex hull
+    of what is left (opened 3x3, its largest piece) stay (every primitive's silhouette is convex;
+    a cut along the shadow's ragged edge read dev/11's ball as a polygon). Over the whole track at once, they are
     removed only if the background's texture shows through them (:func:`texture_kept` at least
     :data:`SHADOW_TEXTURE`, the test :func:`cast_shadow_pairs` uses for detached shadows): a grey
     object, or a polished one that mirrors the wall behind it (dev/10's glider: 0.57), passes the
@@ -1032,8 +1034,15 @@ def attached_shadows(seg: np.ndarray, frames: np.ndarray, background: np.ndarray
             _, comp = cv2.connectedComponents(cand, connectivity=8)
             touching = np.unique(comp[outline & (cand > 0)])
             a = np.isin(comp, touching[touching > 0])
-            if (m & ~a).sum() >= ATTACHED_MIN_REST * m.sum():
-                attached[t] = a
+            rest = cv2.morphologyEx((m & ~a).astype(np.uint8), cv2.MORPH_OPEN, k3)   # no thin tips of shadow
+            n_comp, comp, stats, _ = cv2.connectedComponentsWithStats(rest, connectivity=8)
+            if n_comp < 2:
+                continue
+            body = comp == 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+            if body.sum() >= ATTACHED_MIN_REST * m.sum():
+                # the cut follows the shadow's ragged edge: the object keeps its convex outline
+                # (every primitive's silhouette is convex), within the segmenter's mask
+                attached[t] = a & ~(convex_hull_masks(body[None])[0])
         if attached.any() and texture_kept(attached, frames, background) >= SHADOW_TEXTURE:
             out[attached] = -1
             trimmed.append(k)
