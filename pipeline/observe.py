@@ -1121,11 +1121,11 @@ def lone_shadows(masks: list, frames: np.ndarray, background: np.ndarray, caster
     its pixels look like the background darkened (:func:`pipeline.masks.shadow_like`) and the
     background's texture shows through it (:func:`texture_kept` at least :data:`SHADOW_TEXTURE`).
     No object keeps the texture of the surface behind it, so the motion cue is not needed; a dark
-    or grey object hides the texture and stays (real clip dev/02: a patch of the table darkened in
-    9 of 30 frames, share 0.61 and texture 0.91, was fitted as a second object; the balls and
-    pucks of the 19 real clips have textures of -0.2 to 0.71 with shares of at most 0.34, and
-    dev/10's polished glider, share 0.61, hides the wall's texture, 0.46). Only for movers: an
-    object at rest is in the median background, which then shows its own texture.
+    or grey object hides the texture and stays (the balls and pucks of the 19 real clips have
+    textures of -0.2 to 0.71 with shares of at most 0.34, and dev/10's polished glider, share
+    0.61, hides the wall's texture, 0.46; dev/02's darkened table patch, fitted as a second object,
+    has texture 0.91 but a share of 0.43, so it stays). Only for movers: an object at rest is in the
+    median background, which then shows its own texture.
 
     Args:
         masks: ``(T, H, W)`` bool masks, one per mover; frames: ``(T, H, W, 3)`` uint8 RGB;
