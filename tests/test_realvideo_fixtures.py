@@ -60,7 +60,8 @@ def test_content_columns_score_a_written_scene(tmp_path):
 
 
 def test_shape_choice_says_which_rule_picked_the_shapes():
-    """Issue 29 item 4: per clip, the shape chosen and why (the fittest, the parsimony rule, a model sample)."""
+    """Issue 29 item 4: per clip, the shape chosen and why (the fittest, the silhouettes, the parsimony rule, a
+    model sample)."""
     rv = _realvideo_all()
     proposals = [{"source": "model", "label": "model sample 0", "valid": True, "fitness": 0.1},
                  {"source": "perception", "label": "perception: top: cylinder", "valid": True, "fitness": 0.474},
@@ -73,3 +74,6 @@ def test_shape_choice_says_which_rule_picked_the_shapes():
     assert c["picked"] == "perception: top: sphere" and c["why"].startswith("parsimony")
     assert rv.shape_choice({**m, "best_of_k_label": "perception: top: cylinder"})["why"] == "fittest"
     assert rv.shape_choice({**m, "best_of_k_source": "model"})["why"] == "a model sample was fittest"
+    # the silhouettes favour the pick (a lower silhouette_rank than the fittest's): they decided, not parsimony
+    ranked = [{**p, "silhouette_rank": 1 if p["label"].endswith("cylinder") else 0} for p in proposals]
+    assert rv.shape_choice({**m, "proposals": ranked})["why"].startswith("silhouettes")
