@@ -160,6 +160,7 @@ def write_outputs(out: str | Path, video: str | Path, fps: float | None, obs: Ob
             "first_sample_source": candidates[first_i].source, "first_sample": m_first,
             "best_of_k_source": candidates[best].source, "best_of_k_label": candidates[best].label,
             "best_of_k": m_best, "best_of_k_fittest_label": candidates[outcome.fittest].label,
+            "shape_tiebreak": rv.shape_tiebreak,
             "best_of_k_cmaes": m_ref, "search_gain": outcome.search_gain,
             "cmaes_evaluations": int(history[-1]["evaluations"]) if history else 0,
             "cmaes_seconds": float(history[-1]["seconds"]) if history else 0.0,

@@ -94,8 +94,10 @@ class RealVideoConfig(BaseModel):
     wide, averaged over ``epe_pixels``: ``observed`` foreground pixels by default, so that a
     predicted object away from the motion cannot lower it, :class:`pipeline.search.SearchConfig`;
     ``shape_margin``: among the proposals of the best one's structure within this fitness of it,
-    Best@K takes the one whose shapes the silhouettes favour, then the fewest shape parameters,
-    :func:`pipeline.search.simplest_within`) and the figures (``panel_height``, ``sheet_height`` in px). The defaults are the
+    Best@K takes the one with the fewest shape parameters, :func:`pipeline.search.simplest_within`;
+    ``shape_tiebreak: silhouette``, opt-in, first the one whose shapes the silhouettes favour,
+    :func:`pipeline.perception.silhouette_rank`: measured in docs/realvideo.md, it helped a real
+    cube and cost the rendered held-out sets' shapes) and the figures (``panel_height``, ``sheet_height`` in px). The defaults are the
     default profile's (a test checks that params.yaml agrees).
     """
 
@@ -117,6 +119,7 @@ class RealVideoConfig(BaseModel):
     lambda_epe: float = Field(0.05, ge=0)
     epe_pixels: Literal["union", "observed"] = "observed"
     shape_margin: float = Field(0.02, ge=0)
+    shape_tiebreak: Literal["parameters", "silhouette"] = "parameters"
     panel_height: int = Field(320, ge=16)
     sheet_height: int = Field(180, ge=16)
 
@@ -442,8 +445,8 @@ class SearchOutcome:
         scores: Best@K's score dict per candidate (:func:`pipeline.search.best_of_k`).
         fittest: index of the fittest candidate (the paper's Best@K).
         best: index of the candidate the search started from (the fittest, or the one with the
-            one whose shapes the silhouettes favour, then the fewest shape parameters, within
-            ``realvideo.shape_margin`` of it).
+            one with the fewest shape parameters within ``realvideo.shape_margin`` of it, or with
+            ``realvideo.shape_tiebreak: silhouette`` first the shapes the silhouettes favour).
         written: the scene written to ``scene.yaml``: the better of the staged CMA-ES result and
             its start, made writable (:func:`choose_output`).
         history: the staged CMA-ES history (:func:`pipeline.search.staged.staged_refine`).
@@ -476,9 +479,10 @@ def search_scene(candidates: list[Candidate], obs: Observation, scfg: SearchConf
         if best is None:
             raise VideoError(f"{obs.clip.source}: no proposal could be simulated ({scores[0].get('error')})")
         fittest = best   # the paper's Best@K; then the simplest shapes the re-simulation cannot tell apart
-        best = simplest_within(scenes, scores, fittest, rv.shape_margin, [c.silhouette_rank for c in candidates])
+        ranks = [c.silhouette_rank for c in candidates] if rv.shape_tiebreak == "silhouette" else None
+        best = simplest_within(scenes, scores, fittest, rv.shape_margin, ranks)
         if best != fittest:
-            why = ("shapes the silhouettes favour" if (candidates[best].silhouette_rank or 0)
+            why = ("shapes the silhouettes favour" if ranks is not None and (candidates[best].silhouette_rank or 0)
                    < (candidates[fittest].silhouette_rank or 0) else "fewer shape parameters")
             print(f"[infer] Best@K: {candidates[best].label} (fitness {scores[best]['fitness']:.4f}) over "
                   f"{candidates[fittest].label} ({scores[fittest]['fitness']:.4f}): {why} within "

@@ -220,7 +220,8 @@ def shape_choice(metrics: dict) -> dict:
     hyps = [(p["label"].removeprefix("perception: "), p.get("fitness")) for p in props
             if p.get("source") == "perception" and p.get("valid")]
     picked, fittest = metrics.get("best_of_k_label"), metrics.get("best_of_k_fittest_label")
-    rank = {p["label"]: p.get("silhouette_rank") or 0 for p in props}
+    rank = ({p["label"]: p.get("silhouette_rank") or 0 for p in props}
+            if metrics.get("shape_tiebreak") == "silhouette" else {})
     why = ("a model sample was fittest" if metrics.get("best_of_k_source") == "model" else
            "fittest" if picked == fittest else
            f"silhouettes: shapes their outlines favour, within the margin of {fittest!r}"

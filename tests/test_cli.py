@@ -91,3 +91,8 @@ def test_infer_scenery_is_keep_or_drop_and_a_bad_param_names_the_field(capsys):
     assert realvideo_config({"realvideo": {"scenery": "drop"}}).scenery == "drop"
     with pytest.raises(ParamsError, match="scenery"):
         realvideo_config({"realvideo": {"scenery": "hide"}})
+    # the silhouette tie-break of shapes is opt-in (it cost the rendered held-out sets' shapes)
+    assert realvideo_config({}).shape_tiebreak == "parameters"
+    assert realvideo_config({"realvideo": {"shape_tiebreak": "silhouette"}}).shape_tiebreak == "silhouette"
+    with pytest.raises(ParamsError, match="shape_tiebreak"):
+        realvideo_config({"realvideo": {"shape_tiebreak": "outline"}})

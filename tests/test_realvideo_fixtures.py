@@ -76,4 +76,5 @@ def test_shape_choice_says_which_rule_picked_the_shapes():
     assert rv.shape_choice({**m, "best_of_k_source": "model"})["why"] == "a model sample was fittest"
     # the silhouettes favour the pick (a lower silhouette_rank than the fittest's): they decided, not parsimony
     ranked = [{**p, "silhouette_rank": 1 if p["label"].endswith("cylinder") else 0} for p in proposals]
-    assert rv.shape_choice({**m, "proposals": ranked})["why"].startswith("silhouettes")
+    assert rv.shape_choice({**m, "proposals": ranked, "shape_tiebreak": "silhouette"})["why"].startswith("silhouettes")
+    assert rv.shape_choice({**m, "proposals": ranked})["why"].startswith("parsimony")   # the default rule
