@@ -95,6 +95,28 @@ def pixel_grid(width: int, height: int) -> np.ndarray:
     return np.stack([u, v], axis=-1)
 
 
+def pixel_to_surface(uv: np.ndarray, point: np.ndarray, normal: np.ndarray, cam: Camera, width: int,
+                     height: int) -> np.ndarray:
+    """World points seen at pixels ``uv (..., 2)`` on the plane through ``point (3,)`` m with
+    normal ``normal (3,)`` (any length): each pixel's viewing ray met with the plane (a tilted
+    ramp; :func:`pixel_to_plane` is the horizontal case).
+
+    Returns:
+        (..., 3) float64 world points, m; NaN where the ray is parallel to the plane or meets it
+        behind the camera.
+    """
+    uv = np.asarray(uv, dtype=np.float64)
+    eye = np.asarray(cam.eye, dtype=np.float64)
+    n = np.asarray(normal, dtype=np.float64)
+    ray = unproject(uv, np.ones(uv.shape[:-1]), cam, width, height) - eye
+    dn = ray @ n
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = ((np.asarray(point, dtype=np.float64) - eye) @ n) / dn
+    s = np.where(np.abs(dn) > 1e-9, s, np.nan)
+    s = np.where(s > 0, s, np.nan)
+    return eye + s[..., None] * ray
+
+
 def pixel_to_plane(uv: np.ndarray, z: float, cam: Camera, width: int, height: int) -> np.ndarray:
     """World points at height ``z`` (m) seen at pixels ``uv (..., 2)``: the intersection of
     each pixel's viewing ray with the horizontal plane ``Z = z``.

@@ -33,14 +33,14 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from pipeline.camera import intrinsics, pixel_to_plane, project
+from pipeline.camera import intrinsics, pixel_to_plane, pixel_to_surface, project
 from pipeline.errors import UserError
 from pipeline.geometry import volume
 from pipeline.image_tracks import (BOX_FILL, CIRCLE_FILL, ELONGATED, Motion, Track, View, gravity_vote,
                                    round_silhouette, bounce_restitution, estimate_view, find_tracks, first_bounce, fit_tolerance, flight_gravity, gravity_evidence, initial_motion, initial_state_given, object_tracks,
                                    speed_after_bounce, still_tracks, whole_frames)
 from pipeline.mjcf import compile_model
-from pipeline.rotation import axis_angle_quat
+from pipeline.rotation import axis_angle_quat, quat_mul
 from pipeline.scene import Camera, Scene
 from pipeline.simulate import rollout
 
@@ -615,9 +615,110 @@ def bumper_on_ramp(tr: Track, m: Motion, px: float, cu: float, cv: float, cam_h:
     return box, e
 
 
+SLOPE_MIN_ACCEL = 0.1
+"""m/s^2: the least acceleration down a slope, read on the ground plane, that :func:`ground_slope`
+takes for one (a ball rolls down 0.8 deg at 0.1 m/s^2; rolling resistance and friction only ever
+slow an object on a level floor)."""
+
+SLOPE_MAX_DEG = 30.0
+"""deg: the steepest ramp :func:`ramp_on_ground` builds."""
+
+
+def ground_slope(tr: Track, points: np.ndarray, fps: float, tol: float, min_frames: int = 6
+                 ) -> tuple[np.ndarray, float, int] | None:
+    """A slope under an object seen from above, from its speed-up on the ground plane.
+
+    On a level floor nothing speeds an object up (friction and rolling resistance slow it); one
+    that speeds up along a straight line, seen from above, rolls or slides down a slope. The track's
+    points on the horizontal plane of its centre (``points``, perspective undone) are projected on
+    their principal direction ``s``, over its first run of consecutive samples. The run down may
+    end before the track does, where the object leaves the ramp for the floor (real clip 02), so
+    ``s(t)`` is fitted with a constant acceleration ``a`` up to a change point ``t_n`` and the speed
+    reached there after it (basis ``1, t, min(t, t_n)^2 / 2 + t_n max(t - t_n, 0)``, least squares),
+    ``n`` from ``min_frames`` to all samples, the ``n`` of least squared residual. A slope needs
+    the fit within ``tol`` (RMS), ``a`` along the motion of at least :data:`SLOPE_MIN_ACCEL` and
+    three standard deviations, and a speed at ``t_n`` above the starting one.
+
+    Args:
+        tr: the track (whole frames); points: ``(N, 3)`` float64 world points of its centroids, m.
+        fps: frames per second; tol: RMS tolerance, m; min_frames: fewest samples of the run down.
+    Returns:
+        ``(direction, a, n)``: ``(2,)`` unit ground direction down the slope, the acceleration along
+        it (m/s^2) and the samples of the run down (the first ``n`` of the track); None without a
+        slope.
+    """
+    xy = np.asarray(points, dtype=np.float64)[:, :2]
+    run = int(np.argmax(np.diff(tr.frames) != 1)) + 1 if np.any(np.diff(tr.frames) != 1) else len(tr.frames)
+    if run < min_frames or not np.all(np.isfinite(xy[:run])):
+        return None
+    xy = xy[:run]
+    d = np.linalg.svd(xy - xy.mean(axis=0), full_matrices=False)[2][0]
+    s = xy @ d
+    t = (tr.frames[:run] - tr.frames[0]) / fps
+    best = None
+    for n in range(min_frames, run + 1):
+        tn = t[n - 1]
+        X = np.stack([np.ones_like(t), t, 0.5 * np.minimum(t, tn) ** 2 + tn * np.maximum(t - tn, 0.0)], axis=1)
+        coef, sse = np.linalg.lstsq(X, s, rcond=None)[:2]
+        sse = float(sse[0]) if len(sse) else float(np.sum((X @ coef - s) ** 2))
+        if best is None or sse < best[1] - 1e-15:
+            best = (coef, sse, n, X)
+    coef, sse, n, X = best
+    if math.sqrt(sse / run) > tol or run <= 3:
+        return None
+    cov = np.linalg.pinv(X.T @ X) * max(sse / (run - 3), 1e-12)
+    a, sd = float(coef[2]), math.sqrt(max(float(cov[2, 2]), 0.0))
+    v_start, v_end = float(coef[1]), float(coef[1] + coef[2] * t[n - 1])
+    if a < 0:                               # the direction down the slope is the acceleration's
+        d, a, v_start, v_end = -d, -a, -v_start, -v_end
+    if a < max(SLOPE_MIN_ACCEL, 3.0 * sd) or abs(v_end) <= abs(v_start) or v_end <= 0:
+        return None
+    return d, a, n
+
+
+def ramp_on_ground(points: np.ndarray, direction: np.ndarray, a: float, n: int, shape: str, half_h: float,
+                   diameter: float) -> tuple[dict, np.ndarray, float]:
+    """A static ramp under an object seen from above rolling down it (:func:`ground_slope`), its
+    low end on the floor.
+
+    The incline follows from the acceleration down it, ``a = k g sin(theta)`` (rolling without
+    slipping, ``k`` :data:`ROLL_FACTOR`), up to :data:`SLOPE_MAX_DEG`. Its low end is where the run
+    down ends: the object leaves the ramp for the floor there (real clip 02: a ball rolls off a
+    tilted board); where it rolls down to the end of the window, two diameters past its last
+    point. The ramp is a box 2 cm thick whose top face holds the object's contact points, from
+    that end up the slope to two diameters plus 0.1 m beyond its first point, 0.3 m wide or
+    four diameters if wider.
+
+    Args:
+        points: ``(N, 3)`` world points of the centroids on the horizontal plane of the centre, m;
+        direction: ``(2,)`` unit ground direction down the slope; a: m/s^2 along it; n: samples of
+        the run down; shape: ``sphere`` or ``cylinder`` (:data:`ROLL_FACTOR`); half_h: the
+        object's centre height over its support, m; diameter: its size, m.
+    Returns:
+        ``(static_box, normal, theta)``: a scene-language static box (dict), the ramp's unit
+        normal ``(3,)`` and its inclination, rad.
+    """
+    theta = math.asin(min(a / (ROLL_FACTOR[shape] * G), math.sin(math.radians(SLOPE_MAX_DEG))))
+    dx, dy = float(direction[0]), float(direction[1])
+    down = np.array([math.cos(theta) * dx, math.cos(theta) * dy, -math.sin(theta)])   # down the slope, 3-D
+    normal = np.array([math.sin(theta) * dx, math.sin(theta) * dy, math.cos(theta)])
+    xy = np.asarray(points, dtype=np.float64)[:, :2]
+    s = xy @ np.asarray(direction, dtype=np.float64)               # m down the slope, on the ground
+    end = float(s[n - 1]) + (2.0 * diameter if n >= len(s) else 0.0)
+    low = np.array([*(xy[n - 1] + (end - s[n - 1]) * np.asarray(direction)), 0.0])   # the low end, on the floor
+    length = (end - float(s.min())) / math.cos(theta) + 2.0 * diameter + 0.1
+    thickness = 0.02
+    mid = low - down * (length / 2) - normal * (thickness / 2)
+    quat = quat_mul(axis_angle_quat((0.0, 0.0, 1.0), math.atan2(dy, dx)), axis_angle_quat((0.0, 1.0, 0.0), theta))
+    across = max(0.3, 4.0 * diameter)
+    box = {"shape": "box", "size": {"width": round(length, 4), "depth": round(across, 4), "height": thickness},
+           "position": [float(v) for v in mid], "orientation": [float(v) for v in quat]}
+    return box, normal, theta
+
+
 def lift_top(tracks: list[Track], motions: list[Motion], width: int, height: int,
-             shape_of: dict[int, str], pitch: float = TOP_DOWN_PITCH, fov: float = FOV_PRIOR
-             ) -> tuple[Camera, list[Lifted], list[str]]:
+             shape_of: dict[int, str], pitch: float = TOP_DOWN_PITCH, fov: float = FOV_PRIOR,
+             fps: float | None = None) -> tuple[Camera, list[Lifted], list[str]]:
     """Metric scene of a top-down view (pitch :data:`TOP_DOWN_PITCH`, vertical field of view ``fov``
     deg as :func:`lift_side`), or of
     an oblique view of the objects on the floor at another ``pitch`` (deg): the camera then sits at
@@ -632,6 +733,10 @@ def lift_top(tracks: list[Track], motions: list[Motion], width: int, height: int
     deceleration along the velocity, ``mu = -a.v_hat / g``, for a sliding shape (cylinder, box); a
     sphere rolls (:func:`rolling_spin`) and its deceleration is rolling resistance
     (:func:`rolling_resistance`, sliding friction :data:`ROLLING_GRIP`).
+
+    With ``fps`` (frames per second) a sphere that speeds up along a line on the ground plane
+    (:func:`ground_slope`) rolls down a ramp instead (:func:`ramp_on_ground`): its centre on the
+    plane parallel to the ramp, its velocity along it, spinning as it rolls; ``kind`` ``ramp``.
     """
     K = intrinsics(fov, width, height)
     f = K[0, 0]
@@ -694,8 +799,38 @@ def lift_top(tracks: list[Track], motions: list[Motion], width: int, height: int
                                                    np.asarray(lifted.linear_velocity), size["radius"]).tolist()
             lifted.rolling_friction = rolling_resistance(decel / ppm_k if m.n >= 5 else 0.0, size["radius"])
             lifted.friction = ROLLING_GRIP
+            if fps is not None and _roll_down_ramp(lifted, tr, m, half_h, ppm_k, cam, width, height, fps):
+                notes.append(f"object {tr.label}: speeds up along a line on the ground: rolls down a ramp of "
+                             f"{lifted.notes[-1]}")
         objects.append(lifted)
     return cam, objects, notes
+
+
+def _roll_down_ramp(lifted: Lifted, tr: Track, m: Motion, half_h: float, ppm: float, cam: Camera, width: int,
+                    height: int, fps: float) -> bool:
+    """Put a ball lifted on the floor (:func:`lift_top`) on the ramp its ground-plane speed-up shows
+    (:func:`ground_slope`, :func:`ramp_on_ground`), in place; False (unchanged) without one."""
+    w = whole_frames(tr)
+    pts = pixel_to_plane(w.centre, half_h, cam, width, height)
+    slope = ground_slope(w, pts, fps, fit_tolerance(w) / ppm)
+    if slope is None:
+        return False
+    d, a, n = slope
+    box, normal, theta = ramp_on_ground(pts, d, a, n, "sphere", half_h, w.diameter / ppm)
+    # the plane of the centre: the ramp's top face (the box centre + half its thickness) + half_h
+    centre_plane = np.asarray(box["position"], dtype=np.float64) + normal * (0.5 * box["size"]["height"] + half_h)
+    dt = 0.05
+    p = pixel_to_surface(np.stack([m.p0, m.p0 + m.v0 * dt]), centre_plane, normal, cam, width, height)
+    if not np.all(np.isfinite(p)):
+        return False
+    vel = (p[1] - p[0]) / dt
+    lifted.position = [float(v) for v in p[0]]
+    lifted.linear_velocity = [float(v) for v in vel]
+    lifted.angular_velocity = rolling_spin(normal, vel, lifted.size["radius"]).tolist()
+    lifted.rolling_friction = 0.0
+    lifted.ramp, lifted.kind = box, "ramp"
+    lifted.notes.append(f"{math.degrees(theta):.1f} deg ({a:.2f} m/s^2 over {n} frames)")
+    return True
 
 
 # --------------------------------------------------------------------------------- proposals
@@ -862,37 +997,52 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
         first = True
         for shape_of in _hypotheses(tracks, "side" if v == "side" else "top", oblique=v == "oblique", falling=falling):
             if v == "side":
-                cam, objs, n = lift_side(tracks, side_motions, W, H, fps, shape_of, fov)
-            else:
-                cam, objs, n = lift_top(tracks, motions, W, H, shape_of,
-                                        TOP_DOWN_PITCH if v == "top" else OBLIQUE_PITCH, fov)
-            if first:
-                notes += n
-                first = False
-            scene = _to_scene(cam, objs, fps, duration)
-            for i, o in enumerate(objs):
-                if o.after_bounce is not None:
-                    spun = bounce_spin(scene, i, o.after_bounce)
-                    if spun is not None:
-                        scene = spun[0]
-                        if tracks[i].label not in spin_noted:
-                            notes.append(f"object {tracks[i].label}: its sideways speed changes at its first "
-                                         f"bounce: spin {spun[1]:.1f} rad/s about the line of sight")
-                            spin_noted.add(tracks[i].label)
-            label = f"{v}: " + ", ".join(o.shape + (" on a ramp" if o.ramp else "") for o in objs)
-            rank = sum(silhouette_rank(t, shape_of[t.label], "side" if v == "side" else "top") for t in tracks)
-            scenes.append(scene)
-            labels.append(label)
-            ranks.append(rank)
-            if v != "side" and len(objs) > 1 and not scene.effects:
-                # objects that may collide: also try elastic-ish contacts (MuJoCo's default
-                # contact is critically damped, e ~ 0; air-table pucks, billiard balls ~ 0.9)
-                scenes.append(scene.replace(effects=[{"effect": "restitution",
-                                                      "parameters": {"e": COLLISION_RESTITUTION}}]))
-                labels.append(label + f", restitution {COLLISION_RESTITUTION}")
-                ranks.append(rank)
+                lifts = [lift_side(tracks, side_motions, W, H, fps, shape_of, fov)]
+            else:   # on the floor, and where a ball speeds up along the ground, also down a ramp
+                pitch = TOP_DOWN_PITCH if v == "top" else OBLIQUE_PITCH
+                lifts = [lift_top(tracks, motions, W, H, shape_of, pitch, fov)]
+                on_ramp = lift_top(tracks, motions, W, H, shape_of, pitch, fov, fps=fps)
+                if any(o.ramp is not None for o in on_ramp[1]):
+                    lifts.append(on_ramp)
+            for cam, objs, n in lifts:
+                if first:
+                    notes += n
+                    first = False
+                elif n is not lifts[0][2]:
+                    notes += [x for x in n if "rolls down a ramp" in x and x not in notes]
+                more = _proposal(_to_scene(cam, objs, fps, duration), objs, tracks, v, shape_of, spin_noted, notes)
+                scenes += more[0]
+                labels += more[1]
+                ranks += more[2]
     motions = side_motions if view == "side" else motions
     return Proposals(scenes, labels, view, tracks, motions, notes, ranks)
+
+
+def _proposal(scene: Scene, objs: list[Lifted], tracks: list[Track], v: str, shape_of: dict[int, str],
+              spin_noted: set[int], notes: list[str]) -> tuple[list[Scene], list[str], list[int]]:
+    """The proposal(s) of one lift in view ``v``: its scene with the spin its first bounces show
+    (:func:`bounce_spin`; one note per object, into ``notes``), its label and silhouette rank, and
+    for several objects seen from above also with elastic-ish contacts."""
+    for i, o in enumerate(objs):
+        if o.after_bounce is not None:
+            spun = bounce_spin(scene, i, o.after_bounce)
+            if spun is not None:
+                scene = spun[0]
+                if tracks[i].label not in spin_noted:
+                    notes.append(f"object {tracks[i].label}: its sideways speed changes at its first "
+                                 f"bounce: spin {spun[1]:.1f} rad/s about the line of sight")
+                    spin_noted.add(tracks[i].label)
+    label = f"{v}: " + ", ".join(o.shape + (" on a ramp" if o.ramp else "") for o in objs)
+    rank = sum(silhouette_rank(t, shape_of[t.label], "side" if v == "side" else "top") for t in tracks)
+    scenes, labels, ranks = [scene], [label], [rank]
+    if v != "side" and len(objs) > 1 and not scene.effects:
+        # objects that may collide: also try elastic-ish contacts (MuJoCo's default
+        # contact is critically damped, e ~ 0; air-table pucks, billiard balls ~ 0.9)
+        scenes.append(scene.replace(effects=[{"effect": "restitution",
+                                              "parameters": {"e": COLLISION_RESTITUTION}}]))
+        labels.append(label + f", restitution {COLLISION_RESTITUTION}")
+        ranks.append(rank)
+    return scenes, labels, ranks
 
 
 AT_REST_PITCH = 45.0

@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from pipeline.camera import camera_pose, extrinsics, intrinsics, pixel_grid, project, unproject
+from pipeline.camera import (camera_pose, extrinsics, intrinsics, pixel_grid, pixel_to_plane, pixel_to_surface, project,
+                             unproject)
 from pipeline.mjcf import SimOptions, compile_model, initial_state
 from pipeline.render import FrameRenderer, camera_matrices
-from pipeline.scene import Scene
+from pipeline.scene import Camera, Scene
 
 W, H = 480, 320
 CAMERAS = [
@@ -91,3 +92,22 @@ def test_conventions():
     grid = pixel_grid(W, H)
     pts = unproject(grid, np.full((H, W), 2.5), cam, W, H)
     assert_allclose(project(pts, cam, W, H)[0], grid, atol=1e-9)
+
+
+def test_pixel_to_surface_meets_a_tilted_plane_where_the_pixel_looks_and_agrees_with_pixel_to_plane():
+    """A pixel's viewing ray met with a ramp's plane (any normal) gives a point on that plane which
+    projects back to the pixel; with a vertical normal it is pixel_to_plane's point."""
+    cam = Camera(height=0.6, pitch=40.0, fov=45.0)
+    uv = np.array([[40.0, 150.0], [160.0, 120.0], [300.0, 200.0]])
+    flat = pixel_to_surface(uv, np.array([0.0, 0.0, 0.03]), np.array([0.0, 0.0, 2.0]), cam, 320, 240)
+    assert np.allclose(flat, pixel_to_plane(uv, 0.03, cam, 320, 240))
+    th = np.radians(12.0)
+    normal = np.array([np.sin(th), 0.0, np.cos(th)])
+    point = np.array([0.2, -1.2, 0.05])
+    p = pixel_to_surface(uv, point, normal, cam, 320, 240)
+    assert np.allclose((p - point) @ normal, 0.0, atol=1e-9)
+    back, _ = project(p, cam, 320, 240)
+    assert np.allclose(back, uv, atol=1e-6)
+    # a ray parallel to the plane, or meeting it behind the camera, gives NaN
+    behind = pixel_to_surface(uv[:1], np.asarray(cam.eye) + [0.0, 0.0, 1.0], np.array([0.0, 0.0, 1.0]), cam, 320, 240)
+    assert np.isnan(behind).all()
