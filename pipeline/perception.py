@@ -189,11 +189,15 @@ def side_scale(track: Track, m: Motion, kind: str, shape: str, fps: float) -> tu
 
     ``fall``: ``a_v / g``; ``ramp`` with a rolling shape: ``a / (k g sin theta)``, with the slope
     the path's (:func:`slope_direction`) and ``a`` the acceleration along it over the run down
-    (:func:`slope_acceleration`), as the ramp is built; else (or when the implied size leaves
-    1-30 cm) the size prior ``diameter / SIZE_PRIOR``.
+    (:func:`slope_acceleration`), as the ramp is built; ``ramp`` with a sliding shape that comes
+    back up the slope after a stop turns it (:func:`slide_down_and_up`): ``a / (g (sin theta -
+    mu cos theta))`` with the friction ``mu`` the two accelerations give (its thickness, the
+    silhouette's short side, is then the size checked); else (or when the implied size leaves
+    :data:`SIZE_RANGE`) the size prior ``diameter / SIZE_PRIOR``.
     """
     prior = track.diameter / SIZE_PRIOR if shape != "box" else track.size[0] / SIZE_PRIOR
     ppm, source = prior, "size prior"
+    extent_px = track.diameter if shape != "box" else track.size[0]
     if kind == "fall":
         ppm, source = float(m.a[1]) / G, "gravity (parabola)"
     elif kind == "ramp" and shape in ROLL_FACTOR:
@@ -201,7 +205,18 @@ def side_scale(track: Track, m: Motion, kind: str, shape: str, fps: float) -> tu
         a = slope_acceleration(whole_frames(track), d, m, fps)[0]
         if d[1] > 0.05 and a > 0:
             ppm, source = a / (ROLL_FACTOR[shape] * G * float(d[1])), "gravity (rolling down a slope)"
-    extent = (track.diameter if shape != "box" else track.size[0]) / ppm
+    elif kind == "ramp":
+        d = slope_direction(track, m)
+        both = slide_down_and_up(whole_frames(track), d, m, fps)
+        sin_t = float(d[1])
+        if both is not None and sin_t > 0.05:
+            mu, a = both
+            cos_t = math.sqrt(1.0 - sin_t ** 2)
+            if sin_t - mu * cos_t > 0.02:
+                ppm = a / (G * (sin_t - mu * cos_t))
+                source = f"gravity (sliding down a slope and back up it: friction {mu:.3f})"
+                extent_px = track.diameter   # its thickness: the long side of a glider or a bar may pass 0.15 m
+    extent = extent_px / ppm
     if not SIZE_RANGE[0] <= extent <= SIZE_RANGE[1]:
         ppm, source = prior, "size prior (gravity scale implied an object of %.3f m)" % extent
     return ppm, source
@@ -522,6 +537,40 @@ def slope_acceleration(tr: Track, d: np.ndarray, m: Motion, fps: float, min_fram
         sd = 2.0 * math.sqrt(max(float(np.sum(res ** 2)) / (j - 3), 0.3 ** 2) * float(cov[0, 0]))
         best = (2.0 * float(coef[0]), sd, j)
     return (float(m.a @ d), float(m.a_sd), int(m.n)) if best is None else best
+
+
+def slide_down_and_up(tr: Track, d: np.ndarray, m: Motion, fps: float, min_frames: int = 5
+                      ) -> tuple[float, float] | None:
+    """Friction of an object that slides down a slope and, turned by a stop at the bottom (a
+    bumper, :func:`_turn_back`), back up it, and its acceleration down, px/s^2.
+
+    Down the slope ``a_down = g (sin theta - mu cos theta)``, up it ``a_up = g (sin theta + mu cos
+    theta)`` (both pointing down the slope, the friction against the motion each way), in any
+    length unit, so ``mu = tan(theta) (a_up - a_down) / (a_up + a_down)`` whatever the scale (an
+    air-track glider, dev/10: 379 px/s^2 down, 443 up over 10 deg, ``mu`` 0.014). Each is the
+    parabola of :func:`slope_acceleration` along ``d`` over its stretch: the run down, and from
+    the sample after the turn the run up (at least ``min_frames`` samples).
+
+    Args:
+        tr: the track (whole frames); d: ``(2,)`` unit image direction down the slope
+        (:func:`slope_direction`); m: its motion; fps: frames per second.
+    Returns:
+        ``(mu, a_down)``, ``mu >= 0``; None without a turn, a run up of ``min_frames`` samples, or
+        accelerations that point down the slope both ways.
+    """
+    s = (tr.centre - tr.centre[0]) @ d
+    k = _turn_back(tr, s)
+    if k is None or len(tr.frames) - (k + 1) < min_frames:
+        return None
+    up = replace(tr, frames=tr.frames[k + 1:], centre=tr.centre[k + 1:], area=tr.area[k + 1:],
+                 bottom=tr.bottom[k + 1:], clipped=None if tr.clipped is None else tr.clipped[k + 1:])
+    a_down, _, n_down = slope_acceleration(tr, d, m, fps)
+    a_up, _, n_up = slope_acceleration(up, d, m, fps, min_frames=min_frames)
+    if n_down < min_frames or n_up < min_frames or a_down <= 0 or a_up <= 0:
+        return None
+    sin_t = min(max(float(d[1]), 0.0), 0.99)
+    tan_t = sin_t / math.sqrt(1.0 - sin_t ** 2)
+    return max(0.0, tan_t * (a_up - a_down) / (a_up + a_down)), float(a_down)
 
 
 def _ramp_under(tr: Track, m: Motion, px: float, cu: float, cv: float, cam_h: float, y: float,

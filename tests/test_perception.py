@@ -895,3 +895,43 @@ def test_ground_slope_reads_the_acceleration_and_ramp_on_ground_puts_the_low_end
     assert low_end_top[0] == pytest.approx(x[n - 1], abs=1e-4)
     # the ramp reaches back past the first point, whose contact lies on its top face
     assert (centre - down * L / 2)[0] < x[0]
+
+
+def test_a_slide_down_and_back_up_a_slope_gives_its_friction_and_the_scale():
+    """A box 0.16 m long, 0.06 m thick slides down a 10 deg slope with friction 0.03 (seen from the
+    side at 300 px/m), hits a stop at the bottom and slides back up (real clip dev/10: an air-track
+    glider). Down it accelerates at g (sin - mu cos), up it decelerates at g (sin + mu cos): their
+    ratio gives mu whatever the scale (perception.slide_down_and_up), and then the scale gives the
+    box its size and the ramp's contact its friction, where the size prior made dev/10's glider
+    5 cm long with friction 0.13."""
+    th, mu, ppm, fps = math.radians(10.0), 0.03, 300.0, 30.0
+    a_down = 9.81 * (math.sin(th) - mu * math.cos(th)) * ppm
+    a_up = 9.81 * (math.sin(th) + mu * math.cos(th)) * ppm
+    d = np.array([math.cos(th), math.sin(th)])
+    v0, turn, e = 40.0, 20, 0.9
+    t_turn = turn / fps
+    v_hit = v0 + a_down * t_turn
+    s_hit = v0 * t_turn + 0.5 * a_down * t_turn ** 2
+    seg = np.full((30, H, W), -1, np.int8)
+    for k in range(30):
+        t = k / fps
+        s = v0 * t + 0.5 * a_down * t * t if k <= turn else s_hit - e * v_hit * (t - t_turn) + 0.5 * a_up * (t - t_turn) ** 2
+        c = np.array([50.0, 40.0]) + s * d
+        box = cv2.boxPoints(((c[0], c[1]), (0.16 * ppm, 0.06 * ppm), math.degrees(th)))
+        cv2.fillPoly(seg[k], [np.round(box).astype(np.int32)], 0)
+    track = perception.still_tracks(seg, 4)[0]
+    m = perception.initial_motion(track, fps)            # the run down: speeding up along the slope
+    direction = perception.slope_direction(track, m)
+    got_mu, got_a = perception.slide_down_and_up(track, direction, m, fps)
+    assert got_mu == pytest.approx(mu, abs=0.015)
+    assert got_a == pytest.approx(a_down, rel=0.05)
+    ppm_got, source = perception.side_scale(track, m, "ramp", "box", fps)
+    assert source.startswith("gravity (sliding down a slope and back up it")
+    assert ppm_got == pytest.approx(ppm, rel=0.1)
+    cam, objs, notes = perception.lift_side([track], [m], W, H, fps, {0: "box"})
+    assert objs[0].size["width"] == pytest.approx(0.16, rel=0.1)
+    assert objs[0].friction == pytest.approx(mu, abs=0.015)
+    assert objs[0].bumper is not None and objs[0].ramp is not None
+    # without the run back up (the clip cut at the stop) the scale is the size prior's
+    cut = perception.still_tracks(seg[:turn], 4)[0]
+    assert perception.side_scale(cut, perception.initial_motion(cut, fps), "ramp", "box", fps)[1] == "size prior"
