@@ -93,7 +93,7 @@ def measure(folder: Path, truth: dict) -> dict:
     if not (seg >= 0).any():
         return {**row, "note": "no observed object"}
     k = moving_label(seg)
-    t, x, y = image_track(seg, crop, size, frames, fps, label=k)
+    t, x, y = image_track(seg, crop, size, frames, fps, label=k, times=obs["times"] if "times" in obs else None)
     row["observed_frames"] = int(len(t))
     resim = np.load(folder / "masks.npz")["seg"]
     iou, _ = track_iou(np.where(seg == k, 0, -1).astype(np.int8), resim)

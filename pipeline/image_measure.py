@@ -45,7 +45,7 @@ def moving_label(seg: np.ndarray) -> int:
 
 
 def image_track(seg: np.ndarray, crop, size, source_frames: np.ndarray, source_fps: float,
-                label: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                label: int | None = None, times: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The centroid of one observed object over the window, in px of the original frame.
 
     Args:
@@ -55,6 +55,9 @@ def image_track(seg: np.ndarray, crop, size, source_frames: np.ndarray, source_f
         source_frames: ``(T,)`` int source-frame index of each working frame.
         source_fps: the clip's true frame rate, frames per second.
         label: the object; None takes :func:`moving_label`'s.
+        times: ``(T,)`` s since the first frame, when the window's frames were picked by capture time
+            (``observation.npz`` ``times``, :func:`pipeline.observe.retimed`); None: from the
+            source-frame indices and the rate.
     Returns:
         ``(t, x, y)``: ``(N,)`` float64 s since the window's first frame (from the source-frame
         indices and the true rate), and the centroid's column and row in original px (pixel
@@ -79,7 +82,8 @@ def image_track(seg: np.ndarray, crop, size, source_frames: np.ndarray, source_f
             rr, cc = np.nonzero(seg[i] == k)
             if rr.size and rr.min() > 0 and cc.min() > 0 and rr.max() < seg.shape[1] - 1 \
                     and cc.max() < seg.shape[2] - 1:   # cut by the frame's edge: its centroid is biased
-                ts.append((int(source_frames[i]) - int(source_frames[0])) / float(source_fps))
+                ts.append(float(times[i]) if times is not None else
+                          (int(source_frames[i]) - int(source_frames[0])) / float(source_fps))
                 xs.append(cx0 + (cc.mean() + 0.5) * cw / W)
                 ys.append(cy0 + (rr.mean() + 0.5) * ch / H)
         return np.array(ts), np.array(xs), np.array(ys)

@@ -34,6 +34,8 @@ from scipy import ndimage
 from scipy.sparse.csgraph import connected_components
 
 from pipeline.flow import FlowConfig, estimate_flow, flow_of
+from pipeline.frame_timing import (capture_rate, capture_times, dropped_frames, interval_ratios, nearest_frames,
+                                   regular_drops)
 from pipeline.image_tracks import find_tracks, net_shift, object_tracks, still_tracks
 from pipeline.masks import (cut_by_colour, drop_ghosts, hold_resting, label_objects, median_area, merge_touching,
                             pseudo_ground_truth, pseudo_masks, shadow_like, skin_like)
@@ -95,6 +97,12 @@ class Observation:
     moving: tuple[bool, ...] | None = None
     """Per object id of ``seg``: whether the observation saw it move (``hybrid`` and ``anchored``
     tell movers from objects at rest; every object of ``median``/``mog2`` moves; None: all)."""
+    frame_index: np.ndarray | None = None
+    """``(T,)`` int64 frame of :attr:`clip` behind each window frame when dropped frames were
+    repaired (:func:`retimed`); None: the regular :func:`pipeline.video.resample` grid."""
+    frame_times: np.ndarray | None = None
+    """``(T,)`` float64 capture time of each window frame, s since the first, when
+    :attr:`frame_index` is set; None: ``k / scene_fps``."""
     _fit_flow: np.ndarray | None = field(default=None, init=False, repr=False, compare=False)
     """Cache of :attr:`fit_flow` (not an init field: ``dataclasses.replace`` starts it afresh)."""
 
@@ -1768,7 +1776,7 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     dsize = _detect_size(W0, H0)
     span = duration + 1.0 / scene_fps
 
-    def window(size, crop):
+    def window(size, crop, index=None):
         # the background's context: the first CONTEXT_S of the clip; a window inside it is cut
         # from the same decoded frames (the same pixels as decoding it apart, one decode fewer)
         with warnings.catch_warnings(record=True) as ctx_warnings:   # said after the window is read, as apart
@@ -1784,10 +1792,11 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
         for w in ctx_warnings:
             warnings.warn(w.message, stacklevel=2)
         step = max(1, len(ctx.frames) // 120)
-        return clip, resample(clip.frames, clip.fps, scene_fps, duration), ctx.frames[::step]
+        frames = clip.frames[index] if index is not None else resample(clip.frames, clip.fps, scene_fps, duration)
+        return clip, frames, ctx.frames[::step]
 
     full = (0, 0, W0, H0)
-    _, det_frames, det_ctx = window(dsize, full)
+    det_clip, det_frames, det_ctx = window(dsize, full)
     anchored = mask_method == "anchored"      # movers as median decides them, then the segmenter
     bs_method = "median" if anchored else mask_method
     net = segmenter
@@ -1801,7 +1810,12 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     diameter = float(np.median([t.diameter for t in tracks])) if tracks else 0.05 * dsize[1]
     crop = motion_crop(det_seg, diameter, scale, (W0, H0))
     size = working_size(crop, diameter * scale)
-    clip, frames, ctx = window(size, crop)
+    index, times, rate = retimed(det_seg, det_clip, scene_fps, duration)
+    if index is not None:
+        print(f"[observe] {video}: frames were dropped ({det_clip.fps:g} fps file of a {rate} fps capture): "
+              f"the scene runs at {rate} fps, each frame the one captured nearest to it")
+        scene_fps, duration = rate, len(index) / rate
+    clip, frames, ctx = window(size, crop, index)
     if recorded is not None and recorded.probabilities is not None:   # the detection pass as the finer scale
         fine = [fine_probabilities(p, dsize, (W0, H0), clip.crop, size) for p in recorded.probabilities]
         if fine[0] is not None:
@@ -1822,7 +1836,39 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     if learned or anchored:   # the segmenter marks an object's cast shadow beside it as the object
         seg, _ = attached_shadows(seg, frames, median_background(ctx))
     return Observation(frames, seg, flow_px, clip, float(start), auto, clip.crop, size, scene_fps, flow.estimator,
-                       mask_method, duration, moving)
+                       mask_method, duration, moving, index, times)
+
+
+def retimed(seg: np.ndarray, clip: Clip, scene_fps: int, duration: float
+            ) -> tuple[np.ndarray | None, np.ndarray | None, int]:
+    """The clip's frames by their capture times when frames were dropped
+    (:func:`pipeline.frame_timing.dropped_frames` on ``seg``, the detection pass's masks of the
+    window at ``scene_fps``, completed by :func:`pipeline.frame_timing.regular_drops`): the scene
+    then runs at the capture's rate (:func:`pipeline.frame_timing.capture_rate`, rounded) and each
+    of its frames is the clip's frame captured nearest to it.
+
+    Only tested where the window's frames are the clip's own, one for one (the container's rate
+    within 1 % of ``scene_fps``): resampled from a higher rate, a drop no longer shows as one
+    interval of double length.
+
+    Returns:
+        ``(index, times, rate)``: ``(T,)`` int64 frames of ``clip`` nearest the regular grid at
+        ``rate`` fps over at most ``duration`` s (:func:`pipeline.frame_timing.nearest_frames`),
+        ``(T,)`` float64 their capture times, s since the first, and ``rate``; ``(None, None, scene_fps)``
+        when no frame is missing (the regular :func:`pipeline.video.resample` applies).
+    """
+    if abs(clip.fps / scene_fps - 1.0) > 0.01:
+        return None, None, scene_fps
+    votes = interval_ratios(seg)
+    gaps = dropped_frames(seg)
+    if not gaps:
+        return None, None, scene_fps
+    rate = max(1, round(capture_rate(gaps, clip.fps)))
+    gaps = regular_drops(gaps, len(clip.frames) - 1, clip.fps, rate, votes)
+    times = capture_times(len(clip.frames), gaps, rate)
+    count = max(2, min(round(duration * rate), int(np.floor(times[-1] * rate + 1e-9)) + 1))
+    index = nearest_frames(times, rate, count)
+    return index, times[index] - times[index[0]], rate
 
 
 def original_frames(obs: Observation, video, fps: float | None, height: int = 320) -> np.ndarray:
@@ -1831,6 +1877,10 @@ def original_frames(obs: Observation, video, fps: float | None, height: int = 32
     x, y, w, h = obs.crop
     s = height / h
     size = (max(2, round(w * s / 2) * 2), height)
+    if obs.frame_index is not None:   # the frames the observation picked by capture time (retimed)
+        clip = read_video(video, fps=fps, start=obs.start, duration=(int(np.max(obs.frame_index)) + 1.5) / obs.clip.fps,
+                          size=size, crop=obs.crop)
+        return clip.frames[np.minimum(obs.frame_index, len(clip.frames) - 1)]
     clip = read_video(video, fps=fps, start=obs.start, duration=len(obs.frames) / obs.scene_fps + 1.0 / obs.scene_fps,
                       size=size, crop=obs.crop)
     return resample(clip.frames, clip.fps, obs.scene_fps, len(obs.frames) / obs.scene_fps)
@@ -1899,7 +1949,10 @@ def observe_frames(video, fps: float | None, frame_indices, size: tuple[int, int
 
 def source_frames(obs: Observation) -> np.ndarray:
     """``(T,)`` int64 source-frame indices (0-based, as decoded) of the window's frames:
-    ``start_frame + rint(k * fps / scene_fps)`` (:func:`pipeline.video.resample`)."""
+    ``start_frame + rint(k * fps / scene_fps)`` (:func:`pipeline.video.resample`), or
+    ``start_frame + frame_index`` where dropped frames were repaired (:func:`retimed`)."""
+    if obs.frame_index is not None:
+        return obs.clip.start_frame + np.asarray(obs.frame_index, dtype=np.int64)
     T = len(obs.frames)
     return obs.clip.start_frame + np.rint(np.arange(T) * (obs.clip.fps / obs.scene_fps)).astype(np.int64)
 

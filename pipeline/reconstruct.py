@@ -18,7 +18,9 @@ propose (:func:`propose_candidates`: one list of :class:`Candidate`) -> search
 * ``observation.npz``: the observation (issue 36): ``seg (T, H, W) int8``
   pseudo masks at the working size (-1 background), ``crop`` ``[x, y, w, h]`` px of the
   original frame, ``size`` ``[W, H]`` px, ``start`` s and ``fps`` of the window, ``source_fps`` and
-  ``source_frames`` ``(T,)`` int64 (the decoded frame, 0-based, behind each window frame), and
+  ``source_frames`` ``(T,)`` int64 (the decoded frame, 0-based, behind each window frame), ``times``
+  ``(T,)`` float64 s when frames were dropped and the window's were picked by capture time
+  (:func:`pipeline.observe.retimed`; absent otherwise: ``k / fps``), and
   ``moving`` ``(K,)`` bool per object id of ``seg``: the search fits the objects that move
   (:attr:`pipeline.observe.Observation.fit_seg`); objects at rest stay in ``seg``;
 * ``masks.npz``: the re-simulated masks that were scored (``seg (T, H, W) int8``, -1 =
@@ -233,7 +235,7 @@ def observe_window(video: str | Path, job: JobSettings, fps: float | None = None
                   f"(realvideo.scenery: drop)")
     W, H = obs.size
     print(f"[infer] {video}: window {obs.start:.3f}-{obs.start + obs.duration:.3f} s"
-          f"{' (chosen automatically)' if obs.auto else ''}, {len(obs.frames)} frames at {scene_fps} fps, "
+          f"{' (chosen automatically)' if obs.auto else ''}, {len(obs.frames)} frames at {obs.scene_fps} fps, "
           f"crop {obs.crop} -> {W}x{H} px")
     return obs
 

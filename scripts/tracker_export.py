@@ -39,7 +39,7 @@ def main(argv: list[str] | None = None) -> int:
     obs = np.load(path)
     seg = obs["seg"]
     t, col, row = image_track(seg, obs["crop"], obs["size"], obs["source_frames"], float(obs["source_fps"]),
-                              label=moving_label(seg))
+                              label=moving_label(seg), times=obs["times"] if "times" in obs else None)
     x, y = col * args.m_per_px, -row * args.m_per_px
     text = "t\tx\ty\n" + "".join(f"{a:.6f}\t{b:.6f}\t{c:.6f}\n" for a, b, c in zip(t, x, y))
     write_text(args.out, text)
