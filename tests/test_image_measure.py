@@ -50,6 +50,10 @@ def test_working_size_crop_and_source_frames_map_back_to_original_pixels():
     t, x, y = image_track(half, [100, 50, 320, 240], [160, 120], np.arange(0, 120, 2), 120.0)
     assert np.allclose(t, np.arange(60) / 60.0)        # every 2nd source frame at 120 fps
     assert np.allclose(y, rows + 50, atol=1.0)
+    # frames picked by capture time (dropped frames repaired, observation.npz `times`): those times
+    times = np.arange(60) / 60.0 + 0.001 * (np.arange(60) % 3)
+    t2, _, y2 = image_track(half, [100, 50, 320, 240], [160, 120], np.arange(0, 120, 2), 120.0, times=times)
+    assert np.allclose(t2, times) and np.allclose(y2, y)
 
 
 def test_arcs_skip_the_contact_frame_and_short_pieces():
