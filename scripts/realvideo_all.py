@@ -207,6 +207,11 @@ def table(rows: list[dict]) -> str:
                        f"incline), view right {sum(r['view_written'] == r['view_true'] for r in with_content)}/"
                        f"{len(with_content)}; strict IoU >= 0.5: "
                        f"{sum((r.get('written_strict') or 0) >= 0.5 for r in ok)}/{len(ok)}")
+        labelled = [r["against_labels"]["resim_vs_labels"] for r in ok
+                    if (r.get("against_labels") or {}).get("resim_vs_labels") is not None]
+        if labelled:
+            out.append(f"against the hand labels (the clips with labelled frames in their window): mean "
+                       f"{np.mean(labelled):.4f}, >= 0.5 on {sum(v >= 0.5 for v in labelled)}/{len(labelled)}")
     return "\n".join(out)
 
 
