@@ -13,7 +13,8 @@ clips' sources or read by hand on a frame; the main job never reads them). For e
   labels' centres (``tests/fixtures/realvideo``, all labelled frames of the clip) checks the
   scale and the frame rate themselves.
 * **size** (a stated object size): the observation's equivalent diameter (``2 sqrt(area / pi)``,
-  median over the window) times the scale, and the matched object of the written scene.
+  median over the window) times the scale, or for a stated length (a box) the long side of its
+  silhouette's rotated box, and the matched object of the written scene.
 * **incline** (a stated incline edge in the image): the angle of the observed object's centroid
   path (:func:`pipeline.image_measure.path_angle`) and of the re-simulated one, against the edge.
 
@@ -114,14 +115,23 @@ def measure(folder: Path, truth: dict) -> dict:
     if "object" in truth and "m_per_px" in truth:
         scale_x, scale_y = float(crop[2]) / float(size[0]), float(crop[3]) / float(size[1])
         areas = [(f == k).sum() * scale_x * scale_y for f in seg if (f == k).any()]
-        row["true_diameter_m"] = truth["object"]["diameter"]
-        row["observed_diameter_m"] = round(2.0 * math.sqrt(float(np.median(areas)) / math.pi) * float(truth["m_per_px"]), 4)
+        if "length" in truth["object"]:   # a box: its long side, the silhouette's rotated box (original px)
+            longs = [max(cv2.minAreaRect(np.stack([cc * scale_x, rr * scale_y], axis=1).astype(np.float32))[1])
+                     for rr, cc in (np.nonzero(f == k) for f in seg) if len(rr) >= 5]
+            row["true_length_m"] = truth["object"]["length"]
+            row["observed_length_m"] = round(float(np.median(longs)) * float(truth["m_per_px"]), 4)
+        else:
+            row["true_diameter_m"] = truth["object"]["diameter"]
+            row["observed_diameter_m"] = round(2.0 * math.sqrt(float(np.median(areas)) / math.pi)
+                                               * float(truth["m_per_px"]), 4)
         if j is not None:
             o = load_scene(folder / "scene.yaml").objects[j]
             sz = o.size.model_dump() if hasattr(o.size, "model_dump") else dict(o.size)
             row["scene_object"] = {"shape": o.shape, **{n: round(float(v), 4) for n, v in sz.items()}}
             if "radius" in sz:
                 row["scene_diameter_m"] = round(2.0 * float(sz["radius"]), 4)
+            if "width" in sz:
+                row["scene_length_m"] = round(max(float(sz["width"]), float(sz["depth"]), float(sz["height"])), 4)
     if "incline_deg" in truth:
         row["true_incline_deg"] = truth["incline_deg"]
         row["observed_path_deg"] = round(path_angle(x, y), 2)
@@ -157,13 +167,14 @@ def markdown(rows: list[dict], runs: Path) -> str:
                        f"{f(r.get('g_labels'))} ({', '.join(map(str, r.get('g_labels_arcs', []))) or 'no arc of 5+'}) | "
                        f"{f(r.get('g_labels_joint'))}{_pct(r.get('g_labels_joint'))} |")
     out += ["", "## Size against a stated size", "",
-            "| clip | true diameter (m) | observation (m) | written scene's matched object |", "|---|---|---|---|"]
+            "| clip | true size (m) | observation (m) | written scene's matched object |", "|---|---|---|---|"]
     for r in rows:
-        if "true_diameter_m" in r:
-            so = r.get("scene_object")
-            out.append(f"| {r['clip']} | {r['true_diameter_m']} | {f(r.get('observed_diameter_m'), 4)} | "
-                       + (f"{so['shape']} " + ", ".join(f"{n} {v}" for n, v in so.items() if n != "shape") if so else "–")
-                       + " |")
+        for what in ("diameter", "length"):
+            if f"true_{what}_m" in r:
+                so = r.get("scene_object")
+                out.append(f"| {r['clip']} | {what} {r[f'true_{what}_m']} | {f(r.get(f'observed_{what}_m'), 4)} | "
+                           + (f"{so['shape']} " + ", ".join(f"{n} {v}" for n, v in so.items() if n != "shape")
+                              if so else "–") + " |")
     out += ["", "## Incline against the image", "",
             "| clip | incline edge in the image (deg) | observed path (deg) | re-simulated path (deg) |", "|---|---|---|---|"]
     for r in rows:
