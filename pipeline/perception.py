@@ -664,10 +664,12 @@ def bumper_on_ramp(tr: Track, m: Motion, px: float, cu: float, cv: float, cam_h:
     return box, e
 
 
-SLOPE_MIN_ACCEL = 0.1
-"""m/s^2: the least acceleration down a slope, read on the ground plane, that :func:`ground_slope`
-takes for one (a ball rolls down 0.8 deg at 0.1 m/s^2; rolling resistance and friction only ever
-slow an object on a level floor)."""
+SLOPE_MIN_DEG = 2.0
+"""deg: the gentlest ramp :func:`ground_slope` reads from a speed-up seen from above (a ball rolls
+down it at ``(5/7) g sin(2 deg) = 0.24 m/s^2``), the incline the real-clip table counts as one
+(``scripts/realvideo_all.py``: a static geom tilted 2-60 deg). Below it, a speed-up on the ground
+plane is as likely the perspective of a camera pitched otherwise than the proposal's 45 or 89 deg
+(a rendered ball rolling away from a camera at 29 deg read as 1.1 deg down a ramp) as a slope."""
 
 SLOPE_MAX_DEG = 30.0
 """deg: the steepest ramp :func:`ramp_on_ground` builds."""
@@ -685,8 +687,9 @@ def ground_slope(tr: Track, points: np.ndarray, fps: float, tol: float, min_fram
     ``s(t)`` is fitted with a constant acceleration ``a`` up to a change point ``t_n`` and the speed
     reached there after it (basis ``1, t, min(t, t_n)^2 / 2 + t_n max(t - t_n, 0)``, least squares),
     ``n`` from ``min_frames`` to all samples, the ``n`` of least squared residual. A slope needs
-    the fit within ``tol`` (RMS), ``a`` along the motion of at least :data:`SLOPE_MIN_ACCEL` and
-    three standard deviations, and a speed at ``t_n`` above the starting one.
+    the fit within ``tol`` (RMS), ``a`` along the motion of at least
+    three standard deviations (:data:`SLOPE_MIN_DEG` for a ball rolling down it), and a speed at
+    ``t_n`` above the starting one.
 
     Args:
         tr: the track (whole frames); points: ``(N, 3)`` float64 world points of its centroids, m.
@@ -720,7 +723,8 @@ def ground_slope(tr: Track, points: np.ndarray, fps: float, tol: float, min_fram
     v_start, v_end = float(coef[1]), float(coef[1] + coef[2] * t[n - 1])
     if a < 0:                               # the direction down the slope is the acceleration's
         d, a, v_start, v_end = -d, -a, -v_start, -v_end
-    if a < max(SLOPE_MIN_ACCEL, 3.0 * sd) or abs(v_end) <= abs(v_start) or v_end <= 0:
+    if a < max(ROLL_FACTOR["sphere"] * G * math.sin(math.radians(SLOPE_MIN_DEG)), 3.0 * sd) \
+            or abs(v_end) <= abs(v_start) or v_end <= 0:
         return None
     return d, a, n
 
