@@ -555,8 +555,8 @@ def slide_down_and_up(tr: Track, d: np.ndarray, m: Motion, fps: float, min_frame
         tr: the track (whole frames); d: ``(2,)`` unit image direction down the slope
         (:func:`slope_direction`); m: its motion; fps: frames per second.
     Returns:
-        ``(mu, a_down)``, ``mu >= 0``; None without a turn, a run up of ``min_frames`` samples, or
-        accelerations that point down the slope both ways.
+        ``(mu, a_down)``, ``mu >= 0``; None without a turn, without ``min_frames`` samples on each
+        run, or where either acceleration does not point down the slope.
     """
     s = (tr.centre - tr.centre[0]) @ d
     k = _turn_back(tr, s)
