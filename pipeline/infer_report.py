@@ -120,7 +120,7 @@ def write_outputs(out: str | Path, video: str | Path, fps: float | None, obs: Ob
                                ("source_frames", source_frames(obs)),
                                ("moving", np.asarray(obs.moving_flags, dtype=bool))):
                 npz.write(key, value)
-            if obs.frame_times is not None:   # frames picked by capture time (dropped frames repaired)
+            if getattr(obs, "frame_times", None) is not None:   # frames picked by capture time (drops repaired)
                 npz.write("times", np.asarray(obs.frame_times, dtype=np.float64))
         # for people: original frames at panel height, masks drawn over them
         orig = original_frames(obs, video, fps, height=rv.panel_height)
@@ -142,7 +142,7 @@ def write_outputs(out: str | Path, video: str | Path, fps: float | None, obs: Ob
             "window": {"start_s": round(obs.start, 4), "chosen_automatically": obs.auto, "duration_s": duration,
                        "frames": len(obs.frames), "fps": scene_fps, "crop": list(obs.crop),
                        "width": W, "height": H, "original_size": list(clip.original_size),
-                       "dropped_frames_repaired": obs.frame_index is not None},
+                       "dropped_frames_repaired": getattr(obs, "frame_index", None) is not None},
             "ground_truth": f"pseudo: the observation's masks (realvideo.mask_method {obs.mask_method}; the "
                             "search fits its moving objects), flow from the same estimator "
                             f"({obs.flow_method})",

@@ -1877,7 +1877,7 @@ def original_frames(obs: Observation, video, fps: float | None, height: int = 32
     x, y, w, h = obs.crop
     s = height / h
     size = (max(2, round(w * s / 2) * 2), height)
-    if obs.frame_index is not None:   # the frames the observation picked by capture time (retimed)
+    if getattr(obs, "frame_index", None) is not None:   # the frames picked by capture time (retimed)
         clip = read_video(video, fps=fps, start=obs.start, duration=(int(np.max(obs.frame_index)) + 1.5) / obs.clip.fps,
                           size=size, crop=obs.crop)
         return clip.frames[np.minimum(obs.frame_index, len(clip.frames) - 1)]
@@ -1951,8 +1951,9 @@ def source_frames(obs: Observation) -> np.ndarray:
     """``(T,)`` int64 source-frame indices (0-based, as decoded) of the window's frames:
     ``start_frame + rint(k * fps / scene_fps)`` (:func:`pipeline.video.resample`), or
     ``start_frame + frame_index`` where dropped frames were repaired (:func:`retimed`)."""
-    if obs.frame_index is not None:
-        return obs.clip.start_frame + np.asarray(obs.frame_index, dtype=np.int64)
+    index = getattr(obs, "frame_index", None)   # an observation-like object without one: the regular grid
+    if index is not None:
+        return obs.clip.start_frame + np.asarray(index, dtype=np.int64)
     T = len(obs.frames)
     return obs.clip.start_frame + np.rint(np.arange(T) * (obs.clip.fps / obs.scene_fps)).astype(np.int64)
 
