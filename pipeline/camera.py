@@ -125,11 +125,4 @@ def pixel_to_plane(uv: np.ndarray, z: float, cam: Camera, width: int, height: in
         (..., 3) float64 world points, m; NaN where the ray is parallel to the plane or meets
         it behind the camera (e.g. above the horizon for a plane below the camera).
     """
-    uv = np.asarray(uv, dtype=np.float64)
-    eye = np.asarray(cam.eye, dtype=np.float64)
-    ray = unproject(uv, np.ones(uv.shape[:-1]), cam, width, height) - eye
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = (z - eye[2]) / ray[..., 2]
-    s = np.where(np.abs(ray[..., 2]) > 1e-9, s, np.nan)
-    s = np.where(s > 0, s, np.nan)
-    return eye + s[..., None] * ray
+    return pixel_to_surface(uv, np.array([0.0, 0.0, z]), np.array([0.0, 0.0, 1.0]), cam, width, height)

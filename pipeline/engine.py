@@ -156,7 +156,7 @@ def structure_key(scene: Scene) -> tuple:
     effects = tuple((e.effect, () if e.effect in EDITED_IN_PLACE else tuple(sorted(e.parameters.items())))
                     for e in scene.effects)
     # a static geom's restitution is edited in place too (its solref): only whether it has one counts
-    static = tuple((g.model_copy(update={"restitution": None}).model_dump_json(), g.restitution is not None)
+    static = tuple((g.model_copy(update={"restitution": None}).model_dump_json(), True)
                    if getattr(g, "restitution", None) is not None
                    else g.model_dump_json() if hasattr(g, "model_dump_json") else repr(g)
                    for g in (getattr(scene, "static", None) or ()))

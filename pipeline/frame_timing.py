@@ -92,7 +92,8 @@ def interval_ratios(seg: np.ndarray) -> dict[int, list[float]]:
     return votes
 
 
-def dropped_frames(seg: np.ndarray, min_gaps: int = MIN_GAPS) -> list[int]:
+def dropped_frames(seg: np.ndarray, min_gaps: int = MIN_GAPS, votes: dict[int, list[float]] | None = None
+                   ) -> list[int]:
     """Frame intervals of a clip in which a captured frame is missing.
 
     Interval ``i`` (from frame ``i`` to ``i + 1``) is tested on every moving object
@@ -105,10 +106,11 @@ def dropped_frames(seg: np.ndarray, min_gaps: int = MIN_GAPS) -> list[int]:
         seg: ``(T, H, W)`` int object ids, -1 background, frames as the container spaces them.
         min_gaps: fewer drops than this in the clip are not trusted (:data:`MIN_GAPS`): none is
             returned.
+        votes: :func:`interval_ratios` of ``seg`` when the caller has them already (None: computed).
     Returns:
         ascending interval indices ``i`` in ``0 .. T-2``; empty when none (or too few) is found.
     """
-    votes = interval_ratios(seg)
+    votes = interval_ratios(seg) if votes is None else votes
     gaps = sorted(i for i, r in votes.items() if min(r) < GAP_RATIO and max(r) <= 1.0)
     return gaps if len(gaps) >= min_gaps else []
 

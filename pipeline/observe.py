@@ -1860,7 +1860,7 @@ def retimed(seg: np.ndarray, clip: Clip, scene_fps: int, duration: float
     if abs(clip.fps / scene_fps - 1.0) > 0.01:
         return None, None, scene_fps
     votes = interval_ratios(seg)
-    gaps = dropped_frames(seg)
+    gaps = dropped_frames(seg, votes=votes)
     if not gaps:
         return None, None, scene_fps
     rate = max(1, round(capture_rate(gaps, clip.fps)))
