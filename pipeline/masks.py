@@ -74,7 +74,8 @@ def pseudo_masks(
     * shadows (``shadows``): a pixel darker than the background by a factor 0.45–0.97
       with nearly the same chromaticity (normalised RGB within 0.06) is a shadow, not
       foreground, unless it touches (3x3) a non-shadow foreground pixel (the blurred rim
-      of a dark object looks like a shadow);
+      of a dark object looks like a shadow); not in a greyscale clip (:func:`greyscale`:
+      without colour the test takes every darker object for a shadow);
     * blurred edges (``edge``): a foreground pixel is kept only where its difference is at
       least ``edge`` times the largest difference within about 3 % of the image side
       (the object's local contrast), i.e. the boundary is put at half contrast, which
@@ -145,6 +146,7 @@ def pseudo_masks(
 
     if method == "median":
         threshold = 20.0 if threshold is None else float(threshold)
+        shadows = shadows and not greyscale(fit)   # no chromaticity, no photometric shadow test
         sigma = max(0.5, 0.002 * min(h, w))
         smooth = lambda x: cv2.GaussianBlur(x, (0, 0), sigma).astype(np.float32)  # noqa: E731
         bg = smooth(np.median(fit, axis=0).astype(np.uint8))
@@ -459,6 +461,34 @@ def _differs(frame: np.ndarray, bg: np.ndarray, threshold: float, gain: bool) ->
     median grey-level ratio over pixels that are neither dark nor saturated in either.
     """
     return _difference(frame, bg, gain, False, threshold) > threshold
+
+
+GREY_SPREAD, GREY_SHARE = 2, 0.99
+""":func:`greyscale`: a clip is greyscale when at least ``GREY_SHARE`` of its pixels have their three
+channels within ``GREY_SPREAD`` (0-255) of each other (a monochrome camera's frames decoded to RGB
+differ by rounding only)."""
+
+
+def greyscale(frames: np.ndarray) -> bool:
+    """Whether ``frames`` are greyscale (:data:`GREY_SPREAD`, :data:`GREY_SHARE`): high-speed and
+    machine-vision cameras often record one channel (real clip dev/01, a 1000 fps free fall).
+
+    There :func:`shadow_like`'s chromaticity test is vacuous (every pixel has the same, grey, one),
+    so every object darker than what is behind it by the shadow factor reads as its own shadow: a
+    steel ball over a lighter strip, a grey puck on a white table. :func:`pseudo_masks` then skips
+    the pixel shadow test; the track-level tests that also ask for the background's texture
+    (:func:`pipeline.observe.cast_shadow_pairs`, ``lone_shadows``) still apply.
+
+    Args:
+        frames: ``(..., H, W, 3)`` uint8 RGB.
+    Returns:
+        bool; False for an empty array.
+    """
+    frames = np.asarray(frames)
+    if not frames.size:
+        return False
+    spread = frames.max(axis=-1).astype(np.int16) - frames.min(axis=-1)
+    return bool(np.count_nonzero(spread <= GREY_SPREAD) >= GREY_SHARE * spread.size)
 
 
 def shadow_like(frame: np.ndarray, bg: np.ndarray) -> np.ndarray:

@@ -479,3 +479,35 @@ def test_median_area_is_taken_over_the_frames_where_the_object_is_seen():
     masks[4].flat[:40] = True
     assert median_area(masks) == 20.0
     assert median_area(np.zeros((3, 4, 4), bool)) == 0.0
+
+
+def test_pseudo_masks_keep_a_grey_object_in_a_greyscale_clip(monkeypatch):
+    """In a greyscale clip (a monochrome high-speed camera) every darker pixel has the background's
+    chromaticity, so the photometric shadow test would take a grey disc on a light floor for a
+    shadow; the clip is recognised as greyscale and the disc kept whole (a colour clip's cast
+    shadow is still removed: :func:`test_pseudo_masks_shadow_and_blur`)."""
+    from pipeline.masks import greyscale
+
+    rng = np.random.default_rng(2)
+    H, W = 64, 96
+    bg = np.repeat((190 + rng.integers(-6, 7, (H, W, 1))), 3, axis=2).astype(np.uint8)   # grey texture
+    yy, xx = np.mgrid[:H, :W]
+    frames, truth = [], []
+    for t in range(12):
+        cx = 15 + 6 * t
+        disc = (yy - 30) ** 2 + (xx - cx) ** 2 <= 64
+        f = bg.astype(np.float32)
+        f[disc] = 120.0                                   # 0.63 times the floor: inside the shadow factor
+        frames.append(cv2.GaussianBlur(f, (0, 0), 1.0).clip(0, 255).astype(np.uint8))
+        truth.append(disc)
+    frames, truth = np.stack(frames), np.stack(truth)
+    assert greyscale(frames) and not greyscale(np.dstack([frames[0][..., :2], frames[0][..., :1] // 2]))
+    masks = pseudo_masks(frames)
+    iou = (masks & truth).sum((1, 2)) / (masks | truth).sum((1, 2))
+    assert iou.min() >= 0.8, iou
+    # without the greyscale rule the photometric test calls the disc a shadow, and it is lost
+    from pipeline import masks as masks_module
+    assert np.stack([masks_module.shadow_like(f, bg) for f in frames])[truth].mean() > 0.9
+    monkeypatch.setattr(masks_module, "greyscale", lambda frames: False)
+    lost = pseudo_masks(frames)
+    assert ((lost & truth).sum((1, 2)) / np.maximum(1, (lost | truth).sum((1, 2)))).max() < 0.5
