@@ -1219,3 +1219,35 @@ def test_a_shadow_whose_caster_is_out_of_view_is_not_an_object():
     grey[own] = 0.6 * wall.mean(axis=(0, 1))
     grey[ball] = (200.0, 30.0, 40.0)
     assert lone_shadows([ball, own], grey.astype(np.uint8), background) == set()
+
+
+def test_a_mover_that_comes_and_goes_mid_view_vanishes_one_that_enters_does_not():
+    """A rigid body in view does not vanish: a track seen in 9 of 30 frames in the middle of the
+    view (dev/02's faint shadow under a bouncing ball) is not an object; one seen as rarely that
+    enters through the border, or one seen in most frames, is."""
+    from pipeline.observe import VANISH_SEEN, filled_in, vanishes
+
+    T, H, W = 30, 60, 80
+    yy, xx = np.mgrid[:H, :W]
+
+    def disc(cx, cy, r=5):
+        return (xx - cx) ** 2 + (yy - cy) ** 2 <= r * r
+
+    flicker = np.zeros((T, H, W), bool)
+    for t in (4, 5, 6, 7, 9, 10, 13, 14, 15):                  # 0.3 of the window, never at the border
+        flicker[t] = disc(40, 45)
+    assert flicker.any(axis=(1, 2)).mean() < VANISH_SEEN and vanishes(flicker)
+    entering = np.zeros((T, H, W), bool)
+    for t in range(21, T):                                      # slides in from the right edge
+        entering[t] = disc(W + 2 - 4 * (t - 21), 30)
+    assert entering.any(axis=(1, 2)).mean() < VANISH_SEEN and not vanishes(entering)
+    steady = np.zeros((T, H, W), bool)
+    for t in range(0, T, 2):                                    # half the frames, mid-view
+        steady[t] = disc(20 + t, 30)
+    assert not vanishes(steady)
+    # the frames the segmenter missed and background subtraction saw count as seen
+    bs = np.full((T, H, W), -1, np.int8)
+    for t in range(T):
+        bs[t][disc(40, 45)] = 0
+    assert not vanishes(filled_in(flicker, [0], bs))
+    assert filled_in(flicker, [], bs).sum() == flicker.sum()
