@@ -267,7 +267,8 @@ def rest_size_class(area: float, ref: float) -> bool:
 
 def segment_objects(frames: np.ndarray, context: np.ndarray, method: str, max_objects: int,
                     explain: list | None = None, segmenter: Segmenter | None = None,
-                    candidates: list | None = None, rest_segmenter: Segmenter | None = None) -> np.ndarray:
+                    candidates: list | None = None, rest_segmenter: Segmenter | None = None,
+                    window: bool = True) -> np.ndarray:
     """Masks of the objects in ``frames``, split into tracks (before :func:`keep_objects`).
 
     ``median`` / ``mog2``: background subtraction against ``context``
@@ -286,6 +287,8 @@ def segment_objects(frames: np.ndarray, context: np.ndarray, method: str, max_ob
         candidates: ``hybrid`` only: one dict per segmenter candidate track (:func:`hybrid_objects`).
         rest_segmenter: ``hybrid`` only: a second network for objects at rest the first misses
             (:func:`second_opinion_rests`; None: none).
+        window: ``hybrid`` only: ``frames`` are one window of consecutive frames
+            (:func:`hybrid_objects`); False for frames spread over a whole clip.
     Returns:
         ``(T, H, W)`` int8 track ids, -1 background.
     Raises:
@@ -297,7 +300,7 @@ def segment_objects(frames: np.ndarray, context: np.ndarray, method: str, max_ob
         masks = pseudo_masks(frames, method=method, background=context)
         return label_objects(masks, max_objects=max_objects)
     if method == "hybrid":
-        return hybrid_objects(frames, context, max_objects, explain, segmenter, candidates, rest_segmenter)
+        return hybrid_objects(frames, context, max_objects, explain, segmenter, candidates, rest_segmenter, window)
     if method == "anchored":    # needs the flow-checked movers: observe() / observe_frames() run it
         raise ValueError("segment_objects: 'anchored' runs in observe(), after the median movers are kept")
     fg, contact = (segmenter or shipped())(frames, median_background(context))
@@ -328,7 +331,8 @@ def _segmenter_tracks(fg: np.ndarray, contact: np.ndarray, max_objects: int,
 
 def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
                    explain: list | None = None, segmenter: Segmenter | None = None,
-                   candidates: list | None = None, rest_segmenter: Segmenter | None = None) -> np.ndarray:
+                   candidates: list | None = None, rest_segmenter: Segmenter | None = None,
+                   window: bool = True) -> np.ndarray:
     """The segmenter first, background subtraction where it misses (``mask_method: hybrid``).
 
     The segmenter (:mod:`pipeline.segmenter`) gives whole silhouettes of objects moving or at
@@ -355,6 +359,8 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
       shadow-coloured, the background's texture seen through it, moving with the other; the frames
       where the tracker swapped the two are given back first: :func:`untangle_shadows`) and any
       track whose size is not that of one rigid object (:func:`rigid_size`: flicker, a caption);
+      in a window (``window``), a segmenter mover that comes and goes in the middle of the view
+      (:func:`vanishes`), unless every mover would go;
     * a moving track of background subtraction that lies mostly (80 %) outside the segmenter
       tracks of its size class is a mover of its own (its masks as they are): a small or blurred
       object the segmenter missed, unless half of it lies on an object kept at rest (the crescent
@@ -385,6 +391,10 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
             ``mover_bs_only``, ``at_rest``), ``area`` (median px), ``frames`` (seen in).
         segmenter: the object segmenter (None: :func:`pipeline.segmenter.shipped`).
         rest_segmenter: a second segmenter for objects at rest the first missed (None: none).
+        window: ``frames`` are one window of consecutive frames (the main job's), where an object
+            in view is seen throughout; False for frames spread over a whole clip
+            (:func:`observe_frames`), where objects come and go between them, so no mover is
+            dropped by :func:`vanishes`.
         candidates: if given, one dict per segmenter candidate track (seen in 15 % of the frames),
             before the later filters (parts, rigid size, size class, ``max_objects``): ``mask``
             (``(T, H, W)`` bool), ``seen`` (fraction of frames), ``area`` (median px),
@@ -461,7 +471,7 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
     movers, unseen = [x for x in movers if rigid_size(x[1])], [x for x in unseen if rigid_size(x[1])]
     stills = [(tr, m) for tr, m in stills if rigid_size(m)]      # flicker, captions: not one rigid body
     _dropped(candidates, [x[1] for x in movers + stills], "rigid_size")
-    lasting = [x for x in movers if not vanishes(filled_in(x[1], x[2], bs))]
+    lasting = [x for x in movers if not (window and vanishes(filled_in(x[1], x[2], bs)))]
     if lasting or unseen:             # never every mover: the window's motion is still to be explained
         movers = lasting
     _dropped(candidates, [x[1] for x in movers + stills], "vanishes")
@@ -1977,7 +1987,7 @@ def observe_frames(video, fps: float | None, frame_indices, size: tuple[int, int
         seg = anchored_objects(clip.frames[tracked], clip.frames[fit], movers, max_objects, segmenter=segmenter)
     else:
         seg = segment_objects(clip.frames[tracked], clip.frames[fit], mask_method, max_objects, segmenter=segmenter,
-                              rest_segmenter=rest_segmenter)
+                              rest_segmenter=rest_segmenter, window=False)   # frames over the whole clip
         seg, _ = keep_objects(seg, None, max_objects, still=True)
     seg, _ = attached_shadows(seg, clip.frames[tracked], median_background(clip.frames[fit]))
     where = {t: k for k, t in enumerate(tracked)}
