@@ -789,8 +789,7 @@ def lift_top(tracks: list[Track], motions: list[Motion], width: int, height: int
 
     With ``fps`` (frames per second) a sphere that speeds up along a line on the ground plane
     (:func:`ground_slope`) rolls down a ramp instead (:func:`ramp_on_ground`): its centre on the
-    plane parallel to the ramp, its velocity along it, spinning as it rolls; ``kind`` ``ramp``; an
-    upright cylinder slides down the same ramp (:func:`_onto_ramp`).
+    plane parallel to the ramp, its velocity along it, spinning as it rolls; ``kind`` ``ramp``.
     """
     K = intrinsics(fov, width, height)
     f = K[0, 0]
@@ -853,29 +852,17 @@ def lift_top(tracks: list[Track], motions: list[Motion], width: int, height: int
                                                    np.asarray(lifted.linear_velocity), size["radius"]).tolist()
             lifted.rolling_friction = rolling_resistance(decel / ppm_k if m.n >= 5 else 0.0, size["radius"])
             lifted.friction = ROLLING_GRIP
-            if fps is not None and _onto_ramp(lifted, tr, m, half_h, ppm_k, cam, width, height, fps):
+            if fps is not None and _roll_down_ramp(lifted, tr, m, half_h, ppm_k, cam, width, height, fps):
                 notes.append(f"object {tr.label}: speeds up along a line on the ground: rolls down a ramp of "
                              f"{lifted.notes[-1]}")
-        elif shape == "cylinder" and fps is not None \
-                and _onto_ramp(lifted, tr, m, half_h, ppm_k, cam, width, height, fps):
-            notes.append(f"object {tr.label}: speeds up along a line on the ground: slides down a ramp of "
-                         f"{lifted.notes[-1]}")
         objects.append(lifted)
     return cam, objects, notes
 
 
-def _onto_ramp(lifted: Lifted, tr: Track, m: Motion, half_h: float, ppm: float, cam: Camera, width: int,
+def _roll_down_ramp(lifted: Lifted, tr: Track, m: Motion, half_h: float, ppm: float, cam: Camera, width: int,
                     height: int, fps: float) -> bool:
-    """Put a ball, or an upright cylinder, lifted on the floor (:func:`lift_top`) on the ramp its
-    ground-plane speed-up shows (:func:`ground_slope`, :func:`ramp_on_ground`), in place; False
-    (unchanged) without one.
-
-    The ramp is the one a rolling ball's acceleration gives (``a = 5/7 g sin(theta)``) whatever the
-    shape: the silhouette seen from above does not tell a ball from a puck (real clip 02: its glass
-    ball's mask holds its shadow and fits an upright cylinder best), and one ramp under either
-    keeps the support the same. A ball rolls down it (spin, no rolling resistance); an upright
-    cylinder stands on it, tilted with it, and slides with the friction that gives the same
-    acceleration, ``a = g (sin(theta) - mu cos(theta))``, i.e. ``mu = (1 - 5/7) tan(theta)``."""
+    """Put a ball lifted on the floor (:func:`lift_top`) on the ramp its ground-plane speed-up shows
+    (:func:`ground_slope`, :func:`ramp_on_ground`), in place; False (unchanged) without one."""
     w = whole_frames(tr)
     pts = pixel_to_plane(w.centre, half_h, cam, width, height)
     slope = ground_slope(w, pts, fps, fit_tolerance(w) / ppm)
@@ -892,11 +879,7 @@ def _onto_ramp(lifted: Lifted, tr: Track, m: Motion, half_h: float, ppm: float, 
     vel = (p[1] - p[0]) / dt
     lifted.position = [float(v) for v in p[0]]
     lifted.linear_velocity = [float(v) for v in vel]
-    if lifted.shape == "sphere":
-        lifted.angular_velocity = rolling_spin(normal, vel, lifted.size["radius"]).tolist()
-    else:   # standing on the ramp: the ramp's orientation, sliding at the friction of the same acceleration
-        lifted.orientation = [float(v) for v in box["orientation"]]
-        lifted.friction = (1.0 - ROLL_FACTOR["sphere"]) * math.tan(theta)
+    lifted.angular_velocity = rolling_spin(normal, vel, lifted.size["radius"]).tolist()
     lifted.rolling_friction = 0.0
     lifted.ramp, lifted.kind = box, "ramp"
     lifted.notes.append(f"{math.degrees(theta):.1f} deg ({a:.2f} m/s^2 over {n} frames)")
@@ -1079,7 +1062,7 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
                     notes += n
                     first = False
                 elif n is not lifts[0][2]:
-                    notes += [x for x in n if "down a ramp of" in x and x not in notes]
+                    notes += [x for x in n if "rolls down a ramp" in x and x not in notes]
                 more = _proposal(_to_scene(cam, objs, fps, duration), objs, tracks, v, shape_of, spin_noted, notes)
                 scenes += more[0]
                 labels += more[1]
