@@ -52,7 +52,7 @@ from pipeline.video import read_video  # noqa: E402
 FOUND = 0.5
 """A candidate is a true object when its mean IoU with it reaches this (the benchmark's "found")."""
 DECISIONS = ("mover", "at_rest", "slow", "rejected")
-DROPS = ("hand", "part", "rigid_size", "size_class", "max_objects")
+DROPS = ("hand", "part", "rigid_size", "vanishes", "size_class", "max_objects")
 
 
 def best_match(mask: np.ndarray, truth: np.ndarray) -> tuple[int, float]:
@@ -193,8 +193,8 @@ def markdown(report: dict) -> str:
              "at rest, slow object, rejected; *rejected: object* counts the rules' losses. *Lost later*: true objects "
              "with a matching candidate that is not inside any returned object (rejected, or dropped afterwards as a "
              "hand, a part, for its size or by `max_objects`); *dropped (filter): object*: matching candidates the rules "
-             "accepted and that filter dropped (`hands`, `attached_parts`, `rigid_size`, the size class of the movers, "
-             "`max_objects`); *kept: not*: returned candidates that match no true object. "
+             "accepted and that filter dropped (`hands`, `attached_parts`, `rigid_size`, `vanishes`, the size class of "
+             "the movers, `max_objects`); *kept: not*: returned candidates that match no true object. "
              "True objects outside the working crop are not counted here (`observation_truth` counts them as missed).", "",
              "| set | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
     for name, s in report["summary"].items():

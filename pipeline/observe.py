@@ -391,10 +391,6 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
             ``mover_bs_only``, ``at_rest``), ``area`` (median px), ``frames`` (seen in).
         segmenter: the object segmenter (None: :func:`pipeline.segmenter.shipped`).
         rest_segmenter: a second segmenter for objects at rest the first missed (None: none).
-        window: ``frames`` are one window of consecutive frames (the main job's), where an object
-            in view is seen throughout; False for frames spread over a whole clip
-            (:func:`observe_frames`), where objects come and go between them, so no mover is
-            dropped by :func:`vanishes`.
         candidates: if given, one dict per segmenter candidate track (seen in 15 % of the frames),
             before the later filters (parts, rigid size, size class, ``max_objects``): ``mask``
             (``(T, H, W)`` bool), ``seen`` (fraction of frames), ``area`` (median px),
@@ -404,11 +400,15 @@ def hybrid_objects(frames: np.ndarray, context: np.ndarray, max_objects: int,
             (:func:`border_fraction`), ``decision`` (``mover``,
             ``at_rest``, ``slow`` or ``rejected``), ``kept`` (inside one of the objects
             returned), for an accepted one that is not, ``dropped`` (``part``,
-            ``rigid_size``, ``size_class`` or ``max_objects``: the filter that dropped it), and,
+            ``rigid_size``, ``vanishes``, ``size_class`` or ``max_objects``: the filter that dropped it), and,
             when there are movers, ``size_ratio`` (its median area over the movers' median, the
             size class's variable: objects at rest are kept within 1/:data:`REST_SIZE_CLASS`..
             :data:`REST_SIZE_CLASS`).
             ``benchmarks/observation_candidates.py`` scores them against the truth.
+        window: ``frames`` are one window of consecutive frames (the main job's), where an object
+            in view is seen throughout; False for frames spread over a whole clip
+            (:func:`observe_frames`), where objects come and go between them, so no mover is
+            dropped by :func:`vanishes`.
     Returns:
         ``(T, H, W)`` int8 object ids, -1 background.
     """
