@@ -26,6 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from pipeline.masks import track_centroids
+
 GAP_RATIO = 0.1
 """A frame interval is a drop for an object when predicting its step by the sum of the
 neighbouring steps errs by less than this share of the error of predicting it by their mean.
@@ -46,14 +48,14 @@ noise, not motion, and the interval is not tested."""
 
 
 def _centroids(seg: np.ndarray, k: int) -> np.ndarray:
-    """``(T, 2)`` centroid ``(x, y)`` px of object ``k`` per frame; NaN where unseen or where its
-    mask touches the frame's border (a cut mask's centroid moves with the cut, not the object)."""
-    out = np.full((len(seg), 2), np.nan)
-    H, W = seg.shape[1:]
-    for t in range(len(seg)):
-        ys, xs = np.nonzero(seg[t] == k)
-        if len(xs) and ys.min() > 0 and xs.min() > 0 and ys.max() < H - 1 and xs.max() < W - 1:
-            out[t] = xs.mean(), ys.mean()
+    """``(T, 2)`` centroid ``(x, y)`` px of object ``k`` per frame (:func:`pipeline.masks.track_centroids`);
+    NaN also where its mask touches the frame's border (a cut mask's centroid moves with the cut,
+    not the object)."""
+    mask = seg == k
+    out = track_centroids(mask)
+    border = (mask[:, 0, :].any(axis=1) | mask[:, -1, :].any(axis=1)
+              | mask[:, :, 0].any(axis=1) | mask[:, :, -1].any(axis=1))
+    out[border] = np.nan
     return out
 
 

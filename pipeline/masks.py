@@ -47,6 +47,16 @@ def median_area(masks: np.ndarray) -> float:
     return float(np.median(areas[seen])) if seen.any() else 0.0
 
 
+def track_centroids(mask: np.ndarray) -> np.ndarray:
+    """``(T, 2)`` float64 centroid ``(x, y)`` px of a ``(T, H, W)`` bool track per frame, NaN where unseen."""
+    out = np.full((len(mask), 2), np.nan)
+    for t in range(len(mask)):
+        ys, xs = np.nonzero(mask[t])
+        if len(xs):
+            out[t] = xs.mean(), ys.mean()
+    return out
+
+
 def _odd(n: float) -> int:
     n = max(1, int(round(n)))
     return n if n % 2 else n + 1

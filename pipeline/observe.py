@@ -38,7 +38,7 @@ from pipeline.frame_timing import (capture_rate, capture_times, dropped_frames, 
                                    regular_drops)
 from pipeline.image_tracks import find_tracks, net_shift, object_tracks, still_tracks
 from pipeline.masks import (cut_by_colour, drop_ghosts, hold_resting, label_objects, median_area, merge_touching,
-                            pseudo_ground_truth, pseudo_masks, shadow_like, skin_like)
+                            pseudo_ground_truth, pseudo_masks, shadow_like, skin_like, track_centroids)
 from pipeline.segmenter import Segmenter, median_background, shipped
 from pipeline.video import Clip, VideoError, declared_length, read_video, resample
 
@@ -172,7 +172,7 @@ def flow_agreement(seg: np.ndarray, flow: np.ndarray) -> np.ndarray:
         if not area.any():
             continue
         tol = max(FLOW_AGREE_PX, FLOW_AGREE_DIAMETER * 2.0 * math.sqrt(float(np.median(area[area > 0])) / math.pi))
-        steps = np.diff(_centroids(m), axis=0)                      # (T-1, 2), NaN where unseen
+        steps = np.diff(track_centroids(m), axis=0)                 # (T-1, 2), NaN where unseen
         for t in range(T - 1):
             if not (area[t] and area[t + 1]):
                 continue
@@ -582,7 +582,7 @@ def rigid_pair(a: np.ndarray, b: np.ndarray) -> bool:
     both = a.any(axis=(1, 2)) & b.any(axis=(1, 2))
     if both.sum() < RIGID_FRAMES:
         return False
-    ca, cb = _centroids(a)[both], _centroids(b)[both]
+    ca, cb = track_centroids(a)[both], track_centroids(b)[both]
     diameter = 2.0 * math.sqrt(min(median_area(a), median_area(b)) / math.pi)
     spread = float((ca - cb).std(axis=0).max())
     travel = float(np.linalg.norm(ca.max(axis=0) - ca.min(axis=0)))
@@ -741,7 +741,7 @@ def outruns(mask: np.ndarray, stills: list, still_areas: list) -> bool:
         True when the centroid's largest distance from its first position (px, as
         :attr:`pipeline.image_tracks.Track.travel`) exceeds that diameter; False for a track never seen.
     """
-    c = _centroids(mask)
+    c = track_centroids(mask)
     c = c[np.isfinite(c[:, 0])]
     if not len(c):
         return False
@@ -992,16 +992,6 @@ TEXTURE_MIN_STD, TEXTURE_MIN_PX = 2.0, 20
 say nothing."""
 
 
-def _centroids(mask: np.ndarray) -> np.ndarray:
-    """``(T, 2)`` float64 centroid ``(x, y)`` px of a ``(T, H, W)`` bool track per frame, NaN where unseen."""
-    out = np.full((len(mask), 2), np.nan)
-    for t in range(len(mask)):
-        ys, xs = np.nonzero(mask[t])
-        if len(xs):
-            out[t] = xs.mean(), ys.mean()
-    return out
-
-
 def velocity_coupling(a: np.ndarray, b: np.ndarray) -> float:
     """Share of the frame steps, among those where both of two ``(T, H, W)`` bool tracks are seen
     in both frames and both centroids move at least :data:`COUPLED_SPEED` px, in which the two
@@ -1010,7 +1000,7 @@ def velocity_coupling(a: np.ndarray, b: np.ndarray) -> float:
     for independent motions. A share, not a correlation of the velocities, so that the few steps
     where a tracker swaps two nearby tracks do not decide it. 0.0 with fewer than
     :data:`COUPLED_STEPS` such steps."""
-    va, vb = np.diff(_centroids(a), axis=0), np.diff(_centroids(b), axis=0)   # (T-1, 2)
+    va, vb = np.diff(track_centroids(a), axis=0), np.diff(track_centroids(b), axis=0)   # (T-1, 2)
     sa, sb = np.linalg.norm(va, axis=1), np.linalg.norm(vb, axis=1)
     ok = np.isfinite(sa) & np.isfinite(sb)
     ok[ok] &= (sa[ok] >= COUPLED_SPEED) & (sb[ok] >= COUPLED_SPEED)
@@ -1729,7 +1719,7 @@ def untouched_at_rest(seg: np.ndarray, moving: tuple[bool, ...]) -> list[int]:
     tracks = {m: seg == m for m in movers}
     steps = {}
     for m, mask in tracks.items():
-        c = _centroids(mask)
+        c = track_centroids(mask)
         d = np.linalg.norm(np.diff(c, axis=0), axis=1)            # (T-1,), NaN where either frame is unseen
         prev = np.concatenate([[np.nan], d])
         nxt = np.concatenate([d, [np.nan]])
