@@ -1060,7 +1060,12 @@ def attached_shadows(seg: np.ndarray, frames: np.ndarray, background: np.ndarray
     :data:`SHADOW_TEXTURE`, the test :func:`cast_shadow_pairs` uses for detached shadows): a grey
     object, or a polished one that mirrors the wall behind it (dev/10's glider: 0.57), passes the
     photometric test and hides that texture; a dark object alone is never a shadow (issue 29);
-    and only if it holds :data:`ATTACHED_MIN_SHARE` of the object's pixels.
+    and only if it holds :data:`ATTACHED_MIN_SHARE` of the object's pixels. Where the surface is
+    flat (:func:`flat_surface`: no texture to keep or hide, a plain wall or table), the candidate is
+    removed instead when the rest of the object has a colour of its own (:func:`own_colour` at least
+    :data:`OWN_COLOUR`): the candidate has the surface's colour, the object does not (real clip 01, a
+    green ball on a plain floor, 0.505 -> 0.562 against the hand labels; a grey object, such as
+    dev/10's glider at 0.022, is never cut this way).
 
     Args:
         seg: ``(T, H, W)`` int8 object ids, -1 background; frames: ``(T, H, W, 3)`` uint8 RGB;
@@ -1096,11 +1101,61 @@ def attached_shadows(seg: np.ndarray, frames: np.ndarray, background: np.ndarray
                 # the cut follows the shadow's ragged edge: the object keeps its convex outline
                 # (every primitive's silhouette is convex), within the segmenter's mask
                 attached[t] = a & ~(convex_hull_masks(body[None])[0])
-        if attached.sum() >= ATTACHED_MIN_SHARE * (seg == k).sum() \
-                and texture_kept(attached, frames, background) >= SHADOW_TEXTURE:
+        if attached.sum() < ATTACHED_MIN_SHARE * (seg == k).sum():
+            continue
+        if texture_kept(attached, frames, background) >= SHADOW_TEXTURE or \
+                (flat_surface(attached, background) and own_colour(seg == k, attached, seg, frames) >= OWN_COLOUR):
             out[attached] = -1
             trimmed.append(k)
     return out, trimmed
+
+
+OWN_COLOUR = 0.06
+""":func:`attached_shadows` on a flat surface: an object has a colour of its own when the median over
+its pixels (the shadow candidate left out) of the largest chromaticity difference from the surface
+around it is at least this (the chromaticity bound of :func:`pipeline.masks.shadow_like`)."""
+
+
+def flat_surface(mask: np.ndarray, background: np.ndarray) -> bool:
+    """Whether the background under a ``(T, H, W)`` bool track is flat: the median over the frames
+    where it holds at least :data:`TEXTURE_MIN_PX` px of the background's grey-level standard
+    deviation under it is below :data:`TEXTURE_MIN_STD`, the level :func:`texture_kept` skips. There
+    the texture test cannot tell a shadow from an object (no texture to keep or hide). False for a
+    track that is never that large."""
+    gb = background.astype(np.float32).mean(-1)
+    stds = [float(gb[m].std()) for m in mask if m.sum() >= TEXTURE_MIN_PX]
+    return bool(stds) and float(np.median(stds)) < TEXTURE_MIN_STD
+
+
+def own_colour(obj: np.ndarray, part: np.ndarray, seg: np.ndarray, frames: np.ndarray) -> float:
+    """How far an object's colour is from the surface around it: per frame, the chromaticity
+    ``(r, g, b) / (r + g + b)`` of the object's pixels outside ``part`` against the median chromaticity
+    of a 2-px background ring around its mask (in the frame itself, so a background model that holds
+    the object does not matter); the median over all those pixels of the largest channel difference.
+
+    Args:
+        obj, part: ``(T, H, W)`` bool, the object's masks and the part left out (its shadow
+            candidate); seg: ``(T, H, W)`` int object ids, -1 background; frames: ``(T, H, W, 3)`` uint8 RGB.
+    Returns:
+        float, 0..1; 0.0 where no frame has both a body and a ring of at least 10 px.
+    """
+    def chroma(px: np.ndarray) -> np.ndarray:
+        px = px.astype(np.float32)
+        return px / (px.sum(-1, keepdims=True) + 1e-3)
+
+    k3, k7 = np.ones((3, 3), np.uint8), np.ones((7, 7), np.uint8)
+    dists = []
+    for t in range(len(obj)):
+        body = obj[t] & ~part[t]
+        if body.sum() < 10:
+            continue
+        m = obj[t].astype(np.uint8)
+        ring = (cv2.dilate(m, k7) > 0) & ~(cv2.dilate(m, k3) > 0) & (seg[t] < 0)
+        if ring.sum() < 10:
+            continue
+        surface = np.median(chroma(frames[t][ring]), axis=0)
+        dists.append(np.abs(chroma(frames[t][body]) - surface).max(-1))
+    return float(np.median(np.concatenate(dists))) if dists else 0.0
 
 
 def cast_shadows(masks: list, frames: np.ndarray, background: np.ndarray) -> set[int]:

@@ -1196,6 +1196,41 @@ def test_an_attached_cast_shadow_is_cut_from_the_mask_a_grey_or_dark_object_is_n
     assert trimmed == [] and np.array_equal(out, only_dark)
 
 
+def test_on_a_flat_surface_a_coloured_objects_attached_shadow_is_cut_a_grey_objects_part_is_not():
+    """Real clip 01: a green ball bouncing on a plain floor; its shadow touches it, and the floor has no
+    texture for the texture test to find kept or hidden. There the shadow (the floor's colour,
+    darker) is cut because the rest of the mask has a colour of its own; a grey object of the
+    floor's colour keeps its darker part (nothing tells that part from the object), and so does a
+    coloured object on a textured floor whose dark part hides the texture (the test above)."""
+    from pipeline.observe import attached_shadows, flat_surface, own_colour
+
+    T, H, W = 10, 80, 100
+    rng = np.random.default_rng(2)
+    floor = np.clip(np.array([150.0, 150.0, 145.0]) + rng.normal(0.0, 0.6, (H, W, 3)), 0, 255)
+    background = floor.astype(np.uint8)
+    centres = [(20.0 + 5 * t, 35.0) for t in range(T)]
+    ball = _disc_track(T, H, W, centres, 8.0)
+    shade = _disc_track(T, H, W, [(x + 3.0, y + 7.0) for x, y in centres], 8.0) & ~ball
+    seg = np.where(ball | shade, 0, -1).astype(np.int8)
+
+    def clip(ball_rgb):
+        frames = np.tile(floor, (T, 1, 1, 1))
+        frames[shade] = 0.55 * frames[shade]
+        frames[ball] = ball_rgb
+        return frames.astype(np.uint8)
+
+    assert flat_surface(shade, background)
+    green = clip((60.0, 170.0, 50.0))
+    assert own_colour(ball | shade, shade, seg, green) > 0.2
+    out, trimmed = attached_shadows(seg, green, background)
+    assert trimmed == [0]
+    assert (out[ball] == 0).all() and (out[shade] == 0).mean() < 0.15
+    grey = clip((180.0, 180.0, 174.0))          # the floor's chromaticity, lighter
+    assert own_colour(ball | shade, shade, seg, grey) < 0.02
+    out, trimmed = attached_shadows(seg, grey, background)
+    assert trimmed == [] and np.array_equal(out, seg)
+
+
 def test_a_shadow_whose_caster_is_out_of_view_is_not_an_object():
     """dev/02: a patch of the table darkened for 9 frames (the shadow of something out of the
     view) was tracked as a mover and fitted as a second object. Through a shadow the surface's
