@@ -1130,7 +1130,7 @@ def flat_surface(mask: np.ndarray, background: np.ndarray) -> bool:
 def own_colour(obj: np.ndarray, part: np.ndarray, seg: np.ndarray, frames: np.ndarray) -> float:
     """How far an object's colour is from the surface around it: per frame, the chromaticity
     ``(r, g, b) / (r + g + b)`` of the object's pixels outside ``part`` against the median chromaticity
-    of a 2-px background ring around its mask (in the frame itself, so a background model that holds
+    of a background ring 2-3 px outside its mask (in the frame itself, so a background model that holds
     the object does not matter); the median over all those pixels of the largest channel difference.
 
     Args:
