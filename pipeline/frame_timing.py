@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from pipeline.masks import track_centroids
+from pipeline.masks import touches_border, track_centroids
 
 GAP_RATIO = 0.1
 """A frame interval is a drop for an object when predicting its step by the sum of the
@@ -53,9 +53,7 @@ def _centroids(seg: np.ndarray, k: int) -> np.ndarray:
     not the object)."""
     mask = seg == k
     out = track_centroids(mask)
-    border = (mask[:, 0, :].any(axis=1) | mask[:, -1, :].any(axis=1)
-              | mask[:, :, 0].any(axis=1) | mask[:, :, -1].any(axis=1))
-    out[border] = np.nan
+    out[touches_border(mask)] = np.nan
     return out
 
 

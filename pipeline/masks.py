@@ -57,6 +57,11 @@ def track_centroids(mask: np.ndarray) -> np.ndarray:
     return out
 
 
+def touches_border(mask: np.ndarray) -> np.ndarray:
+    """``(T,)`` bool: per frame, whether a ``(T, H, W)`` bool track has a pixel on the image border."""
+    return mask[:, 0, :].any(axis=1) | mask[:, -1, :].any(axis=1) | mask[:, :, 0].any(axis=1) | mask[:, :, -1].any(axis=1)
+
+
 def _odd(n: float) -> int:
     n = max(1, int(round(n)))
     return n if n % 2 else n + 1

@@ -38,7 +38,8 @@ from pipeline.frame_timing import (capture_rate, capture_times, dropped_frames, 
                                    regular_drops)
 from pipeline.image_tracks import find_tracks, net_shift, object_tracks, still_tracks
 from pipeline.masks import (cut_by_colour, drop_ghosts, hold_resting, label_objects, median_area, merge_touching,
-                            pseudo_ground_truth, pseudo_masks, shadow_like, skin_like, track_centroids)
+                            pseudo_ground_truth, pseudo_masks, shadow_like, skin_like, touches_border,
+                            track_centroids)
 from pipeline.segmenter import Segmenter, median_background, shipped
 from pipeline.video import Clip, VideoError, declared_length, read_video, resample
 
@@ -594,8 +595,13 @@ def chromaticity(frames: np.ndarray, mask: np.ndarray) -> np.ndarray:
     ``(T, H, W)`` bool track in ``(T, H, W, 3)`` uint8 RGB frames: the colour without its
     brightness, so that the lit and the shaded side of one object agree (Lambertian shading scales
     all three channels alike)."""
-    px = frames[mask].astype(np.float64)                                           # (N, 3)
-    return np.median(px / (px.sum(axis=1, keepdims=True) + 1e-6), axis=0)
+    return np.median(pixel_chromaticity(frames[mask]), axis=0)
+
+
+def pixel_chromaticity(px: np.ndarray) -> np.ndarray:
+    """``(N, 3)`` float64 chromaticity ``(r, g, b) / (r + g + b)`` of ``(N, 3)`` RGB pixels."""
+    px = px.astype(np.float64)
+    return px / (px.sum(axis=1, keepdims=True) + 1e-6)
 
 
 def grown_by_2px(mask: np.ndarray) -> np.ndarray:
@@ -834,7 +840,7 @@ def border_fraction(m: np.ndarray) -> float:
     """The fraction of the frames where a ``(T, H, W)`` bool track is seen in which it touches the
     image border (0 for a track never seen): 1 for a track never wholly in view."""
     seen = m.any(axis=(1, 2))
-    border = m[:, 0, :].any(axis=1) | m[:, -1, :].any(axis=1) | m[:, :, 0].any(axis=1) | m[:, :, -1].any(axis=1)
+    border = touches_border(m)
     return float(border[seen].mean()) if seen.any() else 0.0
 
 
@@ -1101,10 +1107,11 @@ def attached_shadows(seg: np.ndarray, frames: np.ndarray, background: np.ndarray
                 # the cut follows the shadow's ragged edge: the object keeps its convex outline
                 # (every primitive's silhouette is convex), within the segmenter's mask
                 attached[t] = a & ~(convex_hull_masks(body[None])[0])
-        if attached.sum() < ATTACHED_MIN_SHARE * (seg == k).sum():
+        obj = seg == k
+        if attached.sum() < ATTACHED_MIN_SHARE * obj.sum():
             continue
         if texture_kept(attached, frames, background) >= SHADOW_TEXTURE or \
-                (flat_surface(attached, background) and own_colour(seg == k, attached, seg, frames) >= OWN_COLOUR):
+                (flat_surface(attached, background) and own_colour(obj, attached, seg, frames) >= OWN_COLOUR):
             out[attached] = -1
             trimmed.append(k)
     return out, trimmed
@@ -1139,10 +1146,6 @@ def own_colour(obj: np.ndarray, part: np.ndarray, seg: np.ndarray, frames: np.nd
     Returns:
         float, 0..1; 0.0 where no frame has both a body and a ring of at least 10 px.
     """
-    def chroma(px: np.ndarray) -> np.ndarray:
-        px = px.astype(np.float32)
-        return px / (px.sum(-1, keepdims=True) + 1e-3)
-
     k3, k7 = np.ones((3, 3), np.uint8), np.ones((7, 7), np.uint8)
     dists = []
     for t in range(len(obj)):
@@ -1153,8 +1156,8 @@ def own_colour(obj: np.ndarray, part: np.ndarray, seg: np.ndarray, frames: np.nd
         ring = (cv2.dilate(m, k7) > 0) & ~(cv2.dilate(m, k3) > 0) & (seg[t] < 0)
         if ring.sum() < 10:
             continue
-        surface = np.median(chroma(frames[t][ring]), axis=0)
-        dists.append(np.abs(chroma(frames[t][body]) - surface).max(-1))
+        surface = chromaticity(frames[t], ring)
+        dists.append(np.abs(pixel_chromaticity(frames[t][body]) - surface).max(-1))
     return float(np.median(np.concatenate(dists))) if dists else 0.0
 
 
