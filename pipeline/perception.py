@@ -93,6 +93,19 @@ rolling shape: a ball rolling on a golf green (stimpmeter speeds) decelerates at
 Wikipedia "Rolling resistance"). A disc that decelerates faster than ``ROLL_FACTOR * C_rr * g`` is
 sliding, and the sphere hypothesis of it keeps the excess."""
 
+MU_SLIDE_MIN = 0.05
+"""Smallest sliding friction a proposal believes of an object sliding on its face: dry pairs of
+common solids (wood, metal, plastic, rubber, paper) are 0.1-1, PTFE on PTFE about 0.04 (tables of
+friction coefficients, e.g. Wikipedia "Friction"); only ice or an air cushion is more slippery. A
+round silhouette that travels on the floor decelerating less than ``MU_SLIDE_MIN * g`` is a ball
+rolling, not a puck sliding (:func:`rolling_tracks`)."""
+ROLL_MIN_FRAMES = 10
+"""Frames of a motion fit (:attr:`Motion.n`) below which :func:`rolling_tracks` does not judge a
+deceleration (a third of a second at 30 fps)."""
+ROLL_MIN_TRAVEL = 0.5
+"""Diameters an object must travel in the window before :func:`rolling_tracks` judges that it
+keeps its speed (a track at rest keeps a speed of zero and says nothing)."""
+
 
 PUCK_HEIGHT = 0.3
 """Height / diameter of a cylinder seen straight from above (a puck): the top-down silhouette of an
@@ -931,8 +944,44 @@ def silhouette_rank(track: Track, shape: str, view: View) -> int:
     return cands.index(shape) if shape in cands else len(cands)
 
 
+def rolling_tracks(tracks: list[Track], motions: list[Motion]) -> frozenset[int]:
+    """Labels of the tracks whose motion says *ball*, not *puck*, where the silhouette cannot.
+
+    A round silhouette (:func:`pipeline.image_tracks.round_silhouette`) on the floor seen from
+    above is a ball or a disc seen along its axis (:func:`shape_candidates`), and the outline
+    cannot tell them apart. Their motion can: a puck slides on its face and dry friction slows
+    it by ``mu g`` with ``mu >=`` :data:`MU_SLIDE_MIN`, while a ball rolls and rolling resistance
+    slows it by a few hundredths of g (:data:`ROLLING_RESISTANCE_MAX`). A round track that travels
+    at least :data:`ROLL_MIN_TRAVEL` diameters over a motion fit of :data:`ROLL_MIN_FRAMES` frames
+    or more and decelerates along its velocity by less than ``MU_SLIDE_MIN * g`` rolls. The scale
+    is the top-down proposal's (:func:`lift_top`: the median diameter is :data:`SIZE_PRIOR`).
+    An air-table puck keeps its speed too (real clip 04): it is called a ball here.
+
+    Args:
+        tracks: the clip's tracks; motions: their :func:`pipeline.image_tracks.initial_motion`
+            (px, px/s, px/s^2), in the same order.
+    Returns:
+        the labels (:attr:`Track.label`) of the rolling tracks.
+    """
+    if not tracks:
+        return frozenset()
+    ppm = float(np.median([t.diameter for t in tracks])) / SIZE_PRIOR     # px per m
+    out = set()
+    for t, m in zip(tracks, motions):
+        w = whole_frames(t)
+        if not round_silhouette(t) or m.n < ROLL_MIN_FRAMES or len(w.centre) < 2:
+            continue
+        if float(np.linalg.norm(w.centre[-1] - w.centre[0])) < ROLL_MIN_TRAVEL * t.diameter:
+            continue
+        nv = float(np.linalg.norm(m.v0))
+        decel = -float(m.a @ m.v0) / nv if nv > 1e-6 else 0.0             # px/s^2
+        if decel / ppm < MU_SLIDE_MIN * G:
+            out.add(t.label)
+    return frozenset(out)
+
+
 def _hypotheses(tracks: list[Track], view: View, oblique: bool = False,
-                falling: frozenset[int] = frozenset()) -> list[dict[int, str]]:
+                falling: frozenset[int] = frozenset(), rolling: frozenset[int] = frozenset()) -> list[dict[int, str]]:
     """Shape assignments to try: the j-th proposal gives every track its j-th candidate (or its
     last one), so a clip yields at most 3 proposals whatever the number of objects. Seen
     obliquely (``view`` top), a silhouette too elongated for a puck that stands
@@ -940,14 +989,16 @@ def _hypotheses(tracks: list[Track], view: View, oblique: bool = False,
     can's silhouette is as elongated as a bar's. Seen from the side, a round silhouette of a
     track in ``falling`` (labels whose motion is a fall) is a sphere only: a disc is round from the
     side only while its axis stays on the line of sight, which nothing holds in flight (the
-    generic-viewpoint assumption); a disc end-on is kept for a round object that rolls."""
+    generic-viewpoint assumption); a disc end-on is kept for a round object that rolls. Seen from
+    above (``view`` top), a round silhouette of a track in ``rolling`` (:func:`rolling_tracks`:
+    it keeps its speed as no sliding puck can) is a sphere only."""
     cands = {t.label: shape_candidates(t, view) for t in tracks}
-    if view == "side":
-        cands = {t.label: [x for x in c if x != "cylinder"] if t.label in falling and "sphere" in c else c
-                 for t, c in zip(tracks, cands.values())}
     if oblique:
         cands = {t.label: c + ["cylinder"] if "cylinder" not in c and standing(t) else c
                  for t, c in zip(tracks, cands.values())}
+    drop = falling if view == "side" else rolling
+    cands = {t.label: [x for x in c if x != "cylinder"] if t.label in drop and "sphere" in c else c
+             for t, c in zip(tracks, cands.values())}
     n = max(len(c) for c in cands.values())
     out = []
     for j in range(n):
@@ -1039,6 +1090,7 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
         side_motions.append(m)
     falling = frozenset(t.label for t, m, ok in zip(tracks, side_motions, shows) if ok and _side_motion_kind(t, m) == "fall")
     falls = bool(falling)
+    rolling = rolling_tracks(tracks, motions)
     # a clear fall settles it; a speed-up along a line may also be perspective (an object
     # rolling towards an oblique camera), so the top-down reading is tried as well
     views: list[str] = ["side"] if falls else (["side", "top", "oblique"] if view == "side" else ["top", "oblique"])
@@ -1048,7 +1100,8 @@ def propose(seg: np.ndarray, flow: np.ndarray | None, fps: float, duration: floa
     spin_noted: set[int] = set()   # one note per spinning object (from the first proposal that spins it)
     for v in views:
         first = True
-        for shape_of in _hypotheses(tracks, "side" if v == "side" else "top", oblique=v == "oblique", falling=falling):
+        for shape_of in _hypotheses(tracks, "side" if v == "side" else "top", oblique=v == "oblique", falling=falling,
+                                    rolling=rolling):
             if v == "side":
                 lifts = [lift_side(tracks, side_motions, W, H, fps, shape_of, fov)]
             else:   # on the floor, and where a ball speeds up along the ground, also down a ramp
