@@ -99,6 +99,11 @@ common solids (wood, metal, plastic, rubber, paper) are 0.1-1, PTFE on PTFE abou
 friction coefficients, e.g. Wikipedia "Friction"); only ice or an air cushion is more slippery. A
 round silhouette that travels on the floor decelerating less than ``MU_SLIDE_MIN * g`` is a ball
 rolling, not a puck sliding (:func:`rolling_tracks`)."""
+SIZE_PRIOR_DOUBT = 8.0
+"""Largest factor by which a top-down view's scale (:data:`SIZE_PRIOR`, 5 cm for the median object)
+may overstate the px per m: objects up to 40 cm (the synthetic scenes' largest, a basketball's
+24 cm). A deceleration read at the prior's scale is that much too small for such an object, so
+:func:`rolling_tracks` asks for less than ``MU_SLIDE_MIN * g / SIZE_PRIOR_DOUBT`` there."""
 ROLL_MIN_FRAMES = 10
 """Frames of a motion fit (:attr:`Motion.n`) below which :func:`rolling_tracks` does not judge a
 deceleration (a third of a second at 30 fps)."""
@@ -951,11 +956,12 @@ def rolling_tracks(tracks: list[Track], motions: list[Motion]) -> frozenset[int]
     above is a ball or a disc seen along its axis (:func:`shape_candidates`), and the outline
     cannot tell them apart. Their motion can: a puck slides on its face and dry friction slows
     it by ``mu g`` with ``mu >=`` :data:`MU_SLIDE_MIN`, while a ball rolls and rolling resistance
-    slows it by a few hundredths of g (:data:`ROLLING_RESISTANCE_MAX`). A round track that travels
-    at least :data:`ROLL_MIN_TRAVEL` diameters over a motion fit of :data:`ROLL_MIN_FRAMES` frames
-    or more and decelerates along its velocity by less than ``MU_SLIDE_MIN * g`` rolls. The scale
-    is the top-down proposal's (:func:`lift_top`: the median diameter is :data:`SIZE_PRIOR`).
-    An air-table puck keeps its speed too (real clip 04): it is called a ball here.
+    slows it by a few hundredths of g or less (:data:`ROLLING_RESISTANCE_MAX`). A round track that
+    travels at least :data:`ROLL_MIN_TRAVEL` diameters over a motion fit of :data:`ROLL_MIN_FRAMES`
+    frames or more and decelerates along its velocity by less than
+    ``MU_SLIDE_MIN * g / SIZE_PRIOR_DOUBT`` at the top-down proposal's scale (:func:`lift_top`: the
+    median diameter is :data:`SIZE_PRIOR`; a puck 8x larger than the prior would read 8x too slow)
+    rolls. An air-table puck keeps its speed too: it is called a ball here.
 
     Args:
         tracks: the clip's tracks; motions: their :func:`pipeline.image_tracks.initial_motion`
@@ -975,7 +981,7 @@ def rolling_tracks(tracks: list[Track], motions: list[Motion]) -> frozenset[int]
             continue
         nv = float(np.linalg.norm(m.v0))
         decel = -float(m.a @ m.v0) / nv if nv > 1e-6 else 0.0             # px/s^2
-        if decel / ppm < MU_SLIDE_MIN * G:
+        if decel / ppm < MU_SLIDE_MIN * G / SIZE_PRIOR_DOUBT:
             out.add(t.label)
     return frozenset(out)
 

@@ -89,20 +89,18 @@ def test_side_view_falling_sphere_scale_from_gravity(tmp_path):
 
 
 def test_top_down_two_pucks(tmp_path):
-    # two 5 cm pucks sliding past each other on the floor, camera 1 m above; dry friction 0.07
-    # slows them visibly (at 0.03, ice, they would keep their speed like rolling balls, and
-    # perception.rolling_tracks would call them balls)
-    puck = {"shape": "cylinder", "size": {"radius": 0.025, "height": 0.01}, "mass": 0.02,
-            "material": {"sliding_friction": 0.07}}
+    # two 8 cm pucks sliding past each other on the floor, camera 1 m above
+    puck = {"shape": "cylinder", "size": {"radius": 0.04, "height": 0.015}, "mass": 0.05,
+            "material": {"sliding_friction": 0.03}}
     truth = _scene({"height": 1.0, "pitch": 89.0, "fov": 45.0},
-                   [{**puck, "position": [-0.2, -1.92, 0.005], "linear_velocity": [0.8, 0.0, 0.0]},
-                    {**puck, "position": [0.2, -2.06, 0.005], "linear_velocity": [-0.8, 0.0, 0.0]}])
+                   [{**puck, "position": [-0.2, -1.92, 0.0075], "linear_velocity": [0.4, 0.0, 0.0]},
+                    {**puck, "position": [0.2, -2.06, 0.0075], "linear_velocity": [-0.4, 0.0, 0.0]}])
     obs, props = _recover(tmp_path, truth, "top")
     assert props.view == "top"
     assert len(props.tracks) == 2
     first = props.scenes[0]
     assert [o.shape for o in first.objects] == ["cylinder", "cylinder"]
-    diameter_px = 0.05 * (0.5 * H / math.tan(math.radians(22.5))) / 1.0
+    diameter_px = 0.08 * (0.5 * H / math.tan(math.radians(22.5))) / 1.0
     assert _match_positions(truth, first, obs).max() < 0.5 * diameter_px
 
 
@@ -309,7 +307,8 @@ def test_a_round_silhouette_that_keeps_its_speed_rolls_one_that_slows_like_dry_f
     mu 0.002): from above a ball and a puck give the same disc, but a puck slides on its face and
     dry friction (mu >= perception.MU_SLIDE_MIN) slows it, while a ball rolls on. A disc crossing a
     top view at constant speed is proposed as a sphere only; one slowed by 0.3 g (a puck on wood)
-    keeps the puck hypothesis; one at rest says nothing (both)."""
+    keeps the puck hypothesis; one at rest says nothing (both). (test_top_down_two_pucks: pucks at
+    mu 0.03, 1.6x the size prior, read 0.019 g, above MU_SLIDE_MIN / SIZE_PRIOR_DOUBT: pucks.)"""
     rolling = _gliding_disc(0.0, 150.0)
     sliding = _gliding_disc(0.3, 330.0)
     resting = _gliding_disc(0.0, 0.0)
