@@ -860,8 +860,7 @@ def lift_top(tracks: list[Track], motions: list[Motion], width: int, height: int
         quat = [1.0, 0.0, 0.0, 0.0]
         if shape == "box" and not (oblique and standing(tr)):  # silhouette angle ccw from above = yaw
             quat = axis_angle_quat((0.0, 0.0, 1.0), math.radians(tr.angle)).tolist()
-        nv = float(np.linalg.norm(m.v0))
-        decel = -float(m.a @ m.v0) / nv if nv > 1e-6 else 0.0
+        decel = deceleration(m)
         mu = float(np.clip(decel / ppm_k / G, 0.0, 1.0)) if m.n >= 5 else 0.2
         lifted = Lifted(shape, size, [float(p[0][0]), float(p[0][1]), float(half_h)], quat,
                         [float(vel[0]), float(vel[1]), 0.0], mu, _mass(shape, size), "plane")
@@ -949,6 +948,14 @@ def silhouette_rank(track: Track, shape: str, view: View) -> int:
     return cands.index(shape) if shape in cands else len(cands)
 
 
+def deceleration(m: Motion) -> float:
+    """Deceleration along the velocity at ``t = 0``, ``-a . v / |v|`` in px/s^2 (negative: speeding
+    up); 0.0 for a motion at rest (``|v| <= 1e-6`` px/s). The quantity :func:`lift_top` turns into a
+    slider's friction and :func:`rolling_tracks` into a rolling test."""
+    nv = float(np.linalg.norm(m.v0))
+    return -float(m.a @ m.v0) / nv if nv > 1e-6 else 0.0
+
+
 def rolling_tracks(tracks: list[Track], motions: list[Motion]) -> frozenset[int]:
     """Labels of the tracks whose motion says *ball*, not *puck*, where the silhouette cannot.
 
@@ -979,9 +986,7 @@ def rolling_tracks(tracks: list[Track], motions: list[Motion]) -> frozenset[int]
             continue
         if float(np.linalg.norm(w.centre[-1] - w.centre[0])) < ROLL_MIN_TRAVEL * t.diameter:
             continue
-        nv = float(np.linalg.norm(m.v0))
-        decel = -float(m.a @ m.v0) / nv if nv > 1e-6 else 0.0             # px/s^2
-        if decel / ppm < MU_SLIDE_MIN * G / SIZE_PRIOR_DOUBT:
+        if deceleration(m) / ppm < MU_SLIDE_MIN * G / SIZE_PRIOR_DOUBT:
             out.add(t.label)
     return frozenset(out)
 

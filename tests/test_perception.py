@@ -316,8 +316,10 @@ def test_a_round_silhouette_that_keeps_its_speed_rolls_one_that_slows_like_dry_f
         tracks = perception.still_tracks(seg, 4)
         motions = [perception.initial_motion(perception.whole_frames(t), 30.0) for t in tracks]
         assert (tracks[0].label in perception.rolling_tracks(tracks, motions)) is expect
-    shapes = lambda seg: {o.shape for sc, lab in zip(*(lambda p: (p.scenes, p.labels))(  # noqa: E731
-        perception.propose(seg, None, 30.0, 1.0, still=True))) if not lab.startswith("side") for o in sc.objects}
+    def shapes(seg: np.ndarray) -> set[str]:   # of the top and oblique proposals
+        props = perception.propose(seg, None, 30.0, 1.0, still=True)
+        return {o.shape for sc, lab in zip(props.scenes, props.labels) if not lab.startswith("side") for o in sc.objects}
+
     assert shapes(rolling) == {"sphere"}
     assert shapes(sliding) == {"sphere", "cylinder"}
     assert shapes(resting) == {"sphere", "cylinder"}
