@@ -25,6 +25,7 @@ import math
 import shutil
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -42,16 +43,26 @@ from pipeline.atomic import write_json, write_text  # noqa: E402
 from pipeline.params import load_params  # noqa: E402
 from pipeline.reconstruct import realvideo_config, reconstruct  # noqa: E402
 from pipeline.scene import Scene  # noqa: E402
+from pipeline.video import VideoError  # noqa: E402
 
 SETS = ("mujoco/dev", "mujoco/heldout", "pybullet/dev", "pybullet/heldout")
 
 
 def run_clip(folder: Path, params: dict, work: Path) -> dict:
-    """The main job on one rendered clip, scored against its true masks."""
+    """The main job on one rendered clip, scored against its true masks. A clip the main job
+    refuses (``VideoError``: nothing seen in its window) scores 0 against the truth, observation
+    and re-simulation alike, with no object written (every true object is unmatched)."""
     truth = np.load(folder / "truth.npz", allow_pickle=False)
     n_true = int(truth["seg"].max()) + 1
-    m = reconstruct(folder / "video.mp4", work / folder.name, params, fps=float(truth["fps"]),
-                    labels=folder / "truth.npz")
+    t0 = time.perf_counter()
+    try:
+        m = reconstruct(folder / "video.mp4", work / folder.name, params, fps=float(truth["fps"]),
+                        labels=folder / "truth.npz")
+    except VideoError as exc:
+        return {"clip": folder.name, "resim_vs_truth": 0.0, "observation_vs_truth": 0.0, "objects_true": n_true,
+                "objects_written": 0, "shapes_true": list(true_composition(folder)), "shapes_written": [],
+                "objects_observed": 0, "seconds": round(time.perf_counter() - t0, 1), "best_of_k_label": None,
+                "error": str(exc)}
     a = m["against_labels"]
     written = Scene.from_yaml((work / folder.name / "scene.yaml").read_text())
     return {"clip": folder.name, "resim_vs_truth": a["resim_vs_labels"], "observation_vs_truth": a["observation_vs_labels"],

@@ -1862,9 +1862,11 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
             cost 4.5 s of a 1-s clip (the full frame at 320 px) and found one object of six
             (``docs/observation.md``).
     Raises:
-        VideoError: unreadable video or window past its end.
+        VideoError: unreadable video, ``start`` negative, or window past its end.
     """
     auto = start is None
+    if not auto and not (math.isfinite(start) and start >= 0):   # before the context cut, which would index from the end
+        raise VideoError(f"{video}: start: must be >= 0 s, got {start:g}")
     if auto:   # a clip shorter than the window is its own window
         start, duration = choose_window(video, fps, scene_fps, duration)
     probe = read_video(video, fps=fps, max_frames=1)

@@ -416,8 +416,16 @@ def propose_candidates(obs: Observation, mdir: Path | None, params: dict, rv: Re
         ``(candidates, proposals, notes)``: ``proposals`` is None when perception found no
         object (``notes`` then says why).
     Raises:
-        VideoError: no valid model sample and no object found: nothing to reconstruct.
+        VideoError: the observation holds no object in any frame, moving or at rest (the search
+            would score every scene 0, since a frame where nothing is seen gives no credit, so a
+            model sample would be written unchecked), or no valid model sample and no object
+            found: nothing to reconstruct.
     """
+    if not (obs.seg >= 0).any():
+        end = obs.start + obs.duration
+        raise VideoError(f"{obs.clip.source}: nothing to reconstruct: no object seen in the window "
+                         f"{obs.start:.3f}-{end:.3f} s (nothing moves and no object at rest was found; "
+                         f"try another window with --start)")
     candidates: list[Candidate] = []
     if mdir is not None:
         scenes, errs = model_samples(mdir, obs.frames, params, k, seed, obs.scene_fps, obs.duration)
@@ -500,7 +508,8 @@ def search_scene(candidates: list[Candidate], obs: Observation, scfg: SearchConf
         "written": choice[chosen]["name"], "fitness_gain": round(gain, 6),
         "full_iou_gain": round(choice[0]["full_iou"] - choice[1]["full_iou"], 6),
         "candidates": choice,
-        "note": ("the search found a gain over its start: its result is written" if chosen == 0 else
+        "note": ("the search found a gain over its start: its result is written" if chosen == 0 and gain > 0 else
+                 "the search's result scores as its start: its result is written" if chosen == 0 else
                  "the search found no gain over its start (the Best@K pick): the start is written"
                  if choice[0]["simulate_ok"] or not choice[1]["simulate_ok"] else
                  "the search's result fails dynamics simulate's checks: the start is written"),
@@ -564,11 +573,14 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
     Returns:
         the metrics dict written to ``metrics.json``.
     Raises:
-        VideoError: unreadable video, window past its end, or nothing to reconstruct (no model
-            sample and no moving object found).
+        VideoError: unreadable video, window past its end, or nothing to reconstruct (no object
+            seen in the window, or no model sample and no moving object found).
         ModelError: ``model_dir`` (or the default trained model) is not a usable checkpoint;
             raised before the video is decoded.
+        ParamsError: ``k`` is negative (0: no model sample).
     """
+    if k is not None and k < 0:
+        raise ParamsError(f"k: samples for Best@K must be >= 0 (0: perception proposals only), got {k}")
     # llvmpipe rasterizing in the calling thread is 5-10 % faster for these small renders
     # (benchmarks/search_eval.py --compare-lp); pixels do not depend on it
     os.environ.setdefault("LP_NUM_THREADS", "0")

@@ -18,6 +18,15 @@ def _case(name: str, tmp: Path) -> list[str]:
     (tmp / "text.mp4").write_text("not a video\n")
     (tmp / "a_file").write_text("")
     (tmp / "bad_params.yaml").write_text("sim: {foo: 1}\n")
+    if name in ("infer_nothing_in_view", "infer_negative_start"):   # 1.5 s of a still, textured scene: nothing moves, no object
+        import cv2
+        import numpy as np
+        rng = np.random.default_rng(0)
+        still = cv2.GaussianBlur(rng.integers(60, 200, (240, 320, 3), dtype=np.uint8), (0, 0), 3)
+        writer = cv2.VideoWriter(str(tmp / "still.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 30, (320, 240))
+        for _ in range(45):
+            writer.write(still)
+        writer.release()
     params = str(ROOT / "params.yaml")
     return {
         "simulate_missing_scene": ["simulate", str(tmp / "missing.yaml"), "--out", str(tmp / "o")],
@@ -28,6 +37,11 @@ def _case(name: str, tmp: Path) -> list[str]:
                                     "--params", str(tmp / "none.yaml")],
         "infer_missing_video": ["infer", str(tmp / "missing.mp4"), "--out", str(tmp / "o"), "--params", params],
         "infer_not_a_video": ["infer", str(tmp / "text.mp4"), "--out", str(tmp / "o"), "--params", params],
+        "infer_nothing_in_view": ["infer", str(tmp / "still.mp4"), "--out", str(tmp / "o"), "--params", params],
+        "infer_negative_start": ["infer", str(tmp / "still.mp4"), "--out", str(tmp / "o"), "--params", params,
+                                 "--start", "-1"],
+        "infer_negative_k": ["infer", str(tmp / "text.mp4"), "--out", str(tmp / "o"), "--params", params,
+                             "-k", "-1"],
         "infer_missing_model": ["infer", str(tmp / "text.mp4"), "--out", str(tmp / "o"), "--params", params,
                                 "--model", str(tmp / "no_model")],
         "infer_missing_params": ["infer", str(tmp / "text.mp4"), "--out", str(tmp / "o"),
@@ -42,7 +56,8 @@ def _case(name: str, tmp: Path) -> list[str]:
 
 
 CASES = ["simulate_missing_scene", "simulate_bad_scene", "simulate_bad_params", "simulate_missing_params",
-         "infer_missing_video", "infer_not_a_video", "infer_missing_model", "infer_missing_params",
+         "infer_missing_video", "infer_not_a_video", "infer_nothing_in_view", "infer_negative_start",
+         "infer_negative_k", "infer_missing_model", "infer_missing_params",
          "infer_bad_params", "discrepancy_missing_file", "view_missing_shard", "schema_unwritable_out"]
 
 
