@@ -72,6 +72,47 @@ def source_summary(candidates: Sequence[Any], scores: list[dict], source: str) -
             "best_fitness": None if best is None else round(best["fitness"], 4)}
 
 
+def write_observation(path: Path, obs: Observation) -> None:
+    """``observation.npz``: ``seg (T, H, W)`` int8 object ids at the working size (-1 background),
+    ``crop [x, y, w, h]`` and ``size [W, H]`` int64 px, ``start`` s, ``fps`` (the scene's) and
+    ``source_fps`` float64, ``source_frames (T,)`` int64, ``moving (n,)`` bool, and ``times (T,)``
+    s where dropped frames were repaired (the design's observation artifact, issue 36)."""
+    with NpzWriter(path) as npz:
+        for key, value in (("seg", obs.seg.astype(np.int8)), ("crop", np.asarray(obs.crop, dtype=np.int64)),
+                           ("size", np.asarray(obs.size, dtype=np.int64)), ("start", np.float64(obs.start)),
+                           ("fps", np.float64(obs.scene_fps)), ("source_fps", np.float64(obs.clip.fps)),
+                           ("source_frames", source_frames(obs)),
+                           ("moving", np.asarray(obs.moving_flags, dtype=bool))):
+            npz.write(key, value)
+        if getattr(obs, "frame_times", None) is not None:   # frames picked by capture time (drops repaired)
+            npz.write("times", np.asarray(obs.frame_times, dtype=np.float64))
+
+
+def write_nothing_seen(out: str | Path, video: str | Path, obs: Observation, reason: str,
+                       started: float | None = None) -> None:
+    """The output folder of a window in which nothing was seen: ``observation.npz`` (every frame
+    background; what a check against the truth reads) and ``metrics.json`` with ``error`` and the
+    window, and no scene (there is nothing to fit it to). Written like :func:`write_outputs`:
+    staged beside ``out`` and moved in as a whole."""
+    started = time.time() if started is None else started
+    final = Path(out)
+    remove_stale_temps(final)
+    out = temp_dir_for(final)
+    try:
+        write_observation(out / "observation.npz", obs)
+        clip = obs.clip
+        shards.write_json(out / "metrics.json", {
+            "video": str(video), "error": reason, "fps_used": clip.fps, "container_fps": clip.container_fps,
+            "window": {"start_s": round(obs.start, 4), "chosen_automatically": obs.auto, "duration_s": obs.duration,
+                       "frames": len(obs.frames), "fps": obs.scene_fps, "crop": list(obs.crop),
+                       "width": obs.size[0], "height": obs.size[1], "original_size": list(clip.original_size)},
+            "objects_observed": {"moving": 0, "at_rest": 0}, "seconds": round(time.time() - started, 1)})
+        publish_dir(out, final)
+    finally:
+        if out.exists():
+            shutil.rmtree(out, ignore_errors=True)
+
+
 def write_outputs(out: str | Path, video: str | Path, fps: float | None, obs: Observation,
                   candidates: Sequence[Any], outcome: Any, proposals: Any, notes: list[str],
                   model_note: str | None, rv: Any, sim: SimOptions, truth: np.ndarray | None = None,
@@ -113,15 +154,7 @@ def write_outputs(out: str | Path, video: str | Path, fps: float | None, obs: Ob
         with NpzWriter(out / "masks.npz") as npz:   # the masks that were scored, as `dynamics simulate` writes them
             npz.write("seg", fr.seg)
             npz.write("names", np.asarray(written.object_names))
-        with NpzWriter(out / "observation.npz") as npz:   # what was fitted, to be checked against truth
-            for key, value in (("seg", obs.seg.astype(np.int8)), ("crop", np.asarray(obs.crop, dtype=np.int64)),
-                               ("size", np.asarray(obs.size, dtype=np.int64)), ("start", np.float64(obs.start)),
-                               ("fps", np.float64(scene_fps)), ("source_fps", np.float64(obs.clip.fps)),
-                               ("source_frames", source_frames(obs)),
-                               ("moving", np.asarray(obs.moving_flags, dtype=bool))):
-                npz.write(key, value)
-            if getattr(obs, "frame_times", None) is not None:   # frames picked by capture time (drops repaired)
-                npz.write("times", np.asarray(obs.frame_times, dtype=np.float64))
+        write_observation(out / "observation.npz", obs)   # what was fitted, to be checked against truth
         # for people: original frames at panel height, masks drawn over them
         orig = original_frames(obs, video, fps, height=rv.panel_height)
         psize = (orig.shape[2], orig.shape[1])

@@ -407,6 +407,13 @@ class Candidate:
     silhouette_rank: int | None = None
 
 
+def nothing_seen(obs: Observation) -> str:
+    """The one line of a window whose observation holds no object in any frame."""
+    return (f"{obs.clip.source}: nothing to reconstruct: no object seen in the window {obs.start:.3f}-"
+            f"{obs.start + obs.duration:.3f} s (nothing moves and no object at rest was found; try another window "
+            f"with --start)")
+
+
 def propose_candidates(obs: Observation, mdir: Path | None, params: dict, rv: RealVideoConfig, k: int | None,
                        seed: int) -> tuple[list[Candidate], perception.Proposals | None, list[str]]:
     """Step 2 of the main job: the model's K samples (when ``mdir`` is a model folder) and the
@@ -422,10 +429,7 @@ def propose_candidates(obs: Observation, mdir: Path | None, params: dict, rv: Re
             found: nothing to reconstruct.
     """
     if not (obs.seg >= 0).any():
-        end = obs.start + obs.duration
-        raise VideoError(f"{obs.clip.source}: nothing to reconstruct: no object seen in the window "
-                         f"{obs.start:.3f}-{end:.3f} s (nothing moves and no object at rest was found; "
-                         f"try another window with --start)")
+        raise VideoError(nothing_seen(obs))
     candidates: list[Candidate] = []
     if mdir is not None:
         scenes, errs = model_samples(mdir, obs.frames, params, k, seed, obs.scene_fps, obs.duration)
@@ -574,7 +578,8 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
         the metrics dict written to ``metrics.json``.
     Raises:
         VideoError: unreadable video, window past its end, or nothing to reconstruct (no object
-            seen in the window, or no model sample and no moving object found).
+            seen in the window: ``out`` then holds ``observation.npz`` and ``metrics.json`` with
+            ``error``, no scene; or no model sample and no moving object found).
         ModelError: ``model_dir`` (or the default trained model) is not a usable checkpoint;
             raised before the video is decoded.
         ParamsError: ``k`` is negative (0: no model sample).
@@ -604,6 +609,9 @@ def reconstruct(video: str | Path, out: str | Path, params: dict, fps: float | N
 
     # 1. observe
     obs = observe_window(video, job, fps, start)
+    if not (obs.seg >= 0).any():   # no scene to write; the observation is written, for a check against truth
+        infer_report.write_nothing_seen(out, video, obs, nothing_seen(obs), started=t0)
+        raise VideoError(nothing_seen(obs) + f"; the observation is in {out}/observation.npz")
     # 2. propose
     candidates, proposals, notes = propose_candidates(obs, mdir, params, rv, k, seed)
     # 3. search

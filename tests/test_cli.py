@@ -1,6 +1,7 @@
 """Every ``dynamics`` subcommand answers a user mistake with one stderr line and exit status 2
 (pipeline.errors.UserError, caught once in pipeline.cli), never a traceback."""
 
+import json
 import os
 import subprocess
 import sys
@@ -56,7 +57,7 @@ def _case(name: str, tmp: Path) -> list[str]:
 
 
 CASES = ["simulate_missing_scene", "simulate_bad_scene", "simulate_bad_params", "simulate_missing_params",
-         "infer_missing_video", "infer_not_a_video", "infer_nothing_in_view", "infer_negative_start",
+         "infer_missing_video", "infer_not_a_video", "infer_negative_start",
          "infer_negative_k", "infer_missing_model", "infer_missing_params",
          "infer_bad_params", "discrepancy_missing_file", "view_missing_shard", "schema_unwritable_out"]
 
@@ -71,6 +72,30 @@ def test_user_mistake_is_one_line_and_exit_2(tmp_path, case):
     assert "Traceback" not in proc.stderr
     assert proc.stderr.count("\n") == 1 and proc.stderr.endswith("\n"), proc.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_infer_on_a_window_with_nothing_in_view_writes_the_observation_and_no_scene(tmp_path):
+    """A still clip: nothing to reconstruct, said in one line with exit status 2 (every scene
+    would score 0, since a frame where nothing is seen gives no credit), and the output folder
+    holds the observation (every pixel of every frame background, at the working size) and
+    metrics.json with the error, but no scene.yaml: a check against the truth still reads
+    observation.npz."""
+    import numpy as np
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "MUJOCO_GL": "egl"}
+    env.pop("DYNAMICS_PARAMS", None)
+    proc = subprocess.run([sys.executable, "-m", "pipeline.cli", *_case("infer_nothing_in_view", tmp_path)],
+                          cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert "Traceback" not in proc.stderr and proc.stderr.count("\n") == 1, proc.stderr
+    assert "nothing to reconstruct" in proc.stderr
+    out = tmp_path / "o"
+    assert sorted(p.name for p in out.iterdir()) == ["metrics.json", "observation.npz"]
+    with np.load(out / "observation.npz") as z:
+        seg, size = z["seg"], z["size"]
+        assert seg.dtype == np.int8 and seg.ndim == 3 and (seg == -1).all()
+        assert seg.shape[1:] == (size[1], size[0]) and z["moving"].shape == (0,)
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert "nothing to reconstruct" in metrics["error"] and metrics["objects_observed"] == {"moving": 0, "at_rest": 0}
 
 
 def test_infer_mask_method_is_one_of_the_observation_methods(capsys):

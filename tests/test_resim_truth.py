@@ -35,6 +35,7 @@ def test_a_clip_with_nothing_in_view_scores_zero_against_its_true_object(tmp_pat
     assert row["resim_vs_truth"] == 0.0 and row["observation_vs_truth"] == 0.0
     assert row["objects_written"] == 0 and row["objects_true"] == 1 and row["shapes_true"] == ["box"]
     assert "nothing to reconstruct" in row["error"]
-    assert not (tmp_path / "work" / "clip-00000").exists()
+    written = tmp_path / "work" / "clip-00000"
+    assert (written / "observation.npz").is_file() and not (written / "scene.yaml").exists()
     summary = resim_truth.summarize([row])
     assert summary["resim_vs_truth"] == 0.0 and summary["count_right"] == 0.0
