@@ -53,6 +53,7 @@ from typing import Literal
 import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator
+from tqdm import tqdm
 
 from pipeline import infer_report, perception
 from pipeline.flow import FlowConfig, flow_config, flow_of
@@ -501,8 +502,15 @@ def search_scene(candidates: list[Candidate], obs: Observation, scfg: SearchConf
             print(f"[infer] Best@K: {candidates[best].label} (fitness {scores[best]['fitness']:.4f}) over "
                   f"{candidates[fittest].label} ({scores[fittest]['fitness']:.4f}): {why} within "
                   f"{rv.shape_margin:g}")
-        refined, history = staged_refine(scenes[best], target, obs.fit_flow, scfg, sim, seed=seed,
-                                         restarts=rv.restarts, pool=pool, workers=rv.workers)
+        # progress on a terminal only (tqdm's disable=None: off when stderr is not a TTY, so logs and
+        # the one-line errors stay clean); updated as each CMA-ES run ends
+        with tqdm(desc="[infer] staged CMA-ES", unit="eval", disable=None, leave=False) as bar:
+            def progress(entry: dict) -> None:
+                bar.update(int(entry["evaluations"]) - bar.n)
+                bar.set_postfix(stage=entry["stage"], fitness=f"{entry['best_fitness']:.3f}")
+
+            refined, history = staged_refine(scenes[best], target, obs.fit_flow, scfg, sim, seed=seed,
+                                             restarts=rv.restarts, pool=pool, workers=rv.workers, callback=progress)
         # what scene.yaml holds is what is scored: the better of the search's result and its
         # start, each as written (overlaps resolved, canonical text) and as `dynamics simulate` checks it
         chosen, written, choice = choose_output([("cmaes", refined), ("best_of_k", scenes[best])],
