@@ -193,20 +193,24 @@ def table(rows: list[dict]) -> str:
         worse = sum(r["written"] < r["best_of_k"] for r in ok)
         sim_ok = sum(r["simulate"] == "ok" for r in ok)
         out.append("")
-        strict = [r["written_strict"] for r in ok if r.get("written_strict") is not None]
-        out.append(f"clips run: {len(ok)}/{len(rows)}; mean written IoU {np.mean([r['written'] for r in ok]):.4f} "
-                   f"(strict, no free credit: {np.mean(strict) if strict else float('nan'):.4f}); "
+        # a clip the main job fails on (e.g. nothing seen in its window) counts 0: no free credit by omission
+        strict = [r.get("written_strict") or 0.0 for r in ok] + [0.0] * (len(rows) - len(ok))
+        full = [r["written"] for r in ok] + [0.0] * (len(rows) - len(ok))
+        out.append(f"clips run: {len(ok)}/{len(rows)}; mean written IoU over all {len(rows)} (a failed clip counts 0) "
+                   f"{np.mean(full):.4f} (strict, no free credit: {np.mean(strict):.4f}); "
                    f"written below Best@K: {worse}; `dynamics simulate` accepts the written scene: {sim_ok}/{len(ok)}")
         with_content = [r for r in ok if "shapes_right" in r]
         supported = [r for r in with_content if r.get("support_right") is not None]
+        failed = len(rows) - len(ok)      # counted wrong below (their content was not written)
         if with_content:
+            n = len(with_content) + failed
             out.append(f"against the clips' content (`tests/fixtures/realvideo/content.yaml`): object count right "
-                       f"{sum(r['objects_written'] == r['objects_true'] for r in with_content)}/{len(with_content)}, "
-                       f"shapes right {sum(r['shapes_right'] for r in with_content)}/{len(with_content)}, support right "
+                       f"{sum(r['objects_written'] == r['objects_true'] for r in with_content)}/{n}, "
+                       f"shapes right {sum(r['shapes_right'] for r in with_content)}/{n}, support right "
                        f"{sum(r['support_right'] for r in supported)}/{len(supported)} (clips on a floor, table or "
-                       f"incline), view right {sum(r['view_written'] == r['view_true'] for r in with_content)}/"
-                       f"{len(with_content)}; strict IoU >= 0.5: "
-                       f"{sum((r.get('written_strict') or 0) >= 0.5 for r in ok)}/{len(ok)}")
+                       f"incline, of those run), view right {sum(r['view_written'] == r['view_true'] for r in with_content)}/"
+                       f"{n}; strict IoU >= 0.5: "
+                       f"{sum((r.get('written_strict') or 0) >= 0.5 for r in ok)}/{len(rows)}")
         labelled = [r["against_labels"]["resim_vs_labels"] for r in ok
                     if (r.get("against_labels") or {}).get("resim_vs_labels") is not None]
         if labelled:

@@ -78,3 +78,18 @@ def test_shape_choice_says_which_rule_picked_the_shapes():
     ranked = [{**p, "silhouette_rank": 1 if p["label"].endswith("cylinder") else 0} for p in proposals]
     assert rv.shape_choice({**m, "proposals": ranked, "shape_tiebreak": "silhouette"})["why"].startswith("silhouettes")
     assert rv.shape_choice({**m, "proposals": ranked})["why"].startswith("parsimony")   # the default rule
+
+
+def test_table_counts_a_failed_clip_as_zero_not_as_missing():
+    """A clip the main job fails on (e.g. nothing seen in its window) scores 0 in the table's means
+    and is wrong in its counts: leaving it out would be credit by omission."""
+    rv = _realvideo_all()
+    good = {"clip": "a", "file": "a.mp4", "fps": None, "seconds": 1.0, "best_of_k": 0.5, "best_of_k_strict": 0.5,
+            "written": 0.8, "written_strict": 0.8, "window_s": 1.0, "simulate": "ok", "resim_iou": 1.0,
+            "objects_written": 1, "objects_true": 1, "shapes_written": ["sphere"], "shapes_true": ["sphere"],
+            "shapes_right": True, "support_written": "floor", "support_true": "floor", "support_right": True,
+            "view_written": "side", "view_true": "side"}
+    failed = {"clip": "b", "file": "b.mp4", "fps": None, "seconds": 1.0, "error": "error: nothing to reconstruct"}
+    text = rv.table([good, failed])
+    assert "clips run: 1/2" in text and "0.4000 (strict, no free credit: 0.4000)" in text
+    assert "object count right 1/2, shapes right 1/2" in text and "strict IoU >= 0.5: 1/2" in text
