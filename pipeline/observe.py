@@ -19,7 +19,8 @@ Otherwise the 1 s window whose frames show the most *object-sized* motion
 as its moving area grows to :data:`FULL_MOTION_FRACTION` of the image, and -2 when it
 exceeds :data:`MAX_MOVING_FRACTION`, e.g. a hand or a person; frames weigh from 1 at the
 window's start down to 0.5 at its end, so that the window starts where the motion starts; the
-earliest best window wins).
+earliest best window wins). A window that shows nothing at all is observed once more from the
+start with the most motion of any size (no penalty for large motion), with a warning.
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ from pipeline.masks import (cut_by_colour, drop_ghosts, hold_resting, label_obje
                             pseudo_ground_truth, pseudo_masks, shadow_like, skin_like, touches_border,
                             track_centroids)
 from pipeline.segmenter import Segmenter, median_background, shipped
-from pipeline.video import Clip, VideoError, declared_length, read_video, resample
+from pipeline.video import Clip, VideoError, VideoWarning, declared_length, read_video, resample
 
 DETECT_LONG_SIDE = 320
 """px, long side of the detection pass (whole frame)."""
@@ -199,10 +200,13 @@ def choose_start(video, fps: float | None, scene_fps: int, duration: float) -> f
     return choose_window(video, fps, scene_fps, duration)[0]
 
 
-def choose_window(video, fps: float | None, scene_fps: int, duration: float) -> tuple[float, float]:
+def choose_window(video, fps: float | None, scene_fps: int, duration: float,
+                  large_motion_penalty: bool = True) -> tuple[float, float]:
     """``(start, length)`` in s of the window: the ``duration`` window with the most object-sized
     motion (module docstring), or for a clip shorter than ``duration`` the whole clip
-    (``(0.0, length)``, :func:`window_duration`).
+    (``(0.0, length)``, :func:`window_duration`). ``large_motion_penalty`` False: a frame whose
+    moving area exceeds :data:`MAX_MOVING_FRACTION` counts fully instead of -2 (the window with
+    the most motion of any size: :func:`observe`'s second try where the first window shows nothing).
 
     Raises:
         VideoError: unreadable video, or shorter than :data:`MIN_WINDOW_FRAMES` frames.
@@ -218,7 +222,9 @@ def choose_window(video, fps: float | None, scene_fps: int, duration: float) -> 
     grey = at.astype(np.int16).max(axis=-1)
     moving = np.abs(np.diff(grey, axis=0)) > 25
     frac = moving.mean(axis=(1, 2))
-    score = np.where(frac > MAX_MOVING_FRACTION, -2.0, np.minimum(frac, FULL_MOTION_FRACTION) / FULL_MOTION_FRACTION)
+    score = np.minimum(frac, FULL_MOTION_FRACTION) / FULL_MOTION_FRACTION
+    if large_motion_penalty:
+        score = np.where(frac > MAX_MOVING_FRACTION, -2.0, score)
     n = max(1, round(duration * scene_fps))
     if len(score) < n:
         return 0.0, duration
@@ -1867,8 +1873,24 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
     auto = start is None
     if not auto and not (math.isfinite(start) and start >= 0):   # before the context cut, which would index from the end
         raise VideoError(f"{video}: start: must be >= 0 s, got {start:g}")
+    args = (flow, mask_method, max_objects, segmenter, candidates, fine_scale, rest_segmenter)
     if auto:   # a clip shorter than the window is its own window
         start, duration = choose_window(video, fps, scene_fps, duration)
+        obs = observe(video, fps, start, scene_fps, duration, *args)
+        if (obs.seg >= 0).any():
+            return replace(obs, auto=True)
+        # Nothing seen where object-sized motion peaks: objects that fill more than
+        # MAX_MOVING_FRACTION of the frame score as a hand would, and the window can fall after
+        # they left (a rendered clip whose two 30-50 cm objects cross the view in 0.5 s). A
+        # second try where there is the most motion of any size; kept only if it sees something.
+        alt = choose_window(video, fps, scene_fps, duration, large_motion_penalty=False)[0]
+        if abs(alt - start) >= 0.5 / scene_fps:
+            second = observe(video, fps, alt, scene_fps, duration, *args)
+            if (second.seg >= 0).any():
+                warnings.warn(f"{video}: nothing seen in the window from {start:.3f} s (the most object-sized motion); "
+                              f"observed from {alt:.3f} s instead (the most motion of any size)", VideoWarning)
+                return replace(second, auto=True)
+        return replace(obs, auto=True)
     probe = read_video(video, fps=fps, max_frames=1)
     W0, H0 = probe.original_size
     dsize = _detect_size(W0, H0)
