@@ -12,7 +12,7 @@ detection pass, crop, masks at working size, tracks, flow) with the main job's s
 Each clip is observed ``--repeats`` times (the first run also loads the segmenter and warms the
 caches: the minimum is reported, and the first). The split of the time by phase comes from
 ``cProfile`` (cumulative seconds of the phase's function, the last run): reading and resizing
-frames (``pipeline.video.read_video``), choosing the window (``choose_window``), the masks
+frames (``pipeline.video.read_video``), choosing the window (``window_starts``), the masks
 (``segment_objects``; the segmenter's network alone in ``Segmenter.__call__``) and the flow
 (``pipeline.flow.estimate_flow``). The phases overlap: frames are read inside the window choice
 and the masks, and the network is part of the masks. The machine may be shared: the load average before and after is
@@ -53,7 +53,7 @@ TARGET_S = 10.0
 
 PHASES = {
     "read frames": ("pipeline/video.py", "read_video"),
-    "choose window": ("pipeline/observe.py", "choose_window"),
+    "choose window": ("pipeline/observe.py", "window_starts"),
     "masks": ("pipeline/observe.py", "segment_objects"),
     "segmenter network": ("pipeline/segmenter.py", "__call__"),
     "flow": ("pipeline/flow.py", "estimate_flow"),

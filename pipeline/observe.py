@@ -211,30 +211,42 @@ def choose_window(video, fps: float | None, scene_fps: int, duration: float,
     Raises:
         VideoError: unreadable video, or shorter than :data:`MIN_WINDOW_FRAMES` frames.
     """
+    sized, any_size, length = window_starts(video, fps, scene_fps, duration)
+    return (sized if large_motion_penalty else any_size), length
+
+
+def window_starts(video, fps: float | None, scene_fps: int, duration: float) -> tuple[float, float, float]:
+    """``(start, start_any_size, length)`` in s from one decode of the clip: the starts of
+    :func:`choose_window` with and without the penalty for large motion, and the window's length.
+
+    Raises:
+        VideoError: unreadable video, or shorter than :data:`MIN_WINDOW_FRAMES` frames.
+    """
     probe = read_video(video, fps=fps, max_frames=1)
     W0, H0 = probe.original_size
     small = read_video(video, fps=fps, size=(160, max(2, round(160 * H0 / W0))))
     frames = small.frames
     total = len(frames) / small.fps
     if total + 0.5 / small.fps < duration:
-        return 0.0, window_duration(video, total, small.fps, scene_fps, duration)
+        return 0.0, 0.0, window_duration(video, total, small.fps, scene_fps, duration)
     at = resample(frames, small.fps, scene_fps)
     grey = at.astype(np.int16).max(axis=-1)
     moving = np.abs(np.diff(grey, axis=0)) > 25
     frac = moving.mean(axis=(1, 2))
-    score = np.minimum(frac, FULL_MOTION_FRACTION) / FULL_MOTION_FRACTION
-    if large_motion_penalty:
-        score = np.where(frac > MAX_MOVING_FRACTION, -2.0, score)
     n = max(1, round(duration * scene_fps))
-    if len(score) < n:
-        return 0.0, duration
-    # n frames: n - 1 differences, weighted from 1 at the window's start down to 0.5 at its
-    # end, so that the window starts where the motion starts: the scene's state at t = 0 has
-    # to explain the rest (a push in the middle of the window cannot be explained)
-    sums = np.correlate(score, np.linspace(1.0, 0.5, max(1, n - 1)), mode="valid")
+    if len(frac) < n:
+        return 0.0, 0.0, duration
     last = max(0, math.floor((total - duration) * scene_fps + 1e-6))
-    sums = sums[: last + 1]
-    return float(np.argmax(sums)) / scene_fps, duration
+
+    def best(score: np.ndarray) -> float:
+        # n frames: n - 1 differences, weighted from 1 at the window's start down to 0.5 at its
+        # end, so that the window starts where the motion starts: the scene's state at t = 0 has
+        # to explain the rest (a push in the middle of the window cannot be explained)
+        sums = np.correlate(score, np.linspace(1.0, 0.5, max(1, n - 1)), mode="valid")[: last + 1]
+        return float(np.argmax(sums)) / scene_fps
+
+    score = np.minimum(frac, FULL_MOTION_FRACTION) / FULL_MOTION_FRACTION
+    return best(np.where(frac > MAX_MOVING_FRACTION, -2.0, score)), best(score), duration
 
 
 CONTEXT_S = 20.0
@@ -1875,15 +1887,14 @@ def observe(video, fps: float | None, start: float | None, scene_fps: int, durat
         raise VideoError(f"{video}: start: must be >= 0 s, got {start:g}")
     args = (flow, mask_method, max_objects, segmenter, candidates, fine_scale, rest_segmenter)
     if auto:   # a clip shorter than the window is its own window
-        start, duration = choose_window(video, fps, scene_fps, duration)
+        start, alt, duration = window_starts(video, fps, scene_fps, duration)
         obs = observe(video, fps, start, scene_fps, duration, *args)
         if (obs.seg >= 0).any():
             return replace(obs, auto=True)
         # Nothing seen where object-sized motion peaks: objects that fill more than
         # MAX_MOVING_FRACTION of the frame score as a hand would, and the window can fall after
         # they left (a rendered clip whose two 30-50 cm objects cross the view in 0.5 s). A
-        # second try where there is the most motion of any size; kept only if it sees something.
-        alt = choose_window(video, fps, scene_fps, duration, large_motion_penalty=False)[0]
+        # second try where there is the most motion of any size (``alt``); kept only if it sees something.
         if abs(alt - start) >= 0.5 / scene_fps:
             second = observe(video, fps, alt, scene_fps, duration, *args)
             if (second.seg >= 0).any():

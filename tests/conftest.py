@@ -59,3 +59,18 @@ def moving_disc_avi(path, n: int = 60):
         writer.write(frame)
     writer.release()
     return path
+
+
+def still_textured_mp4(path, width: int = 320, height: int = 240, n: int = 45):
+    """Write an mp4 of ``n`` identical frames at 30 fps: a smooth random texture (seed 0) in which
+    nothing moves and nothing stands out (a still shot: no object to observe). Returns ``path``."""
+    import cv2
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    still = cv2.GaussianBlur(rng.integers(60, 200, (height, width, 3), dtype=np.uint8), (0, 0), 3)
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 30, (width, height))
+    for _ in range(n):
+        writer.write(still)
+    writer.release()
+    return path

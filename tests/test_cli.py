@@ -20,14 +20,8 @@ def _case(name: str, tmp: Path) -> list[str]:
     (tmp / "a_file").write_text("")
     (tmp / "bad_params.yaml").write_text("sim: {foo: 1}\n")
     if name in ("infer_nothing_in_view", "infer_negative_start"):   # 1.5 s of a still, textured scene: nothing moves, no object
-        import cv2
-        import numpy as np
-        rng = np.random.default_rng(0)
-        still = cv2.GaussianBlur(rng.integers(60, 200, (240, 320, 3), dtype=np.uint8), (0, 0), 3)
-        writer = cv2.VideoWriter(str(tmp / "still.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 30, (320, 240))
-        for _ in range(45):
-            writer.write(still)
-        writer.release()
+        from conftest import still_textured_mp4
+        still_textured_mp4(tmp / "still.mp4")
     params = str(ROOT / "params.yaml")
     return {
         "simulate_missing_scene": ["simulate", str(tmp / "missing.yaml"), "--out", str(tmp / "o")],

@@ -4,13 +4,13 @@ import json
 import sys
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import resim_truth  # noqa: E402
+from conftest import still_textured_mp4  # noqa: E402
 from pipeline.params import load_params  # noqa: E402
 
 
@@ -21,12 +21,7 @@ def test_a_clip_with_nothing_in_view_scores_zero_against_its_true_object(tmp_pat
     object written, instead of the whole benchmark failing."""
     clip = tmp_path / "clip-00000"
     clip.mkdir()
-    rng = np.random.default_rng(0)
-    still = cv2.GaussianBlur(rng.integers(60, 200, (120, 160, 3), dtype=np.uint8), (0, 0), 3)
-    writer = cv2.VideoWriter(str(clip / "video.mp4"), cv2.VideoWriter_fourcc(*"mp4v"), 30, (160, 120))
-    for _ in range(45):
-        writer.write(still)
-    writer.release()
+    still_textured_mp4(clip / "video.mp4", 160, 120)
     seg = np.full((45, 120, 160), -1, np.int8)
     seg[:, 50:70, 60:80] = 0
     np.savez(clip / "truth.npz", seg=seg, fps=np.float64(30.0))
