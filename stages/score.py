@@ -4,8 +4,9 @@ Scores four predictors on the scenes of ``search.splits`` that have predictions,
 re-simulated on the clip's time base and compared with the observed clip (segmentation =
 rendered ground truth, flow = the flow stage's ``flow.method``): the trivial baseline (the
 training split's most common composition with its mean parameters per shape slot), the
-model's first sample, Best@K and Best@K + CMA-ES, and the baseline refined by CMA-ES (what the
-search alone recovers). Reads ``paths.configs``,
+model's first sample, Best@k of the first k samples for k of :data:`BEST_OF_PREFIXES` below K
+(Best@4 beside the paper's Best@32), Best@K and Best@K + CMA-ES, and the baseline refined by CMA-ES
+(what the search alone recovers). Reads ``paths.configs``,
 ``paths.predictions``, ``paths.best_of_k``, ``paths.cmaes``, ``paths.video``, ``paths.flow``;
 writes ``<paths.reports>/metrics.json``, ``table.md`` and ``search.png`` (atomically).
 """
@@ -20,8 +21,34 @@ from pipeline.mjcf import SimOptions
 from pipeline.params import load_params, path_of, typed_section
 from pipeline.scene import Scene, SceneError
 from pipeline.scene_metrics import PARAMETER_UNITS, json_safe, markdown_table, scene_report, summarize
-from pipeline.search import (EvaluatorPool, Observations, SearchConfig, at_clip_timing, baseline_scene, parse_sample,
-                             plot_history, samples_by_scene)
+from pipeline.search import (EvaluatorPool, Observations, SearchConfig, at_clip_timing, baseline_scene, best_index,
+                             parse_sample, plot_history, samples_by_scene)
+
+
+BEST_OF_PREFIXES = (4, 8, 16)
+"""Best@k rows beside Best@K for these k < K, picked among the first k of the same K samples
+(the samples are drawn independently, so the first k are a draw of k): with ``search.k: 32`` the
+table has the paper's Best@32 beside Best@4 from one sampling."""
+
+
+def prefix_picks(scored: list[dict], k: int) -> dict[int, dict[str, int]]:
+    """Best@j's pick per scene for each j of :data:`BEST_OF_PREFIXES` below ``k``: ``{j: {scene_id:
+    sample}}`` from the best_of_k stage's rows (``scene_id``, ``sample``, ``fitness``; an invalid
+    sample has fitness -inf), by :func:`pipeline.search.best_index` over samples ``0..j-1``; a scene
+    with no valid sample among them has no pick (it scores as invalid)."""
+    by_scene: dict[str, dict[int, float]] = {}
+    for r in scored:
+        by_scene.setdefault(r["scene_id"], {})[int(r["sample"])] = r["fitness"]
+    out = {}
+    for j in (j for j in BEST_OF_PREFIXES if j < k):
+        picks = {}
+        for sid, fits in by_scene.items():
+            first = [fits.get(i, float("-inf")) for i in range(j)]
+            pick = best_index([float("-inf") if f is None else f for f in first])
+            if pick is not None:
+                picks[sid] = pick
+        out[j] = picks
+    return out
 
 
 def main() -> None:
@@ -30,7 +57,8 @@ def main() -> None:
     model_input, flow_method = (p.get("model") or {}).get("input", "flow"), (p.get("flow") or {}).get("method")
     configs = shards.read_table(path_of(p, "configs")).to_pylist()
     preds = samples_by_scene(shards.read_table(path_of(p, "predictions")), cfg.splits)
-    best = {r["scene_id"]: r["sample"] for r in shards.read_table(path_of(p, "best_of_k")).to_pylist() if r["is_best"]}
+    scored = shards.read_table(path_of(p, "best_of_k")).to_pylist()
+    best = {r["scene_id"]: r["sample"] for r in scored if r["is_best"]}
     cmaes_rows = shards.read_table(path_of(p, "cmaes")).to_pylist()
     cmaes = {r["scene_id"]: r for r in cmaes_rows if r["start"] == "model"}
     cmaes_baseline = {r["scene_id"]: r for r in cmaes_rows if r["start"] == "baseline"}
@@ -39,8 +67,8 @@ def main() -> None:
     baseline = baseline_scene(configs, split="train")
     k = min(cfg.k, max((len(v) for v in preds.values()), default=cfg.k))  # Best@K used the first k samples
 
-    def best_sample(sid: str) -> Scene | None:
-        return parse_sample(next(r for r in preds[sid] if r["sample"] == best[sid])) if sid in best else None
+    def best_sample(sid: str, picks: dict = best) -> Scene | None:
+        return parse_sample(next(r for r in preds[sid] if r["sample"] == picks[sid])) if sid in picks else None
 
     def refined(sid: str, table: dict = cmaes) -> Scene | None:
         text = (table.get(sid) or {}).get("scene")
@@ -50,6 +78,8 @@ def main() -> None:
         "trivial_baseline": ("Trivial baseline", "–", lambda sid: baseline),
         "trivial_baseline_cmaes": ("Trivial baseline + CMA-ES", "–", lambda sid: refined(sid, cmaes_baseline)),
         "first_sample": ("Model (first sample)", model_input, lambda sid: parse_sample(preds[sid][0])),
+        **{f"best_of_{j}": (f"Best@{j}", model_input, lambda sid, picks=picks: best_sample(sid, picks))
+           for j, picks in prefix_picks(scored, k).items()},
         "best_of_k": (f"Best@{k}", model_input, best_sample),
         "best_of_k_cmaes": (f"Best@{k} + CMA-ES", model_input, refined),
     }

@@ -2,6 +2,7 @@
 Best@K, CMA-ES refinement, the search space and the trivial baseline."""
 
 import math
+import re
 
 import mujoco
 import numpy as np
@@ -442,7 +443,8 @@ def test_baseline_scene_most_common_composition_and_slot_means():
 
 
 # ------------------------------------------------------------------------------ stages
-def _run_stage(name: str) -> None:
+def _run_stage(name: str, **constants) -> None:
+    """Run ``stages/<name>.py``'s main, with module ``constants`` set first."""
     import importlib.util
     from pathlib import Path
 
@@ -450,6 +452,8 @@ def _run_stage(name: str) -> None:
     spec = importlib.util.spec_from_file_location(f"stage_{name}", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
+    for key, value in constants.items():
+        setattr(module, key, value)
     module.main()
 
 
@@ -526,6 +530,13 @@ def test_stages_best_of_k_cmaes_score(tmp_path, monkeypatch):
                     assert float(cell) == pytest.approx(want[col], abs=5e-3 if col == "epe" else 5e-4), (method, split, col)
                 checked += 1
     assert checked == len(labels) * 2 * len(columns)              # 5 methods x 2 splits
+    # Best@1 beside Best@2 (as Best@4 beside Best@32): the first sample alone, which did not parse
+    _run_stage("score", BEST_OF_PREFIXES=(1,))
+    metrics = json.loads((tmp_path / "reports" / "metrics.json").read_text())
+    assert metrics["methods"]["best_of_1"]["test"]["full_iou"] == 0.0
+    assert metrics["methods"]["best_of_1"]["test"]["n_valid"] == 0
+    assert metrics["methods"]["best_of_k"]["test"]["full_iou"] == 1.0
+    assert re.search(r"^\| Best@1 +\|", (tmp_path / "reports" / "table.md").read_text(), re.M)
     # the progress plot is a drawn figure: decodable, two panels wide, the IoU curve in tab:green
     import cv2
 
@@ -533,6 +544,38 @@ def test_stages_best_of_k_cmaes_score(tmp_path, monkeypatch):
     assert png is not None and png.shape[1] > 1.5 * png.shape[0]
     green = np.abs(cv2.cvtColor(png, cv2.COLOR_BGR2RGB).astype(int) - (44, 160, 44)).sum(-1) < 30
     assert green[:, png.shape[1] // 2:].sum() > 50 and green[:, : png.shape[1] // 2].sum() == 0
+
+
+def test_best_index_is_the_first_highest_fitness_and_none_without_a_valid_sample():
+    from pipeline.search import best_index
+
+    inf = float("inf")
+    assert best_index([0.2, 0.7, 0.7, -inf]) == 1          # first on ties
+    assert best_index([-inf, -inf]) is None and best_index([]) is None
+    assert best_index([-inf, -0.3]) == 1                    # a valid sample with a negative fitness
+
+
+def test_score_picks_best_of_4_among_the_first_4_of_the_same_samples():
+    """Best@4 beside Best@K comes from the first 4 of the K samples the best_of_k stage scored
+    (i.i.d. draws): the highest fitness among samples 0-3, none when none of them is valid."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "stages" / "score.py"
+    spec = importlib.util.spec_from_file_location("stage_score", path)
+    score = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(score)
+    inf = float("-inf")
+    fits = {"a": [0.1, 0.5, 0.3, 0.2, 0.9, 0.0, 0.0, 0.0],     # Best@8 picks 4, Best@4 picks 1
+            "b": [inf, inf, inf, inf, 0.4, 0.1, 0.0, 0.0],     # no valid sample among the first 4
+            "c": [0.3, 0.3, inf, 0.1, 0.2, 0.2, 0.2, 0.2]}     # tie: the first
+    rows = [{"scene_id": sid, "sample": j, "fitness": None if f == inf else f}
+            for sid, fs in fits.items() for j, f in enumerate(fs)]
+    picks = score.prefix_picks(rows, k=8)
+    assert picks == {4: {"a": 1, "c": 0}}                       # 8 and 16 are not below K = 8
+    assert score.prefix_picks(rows, k=4) == {}                  # the default K = 4: no extra row
+    assert set(score.prefix_picks(rows, k=32)) == {4, 8, 16}
+    assert score.prefix_picks(rows, k=32)[8] == {"a": 4, "b": 4, "c": 0}
 
 
 def test_parallel_evaluator_equals_the_evaluator():

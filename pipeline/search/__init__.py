@@ -39,7 +39,7 @@ from pipeline.search.cmaes import cmaes_refine
 from pipeline.search.config import FREE_FIELDS, FreeField, SearchConfig, SearchRanges
 from pipeline.engine import structure_key
 from pipeline.search.evaluator import EvaluatorPool, SceneEvaluator, evaluate_scene
-from pipeline.search.fitness import SHAPE_DOF, best_of_k, fitness, simplest_within
+from pipeline.search.fitness import SHAPE_DOF, best_index, best_of_k, fitness, simplest_within
 from pipeline.search.observations import Observations, at_clip_timing, parse_sample, samples_by_scene
 from pipeline.search.parallel_eval import ParallelEvaluator
 from pipeline.search.plot import plot_history
@@ -47,7 +47,7 @@ from pipeline.search.space import SearchSpace, floor_height
 
 __all__ = [
     "FREE_FIELDS", "EvaluatorPool", "FreeField", "Observations", "ParallelEvaluator", "SceneEvaluator",
-    "SHAPE_DOF", "SearchConfig", "SearchRanges", "SearchSpace", "at_clip_timing", "baseline_scene", "best_of_k", "cmaes_refine",
+    "SHAPE_DOF", "SearchConfig", "SearchRanges", "SearchSpace", "at_clip_timing", "baseline_scene", "best_index", "best_of_k", "cmaes_refine",
     "evaluate_scene", "fitness", "floor_height", "parse_sample", "plot_history", "samples_by_scene", "simplest_within",
     "structure_key",
 ]

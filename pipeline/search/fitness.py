@@ -139,9 +139,15 @@ def best_of_k(candidates: Sequence[Scene | None], obs_seg: np.ndarray, obs_flow:
     finally:
         if own:
             pool.close()
-    fit = [s["fitness"] for s in scores]
-    best = int(np.argmax(fit)) if fit and max(fit) > -math.inf else None
-    return scores, best
+    return scores, best_index([s["fitness"] for s in scores])
+
+
+def best_index(fitness: Sequence[float]) -> int | None:
+    """Best@K's pick among scored samples: the index of the highest fitness, the first on ties;
+    None when there is none or every one is ``-inf`` (no valid sample). Best@k of the first ``k``
+    of K samples (drawn independently) is ``best_index(fitness[:k])``."""
+    fit = [float(f) for f in fitness]
+    return int(np.argmax(fit)) if fit and max(fit) > -math.inf else None
 
 
 SHAPE_DOF = {"sphere": 1, "cylinder": 4, "box": 6}
