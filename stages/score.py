@@ -12,6 +12,7 @@ writes ``<paths.reports>/metrics.json``, ``table.md`` and ``search.png`` (atomic
 """
 
 import json
+import math
 
 from tqdm import tqdm
 
@@ -38,16 +39,11 @@ def prefix_picks(scored: list[dict], k: int) -> dict[int, dict[str, int]]:
     with no valid sample among them has no pick (it scores as invalid)."""
     by_scene: dict[str, dict[int, float]] = {}
     for r in scored:
-        by_scene.setdefault(r["scene_id"], {})[int(r["sample"])] = r["fitness"]
+        by_scene.setdefault(r["scene_id"], {})[int(r["sample"])] = -math.inf if r["fitness"] is None else r["fitness"]
     out = {}
     for j in (j for j in BEST_OF_PREFIXES if j < k):
-        picks = {}
-        for sid, fits in by_scene.items():
-            first = [fits.get(i, float("-inf")) for i in range(j)]
-            pick = best_index([float("-inf") if f is None else f for f in first])
-            if pick is not None:
-                picks[sid] = pick
-        out[j] = picks
+        picks = {sid: best_index([fits.get(i, -math.inf) for i in range(j)]) for sid, fits in by_scene.items()}
+        out[j] = {sid: pick for sid, pick in picks.items() if pick is not None}
     return out
 
 

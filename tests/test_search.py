@@ -443,8 +443,8 @@ def test_baseline_scene_most_common_composition_and_slot_means():
 
 
 # ------------------------------------------------------------------------------ stages
-def _run_stage(name: str, **constants) -> None:
-    """Run ``stages/<name>.py``'s main, with module ``constants`` set first."""
+def _load_stage(name: str):
+    """``stages/<name>.py`` as a module (the stages are scripts, not a package)."""
     import importlib.util
     from pathlib import Path
 
@@ -452,6 +452,12 @@ def _run_stage(name: str, **constants) -> None:
     spec = importlib.util.spec_from_file_location(f"stage_{name}", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
+    return module
+
+
+def _run_stage(name: str, **constants) -> None:
+    """Run ``stages/<name>.py``'s main, with module ``constants`` set first."""
+    module = _load_stage(name)
     for key, value in constants.items():
         setattr(module, key, value)
     module.main()
@@ -558,13 +564,7 @@ def test_best_index_is_the_first_highest_fitness_and_none_without_a_valid_sample
 def test_score_picks_best_of_4_among_the_first_4_of_the_same_samples():
     """Best@4 beside Best@K comes from the first 4 of the K samples the best_of_k stage scored
     (i.i.d. draws): the highest fitness among samples 0-3, none when none of them is valid."""
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[1] / "stages" / "score.py"
-    spec = importlib.util.spec_from_file_location("stage_score", path)
-    score = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(score)
+    score = _load_stage("score")
     inf = float("-inf")
     fits = {"a": [0.1, 0.5, 0.3, 0.2, 0.9, 0.0, 0.0, 0.0],     # Best@8 picks 4, Best@4 picks 1
             "b": [inf, inf, inf, inf, 0.4, 0.1, 0.0, 0.0],     # no valid sample among the first 4
