@@ -21,7 +21,7 @@ from scipy.optimize import linear_sum_assignment
 from tabulate import tabulate
 
 from pipeline.geometry import extents
-from pipeline.metrics import hungarian_match, flow_epe, pairwise_iou, sequence_iou
+from pipeline.metrics import hungarian_match, flow_epe, mean_ci95, pairwise_iou, sequence_iou
 from pipeline.scene import Scene
 
 OBJECT_FIELDS = ("position", "orientation", "linear_velocity", "angular_velocity", "size", "mass",
@@ -40,6 +40,10 @@ PARAMETER_UNITS = {
     "gravity": "m/s^2",
 }
 """Units of every :func:`parameter_errors` field (for reports)."""
+
+INTERVAL_METRICS = ("composition_accuracy", "initial_iou", "full_iou", "strict_full_iou", "epe")
+"""Means of :func:`summarize` that carry a bootstrap 95 % interval (issue 30: the paper-style table
+with intervals); :func:`markdown_table` prints them as ``mean [lo, hi]``."""
 
 
 # --------------------------------------------------------------------------- scenes
@@ -185,13 +189,22 @@ def summarize(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
         dict: ``n``, ``n_valid``, ``composition_accuracy``, ``initial_iou``, ``full_iou``,
         ``strict_full_iou`` (over the rows where it is defined), ``foreground_iou_initial``, ``foreground_iou`` (full sequence) — means over all rows
         (invalid rows count 0) — and ``epe`` and ``parameter_errors`` (dict per field) —
-        means over valid rows with a finite value (NaN when none).
+        means over valid rows with a finite value (NaN when none) — and ``ci95``: for each of
+        :data:`INTERVAL_METRICS`, the percentile bootstrap 95 % interval ``[lo, hi]`` of that mean
+        over the same per-scene values (:func:`pipeline.metrics.mean_ci95`: 2000 resamples of the
+        scenes, seed 0; Efron & Tibshirani 1993, ch. 13), NaN without values.
     """
-    def mean(key: str, valid_only: bool = False) -> float:
+    def values(key: str, valid_only: bool = False) -> list[float]:
         vals = [r[key] for r in rows if (r["valid"] or not valid_only)]
-        vals = [v for v in vals if v is not None and not (isinstance(v, float) and math.isnan(v))]
+        return [float(v) for v in vals if v is not None and not (isinstance(v, float) and math.isnan(v))]
+
+    def mean(key: str, valid_only: bool = False) -> float:
+        vals = values(key, valid_only)
         return float(np.mean(vals)) if vals else math.nan
 
+    row_keys = {"composition_accuracy": ("composition_correct", False), "initial_iou": ("initial_iou", False),
+                "full_iou": ("full_iou", False), "strict_full_iou": ("strict_full_iou", False),
+                "epe": ("epe", True)}
     return {
         "n": len(rows),
         "n_valid": int(sum(bool(r["valid"]) for r in rows)),
@@ -203,6 +216,7 @@ def summarize(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
         "foreground_iou": mean("foreground_iou_full"),
         "epe": mean("epe", valid_only=True),
         "parameter_errors": {k: mean(f"param/{k}", valid_only=True) for k in OBJECT_FIELDS + SCENE_FIELDS},
+        "ci95": {m: mean_ci95(values(*row_keys[m]))["ci95"] for m in INTERVAL_METRICS},
     }
 
 
@@ -218,20 +232,28 @@ def markdown_table(summaries: dict[str, dict[str, Any]], labels: dict[str, str],
     Returns:
         Markdown: a heading and a table with composition accuracy, initial IoU, full-sequence
         IoU (strict: the headline, issue 29 item 7; and all frames: docs/design.md §7),
-        foreground IoU and EPE (px) per method.
+        foreground IoU and EPE (px) per method; a mean with a ``ci95`` entry in its summary is
+        printed ``mean [lo, hi]``.
     """
     def f(x: float, nd: int = 3) -> str:
         return "–" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{nd}f}"
 
+    def cell(s: dict[str, Any], key: str, nd: int = 3) -> str:
+        lo, hi = (s.get("ci95") or {}).get(key) or (None, None)
+        value = f(s.get(key, math.nan), nd)
+        return value if value == "–" or None in (lo, hi) or math.isnan(lo) else f"{value} [{f(lo, nd)}, {f(hi, nd)}]"
+
     n = max((s["n"] for s in summaries.values()), default=0)
     header = ["Method", "Input", "Composition acc.", "Initial IoU", "Full-sequence IoU (strict)",
               "Full-sequence IoU (all frames)", "Foreground IoU", "EPE (px)", "valid"]
-    rows = [[labels.get(key, key), inputs.get(key, "-"), f(s["composition_accuracy"]), f(s["initial_iou"]),
-             f(s.get("strict_full_iou", math.nan)), f(s["full_iou"]), f(s["foreground_iou"]), f(s["epe"], 2),
+    rows = [[labels.get(key, key), inputs.get(key, "-"), cell(s, "composition_accuracy"), cell(s, "initial_iou"),
+             cell(s, "strict_full_iou"), cell(s, "full_iou"), f(s["foreground_iou"]), cell(s, "epe", 2),
              f"{s['n_valid']}/{s['n']}"]
             for key, s in summaries.items()]
     table = tabulate(rows, header, tablefmt="github", disable_numparse=True)  # cells exactly as formatted here
-    return f"### Split `{split}` (n = {n})\n\n{table}\n"
+    note = "" if not any(s.get("ci95") for s in summaries.values()) else \
+        "\n\n`mean [lo, hi]`: percentile bootstrap 95 % interval over the scenes (2000 resamples)."
+    return f"### Split `{split}` (n = {n})\n\n{table}{note}\n"
 
 
 def json_safe(obj: Any) -> Any:

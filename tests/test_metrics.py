@@ -8,7 +8,7 @@ import pytest
 
 from pipeline.metrics import flow_epe, mask_iou, match_objects, observation_scores, sequence_iou
 from pipeline.scene_metrics import (
-    composition_accuracy, match_by_position, parameter_errors, scene_report, summarize,
+    composition_accuracy, markdown_table, match_by_position, parameter_errors, scene_report, summarize,
 )
 from pipeline.scene import Scene
 
@@ -269,3 +269,25 @@ def test_scene_report_and_summarize():
     assert s["composition_accuracy"] == 0.5 and s["full_iou"] == 0.5
     assert s["epe"] == pytest.approx(math.sqrt(2))                  # invalid rows left out
     assert s["parameter_errors"]["position"] == 0.0
+
+
+def test_summarize_bootstrap_intervals_cover_the_mean_and_shrink_with_n():
+    """ci95 of a 0/1 metric (composition hits at rate 0.5) is the binomial spread: about
+    +-1.96 * sqrt(0.25 / n); a constant metric has the mean as its interval; the table prints it."""
+    true = _scene([SPHERE])
+    seg = _seg(["00.", "..."], ["00.", "..."])
+    flow = np.zeros((1, 2, 3, 2), np.float32)
+    good, bad = scene_report(true, true, seg, flow, seg, flow), scene_report(true, None, seg, flow, None, None)
+    widths = {}
+    for n in (40, 400):
+        s = summarize([good, bad] * (n // 2))
+        lo, hi = s["ci95"]["composition_accuracy"]
+        assert lo < s["composition_accuracy"] == 0.5 < hi
+        widths[n] = hi - lo
+        assert widths[n] == pytest.approx(2 * 1.96 * math.sqrt(0.25 / n), rel=0.25)
+        assert s["ci95"]["epe"] == [0.0, 0.0]            # every valid row has EPE 0: no spread
+    assert widths[400] < widths[40] / 2.5                  # ~ 1/sqrt(n): sqrt(10) = 3.2
+    table = markdown_table({"m": summarize([good, bad] * 20)}, {"m": "M"}, {"m": "flow"}, "test")
+    assert "0.500 [" in table and "bootstrap 95 %" in table
+    empty = summarize([bad])                               # no valid row: no EPE, no interval
+    assert math.isnan(empty["epe"]) and all(math.isnan(v) for v in empty["ci95"]["epe"])

@@ -533,9 +533,17 @@ def test_stages_best_of_k_cmaes_score(tmp_path, monkeypatch):
                 if want[col] is None:
                     assert cell == "–", (method, split, col, cell)
                 else:
-                    assert float(cell) == pytest.approx(want[col], abs=5e-3 if col == "epe" else 5e-4), (method, split, col)
+                    value, _, interval = cell.partition(" [")
+                    assert float(value) == pytest.approx(want[col], abs=5e-3 if col == "epe" else 5e-4), (method, split, col)
+                    if col in want["ci95"]:   # one scene per split: the interval is the value itself
+                        lo, hi = (float(v) for v in interval.rstrip("]").split(","))
+                        assert lo == hi == pytest.approx(want[col], abs=5e-3), (method, split, col, cell)
                 checked += 1
     assert checked == len(labels) * 2 * len(columns)              # 5 methods x 2 splits
+    # paired gain over the first sample: in test_comp sample 0 did not parse (IoU 0), Best@2 is exact
+    gain = metrics["strict_iou_gain_over_first_sample"]["best_of_k"]["test_comp"]
+    assert gain["n"] == 1 and gain["mean"] == pytest.approx(1.0, abs=1e-3)
+    assert "Best@2 +1.000 [+1.000, +1.000]" in table
     # Best@1 beside Best@2 (as Best@4 beside Best@32): the first sample alone, which did not parse
     _run_stage("score", BEST_OF_PREFIXES=(1,))
     metrics = json.loads((tmp_path / "reports" / "metrics.json").read_text())
