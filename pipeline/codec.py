@@ -204,6 +204,15 @@ class SceneCodec:
         return {"quantizers": {k: [q.lo, q.hi, q.n] for k, q in self.q.items()}, "constants": self.constants,
                 "max_objects": self.max_objects, "decimals": self.decimals.model_dump()}
 
+    def extends(self, other: "SceneCodec") -> bool:
+        """Whether this codec is ``other`` with room for more objects (``max_objects`` >= other's, every
+        token range and constant the same): a model trained under ``other`` keeps the meaning of every
+        token under this one, whose grammar only allows longer answers."""
+        mine, theirs = self.to_dict(), other.to_dict()
+        return (self.max_objects >= other.max_objects
+                and {k: v for k, v in mine.items() if k != "max_objects"}
+                == {k: v for k, v in theirs.items() if k != "max_objects"})
+
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "SceneCodec":
         """Inverse of :meth:`to_dict`."""

@@ -437,6 +437,24 @@ def test_init_new_codec_keeps_the_weights_and_takes_the_params_codec(trained, tm
     assert all("forward" in m.__dict__ for m in _vision_attention_modules(model))   # load_model batches too
 
 
+def test_more_objects_only_extends_the_init_codec_without_init_new_codec(trained, tmp_path):
+    """A params codec that only allows more objects (tokens.max_objects 6, for the 5-6-object test
+    row) keeps every token's meaning: fine-tuning starts from the checkpoint without
+    model.init_new_codec, saves the wider codec, and its grammar then admits 6 objects."""
+    out, _, examples, cfg = trained
+    init_codec, _ = M.load_codec(out)
+    more = SceneCodec.from_dict({**init_codec.to_dict(), "max_objects": 6})
+    assert more.extends(init_codec) and not init_codec.extends(more)
+    ranges = SceneCodec.from_params({"sample": {"camera_pitch": [5.0, 85.0]}, "tokens": {"max_objects": 6}})
+    assert not ranges.extends(init_codec)                     # other token ranges: not an extension
+    start = cfg.model_copy(update={"init": str(out), "max_steps": 2, "eval_interval": 2, "eval_samples": 0})
+    result = M.train(examples, [], start, tmp_path / "more", codec=more, think_words=M.think_vocab(PARAMS, 6),
+                     progress=False)
+    assert result["step"] == 2 and result["train_loss"] < 1.0   # the overfit weights, not random ones
+    codec, _ = M.load_codec(tmp_path / "more")
+    assert codec.max_objects == 6 and codec.max_answer_tokens() > init_codec.max_answer_tokens()
+
+
 def test_device_is_checked():
     from pipeline.model.training import resolve_device
     assert resolve_device(TINY.model_copy(update={"device": "auto"})).type == ("cuda" if torch.cuda.is_available()

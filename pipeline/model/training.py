@@ -213,7 +213,7 @@ def train(
             model, tokenizer = load_model(cfg.init_dir)
             init_codec, init_words = load_codec(cfg.init_dir)
             if codec is not None and init_codec.to_dict() != codec.to_dict():
-                if not cfg.init_new_codec:
+                if not cfg.init_new_codec and not codec.extends(init_codec):  # more objects only: same tokens
                     raise ModelError(f"model.init: {cfg.init}: its codec.json differs from params (tokens/sample "
                                      f"ranges); use model.init: scratch, the same ranges, or model.init_new_codec")
                 # the init's weights, the params' codec: bins keep their tokens and change meaning
@@ -221,7 +221,7 @@ def train(
                     model.resize_token_embeddings(len(tokenizer))
             else:
                 codec, think_words = init_codec, init_words
-            if (cfg.init_dir / AUX_HEAD_FILE).exists() and init_codec.max_objects == codec.max_objects:
+            if (cfg.init_dir / AUX_HEAD_FILE).exists():   # its targets are clipped to its own max_objects
                 head = torch.load(cfg.init_dir / AUX_HEAD_FILE, map_location="cpu", weights_only=False)
         else:
             if tokenizer is None:
@@ -267,7 +267,7 @@ def train(
             if cfg.aux_weight > 0:
                 logits = head(tap.pooled(batch["video_grid_thw"])).float()
                 aux = torch.nn.functional.cross_entropy(
-                    logits.flatten(0, 1), composition_targets(comps, codec.max_objects).to(device).flatten())
+                    logits.flatten(0, 1), composition_targets(comps, head.max_objects).to(device).flatten())
         loss = lm_loss + cfg.aux_weight * aux
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
