@@ -152,6 +152,15 @@ from the silhouette"; the held-out splits were not looked at): on the true masks
 lies between the classes' quartiles (spheres 0.91-0.95 at the lower quartile, boxes 0.88-0.90 at
 the upper), where real balls also lie (lower quartile 0.93 on 8 tracks)."""
 
+SMALL_SILHOUETTE = 12
+"""Short side (px, :attr:`Track.diameter`) below which a silhouette's outline does not tell a ball
+from a box: rasterisation alone moves the ellipse IoU across :data:`ELLIPSE_FIT`. Measured on ideal
+rasterisations of discs and near-square rectangles at random angles and sub-pixel offsets, no clip
+(``benchmarks/silhouette_raster.py``, ``reports/silhouette_raster.md``): from 12 px on the test errs on
+at most 1 % of either class in every 1-px bin; below, up to 5 % of discs at 11-12 px, 15 % at 6-7 px.
+Real silhouettes add blur and segmentation error, so below it perception tries every shape
+(:func:`pipeline.perception.shape_candidates`)."""
+
 POLYGON_EPS = 0.04
 """Douglas-Peucker tolerance of :func:`silhouette_fit`'s polygon, as a fraction of the convex
 hull's perimeter: a box's outline (4-6 corners) survives it, an arc is cut into chords."""

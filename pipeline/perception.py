@@ -38,7 +38,7 @@ from pipeline.errors import UserError
 from pipeline.geometry import volume
 from pipeline.image_tracks import (BOX_FILL, CIRCLE_FILL, ELONGATED, Motion, Track, View, gravity_vote,
                                    round_silhouette, bounce_restitution, estimate_view, find_tracks, first_bounce, fit_tolerance, flight_gravity, gravity_evidence, initial_motion, initial_state_given, object_tracks,
-                                   speed_after_bounce, still_tracks, whole_frames)
+                                   SMALL_SILHOUETTE, speed_after_bounce, still_tracks, whole_frames)
 from pipeline.mjcf import compile_model
 from pipeline.rotation import axis_angle_quat, quat_mul
 from pipeline.scene import Camera, Scene
@@ -918,7 +918,19 @@ def shape_candidates(track: Track, view: View) -> list[str]:
       perception writes a cylinder there as a puck, whose outline is a disc.
     * Without an ellipse fit (every frame cut by the border) the rotated box's fill decides:
       below :data:`CIRCLE_FILL` round, above :data:`BOX_FILL` a box, in between both.
+    * A silhouette narrower than :data:`pipeline.image_tracks.SMALL_SILHOUETTE` does not tell
+      (rasterisation alone crosses the tests): the list above comes first, then every other shape,
+      so the re-simulation decides (:func:`pipeline.search.simplest_within` on ties).
     """
+    cands = _outline_candidates(track, view)
+    if track.diameter < SMALL_SILHOUETTE:
+        cands += [s for s in (["sphere", "cylinder", "box"] if view == "side" else ["cylinder", "sphere", "box"])
+                  if s not in cands]
+    return cands
+
+
+def _outline_candidates(track: Track, view: View) -> list[str]:
+    """:func:`shape_candidates` as the outline alone reads it, whatever its size."""
     round_ = ["sphere", "cylinder"] if view == "side" else ["cylinder", "sphere"]
     if math.isfinite(track.ellipse):
         if round_silhouette(track):
@@ -941,9 +953,10 @@ def silhouette_rank(track: Track, shape: str, view: View) -> int:
     its first choice. A round silhouette is a ball's or a disc's seen along its axis, which no
     outline tells apart, so there sphere and cylinder both rank 0; a shape not on the list (an
     upright cylinder tried for a standing silhouette, :func:`_hypotheses`) ranks after it.
+    A silhouette narrower than :data:`pipeline.image_tracks.SMALL_SILHOUETTE` ranks every shape 0.
     Used to break ties the re-simulation cannot (:func:`pipeline.search.simplest_within`)."""
     cands = shape_candidates(track, view)
-    if shape in ("sphere", "cylinder") and round_silhouette(track):
+    if shape in ("sphere", "cylinder") and round_silhouette(track) or track.diameter < SMALL_SILHOUETTE:
         return 0
     return cands.index(shape) if shape in cands else len(cands)
 

@@ -289,16 +289,18 @@ def test_side_view_rectangle_is_a_standing_cylinder_or_a_box_never_a_sphere():
     assert [o.shape for o in side] == ["sphere"], props.labels      # thrown: no disc end-on (generic viewpoint)
 
 
-def _gliding_disc(decel_g: float, v0: float) -> np.ndarray:
-    """(30, 120, 240) int8 ids of a disc 10 px across moving right from u = 20 px at ``v0`` px/s
-    and slowed by ``decel_g`` g at the size prior's scale (10 px = :data:`perception.SIZE_PRIOR`
-    m), 30 fps; -1 elsewhere."""
-    ppm = 10.0 / perception.SIZE_PRIOR
+def _gliding_disc(decel_g: float, v0: float, scale: float = 1.5) -> np.ndarray:
+    """(30, 120 s, 240 s) int8 ids (s = ``scale``) of a disc 10 s px across moving right from
+    u = 20 s px at ``v0`` s px/s and slowed by ``decel_g`` g at the size prior's scale (10 s px =
+    :data:`perception.SIZE_PRIOR` m), 30 fps; -1 elsewhere. At the default scale the disc (15 px)
+    is wider than :data:`pipeline.image_tracks.SMALL_SILHOUETTE`, so its outline is read."""
+    ppm = 10.0 * scale / perception.SIZE_PRIOR
     a = decel_g * perception.G * ppm                                   # px/s^2
-    seg = np.full((30, 120, 240), -1, np.int8)
+    seg = np.full((30, int(120 * scale), int(240 * scale)), -1, np.int8)
     for t in range(30):
         s = t / 30.0
-        cv2.circle(seg[t], (int(round(20 + v0 * s - 0.5 * a * s * s)), 60), 5, 0, -1)
+        cv2.circle(seg[t], (int(round(scale * (20 + v0 * s) - 0.5 * a * s * s)), int(60 * scale)),
+                   int(round(5 * scale)), 0, -1)
     return seg
 
 
@@ -323,6 +325,26 @@ def test_a_round_silhouette_that_keeps_its_speed_rolls_one_that_slows_like_dry_f
     assert shapes(rolling) == {"sphere"}
     assert shapes(sliding) == {"sphere", "cylinder"}
     assert shapes(resting) == {"sphere", "cylinder"}
+
+
+def test_an_outline_too_small_to_read_leaves_every_shape_to_the_resimulation():
+    """A disc 8 px across (below image_tracks.SMALL_SILHOUETTE: ideal rasterisations of discs and
+    squares that small cross the ellipse test, benchmarks/silhouette_raster.py) is proposed as every
+    shape, the outline's reading first; the same disc at 15 px is read as round (no box)."""
+    def shapes(scale: float) -> list[set[str]]:
+        seg = _gliding_disc(0.3, 330.0, scale=scale)
+        track = perception.still_tracks(seg, 4)[0]
+        props = perception.propose(seg, None, 30.0, 1.0, still=True)
+        return track, {o.shape for sc, lab in zip(props.scenes, props.labels) if lab.startswith("top") for o in sc.objects}
+
+    small, small_shapes = shapes(0.8)
+    assert small.diameter < perception.SMALL_SILHOUETTE
+    cands = perception.shape_candidates(small, "top")
+    assert cands[:2] == ["cylinder", "sphere"] and sorted(cands) == ["box", "cylinder", "sphere"]
+    assert small_shapes == {"box", "cylinder", "sphere"}
+    assert all(perception.silhouette_rank(small, s, "top") == 0 for s in cands)
+    large, large_shapes = shapes(1.5)
+    assert large.diameter >= perception.SMALL_SILHOUETTE and large_shapes == {"cylinder", "sphere"}
 
 
 def _puck_clip_without_model(tmp_path, monkeypatch, iterations: int) -> tuple[Path, dict]:
