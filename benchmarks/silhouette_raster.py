@@ -7,9 +7,9 @@ alone moves that IoU by more than the gap between the classes. This benchmark me
 on ideal silhouettes that share nothing with any clip or generator: a disc (a sphere's outline) and
 a near-square rectangle (a box's; aspect 0.8-1.0), each at a random angle and sub-pixel offset,
 drawn at ``--supersample`` x resolution and thresholded at half coverage (the pixel is the object's
-where the object covers half of it). The size of each silhouette is measured as
-:attr:`pipeline.image_tracks.Track.diameter` is: the short side of the rotated bounding box
-(``cv2.minAreaRect``).
+where the object covers half of it). The size of each silhouette is measured by the
+function that gives :attr:`pipeline.image_tracks.Track.diameter` (``_box_stats``: the short side of
+the rotated bounding box of the pixels, in pixel extents).
 
 Per 1-px bin of that size: the discs' 5th percentile of ellipse IoU, the boxes' 95th, and the
 error of the test both ways (a disc called not round, a box called round). The smallest size from
@@ -28,7 +28,6 @@ import argparse
 import sys
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -38,7 +37,7 @@ for p in (ROOT, ROOT / "benchmarks"):
 
 from provenance import tree_id  # noqa: E402
 from pipeline.atomic import write_json, write_text  # noqa: E402
-from pipeline.image_tracks import ELLIPSE_FIT, SMALL_SILHOUETTE, silhouette_fit  # noqa: E402
+from pipeline.image_tracks import ELLIPSE_FIT, SMALL_SILHOUETTE, _box_stats, silhouette_fit  # noqa: E402
 
 
 def raster(kind: str, size: float, rng: np.random.Generator, supersample: int = 8) -> np.ndarray:
@@ -58,13 +57,6 @@ def raster(kind: str, size: float, rng: np.random.Generator, supersample: int = 
     return inside.reshape(n, s, n, s).mean(axis=(1, 3)) >= 0.5
 
 
-def short_side(mask: np.ndarray) -> float:
-    """Short side (px) of the rotated bounding box of the mask's largest outer contour."""
-    contours, _ = cv2.findContours(mask.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
-    w, h = cv2.minAreaRect(max(contours, key=cv2.contourArea))[1]
-    return float(min(w, h))
-
-
 def measure(sizes: np.ndarray, per_size: int, seed: int, supersample: int) -> list[dict]:
     """One row per silhouette: ``kind``, drawn ``size``, measured ``short_side``, ``ellipse`` IoU."""
     rng = np.random.default_rng(seed)
@@ -75,7 +67,7 @@ def measure(sizes: np.ndarray, per_size: int, seed: int, supersample: int) -> li
                 m = raster(kind, float(size), rng, supersample)
                 fit = silhouette_fit(m)
                 if fit is not None:
-                    rows.append({"kind": kind, "size": float(size), "short_side": short_side(m), "ellipse": fit[0]})
+                    rows.append({"kind": kind, "size": float(size), "short_side": _box_stats(m)[1], "ellipse": fit[0]})
     return rows
 
 
@@ -117,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--report", type=Path, default=ROOT / "reports" / "silhouette_raster")
     args = ap.parse_args(argv)
     rows = measure(np.linspace(3.0, 16.0, 53), args.per_size, args.seed, args.supersample)
-    bins = by_bin(rows, 3, 16)
+    bins = by_bin(rows, 3, 17)
     reliable = smallest_reliable(bins, args.max_error)
     report = {"command": "python benchmarks/silhouette_raster.py " + " ".join(argv if argv is not None else sys.argv[1:]),
               "commit": tree_id(), "ellipse_fit": ELLIPSE_FIT, "max_error": args.max_error,

@@ -46,6 +46,12 @@ INTERVAL_METRICS = ("composition_accuracy", "initial_iou", "full_iou", "strict_f
 with intervals); :func:`markdown_table` prints them as ``mean [lo, hi]``."""
 
 
+def defined(value: Any) -> bool:
+    """Whether a report value counts in a mean: not None and not NaN (e.g. the EPE of an invalid
+    prediction, or a strict IoU with no frame to score)."""
+    return value is not None and not (isinstance(value, float) and math.isnan(value))
+
+
 # --------------------------------------------------------------------------- scenes
 def composition_accuracy(true_scenes: Sequence[Scene], pred_scenes: Sequence[Scene | None]) -> float:
     """Fraction of scenes whose predicted multiset of shapes equals the true one.
@@ -195,28 +201,22 @@ def summarize(rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
         scenes, seed 0; Efron & Tibshirani 1993, ch. 13), NaN without values.
     """
     def values(key: str, valid_only: bool = False) -> list[float]:
-        vals = [r[key] for r in rows if (r["valid"] or not valid_only)]
-        return [float(v) for v in vals if v is not None and not (isinstance(v, float) and math.isnan(v))]
+        return [float(r[key]) for r in rows if (r["valid"] or not valid_only) and defined(r[key])]
 
     def mean(key: str, valid_only: bool = False) -> float:
         vals = values(key, valid_only)
         return float(np.mean(vals)) if vals else math.nan
 
-    row_keys = {"composition_accuracy": ("composition_correct", False), "initial_iou": ("initial_iou", False),
-                "full_iou": ("full_iou", False), "strict_full_iou": ("strict_full_iou", False),
-                "epe": ("epe", True)}
+    sources = {"composition_accuracy": ("composition_correct", False), "initial_iou": ("initial_iou", False),
+               "full_iou": ("full_iou", False), "strict_full_iou": ("strict_full_iou", False),
+               "foreground_iou_initial": ("foreground_iou_initial", False),
+               "foreground_iou": ("foreground_iou_full", False), "epe": ("epe", True)}   # summary key: (row key, valid only)
     return {
         "n": len(rows),
         "n_valid": int(sum(bool(r["valid"]) for r in rows)),
-        "composition_accuracy": mean("composition_correct"),
-        "initial_iou": mean("initial_iou"),
-        "full_iou": mean("full_iou"),
-        "strict_full_iou": mean("strict_full_iou"),
-        "foreground_iou_initial": mean("foreground_iou_initial"),
-        "foreground_iou": mean("foreground_iou_full"),
-        "epe": mean("epe", valid_only=True),
+        **{m: mean(*src) for m, src in sources.items()},
         "parameter_errors": {k: mean(f"param/{k}", valid_only=True) for k in OBJECT_FIELDS + SCENE_FIELDS},
-        "ci95": {m: mean_ci95(values(*row_keys[m]))["ci95"] for m in INTERVAL_METRICS},
+        "ci95": {m: mean_ci95(values(*sources[m]))["ci95"] for m in INTERVAL_METRICS},
     }
 
 

@@ -24,7 +24,7 @@ from pipeline.metrics import mean_ci95
 from pipeline.mjcf import SimOptions
 from pipeline.params import load_params, path_of, typed_section
 from pipeline.scene import Scene, SceneError
-from pipeline.scene_metrics import PARAMETER_UNITS, json_safe, markdown_table, scene_report, summarize
+from pipeline.scene_metrics import PARAMETER_UNITS, defined, json_safe, markdown_table, scene_report, summarize
 from pipeline.search import (EvaluatorPool, Observations, SearchConfig, at_clip_timing, baseline_scene, best_index,
                              parse_sample, plot_history, samples_by_scene)
 
@@ -55,10 +55,7 @@ def paired_gain(rows: list[dict], reference: list[dict], key: str = "strict_full
     order, from :func:`pipeline.scene_metrics.scene_report`) with its percentile bootstrap 95 %
     interval (:func:`pipeline.metrics.mean_ci95`); scenes where either value is undefined (None or
     NaN) are left out. Paired, so it is tighter than the two methods' own intervals."""
-    def ok(v) -> bool:
-        return v is not None and not (isinstance(v, float) and math.isnan(v))
-
-    return mean_ci95([a[key] - b[key] for a, b in zip(rows, reference, strict=True) if ok(a[key]) and ok(b[key])])
+    return mean_ci95([a[key] - b[key] for a, b in zip(rows, reference, strict=True) if defined(a[key]) and defined(b[key])])
 
 
 def main() -> None:
@@ -124,8 +121,8 @@ def main() -> None:
              f"Observed masks: rendered ground truth; observed flow: `{flow_method}`; IoU and EPE on "
              f"{width}x{height} re-simulations (EPE in px). CMA-ES: popsize {cfg.popsize} x {cfg.iterations} "
              f"iterations, free: {', '.join(cfg.free)}. Invalid predictions count as IoU 0 and are left out of EPE.", ""]
+    gains = metrics["strict_iou_gain_over_first_sample"]
     for s in splits:
-        gains = metrics["strict_iou_gain_over_first_sample"]
         table += [markdown_table({m: metrics["methods"][m][s] for m in methods}, labels, inputs, s),
                   "Strict IoU minus the first sample's, paired per scene (mean [95 % bootstrap interval]): "
                   + "; ".join(f"{labels[m]} {g[s]['mean']:+.3f} [{g[s]['ci95'][0]:+.3f}, {g[s]['ci95'][1]:+.3f}]"

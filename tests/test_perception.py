@@ -331,7 +331,7 @@ def test_an_outline_too_small_to_read_leaves_every_shape_to_the_resimulation():
     """A disc 8 px across (below image_tracks.SMALL_SILHOUETTE: ideal rasterisations of discs and
     squares that small cross the ellipse test, benchmarks/silhouette_raster.py) is proposed as every
     shape, the outline's reading first; the same disc at 15 px is read as round (no box)."""
-    def shapes(scale: float) -> list[set[str]]:
+    def shapes(scale: float) -> tuple[perception.Track, set[str]]:
         seg = _gliding_disc(0.3, 330.0, scale=scale)
         track = perception.still_tracks(seg, 4)[0]
         props = perception.propose(seg, None, 30.0, 1.0, still=True)
